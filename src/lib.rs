@@ -1,0 +1,15 @@
+//! vamos: Visual Anomaly MOnitoring Service.
+//!
+//! vamos compares the motion a robot's head camera observes with the motion it expects
+//! and scores every frame for anomalies (Thoduka, Gall and Plöger, IROS 2021). This crate
+//! is the library behind the `vamos` binary.
+//!
+//! Modules, in dependency order (a module imports only those before it):
+//! - [`vision`]: images, TV-L1 optical flow, Fourier-Mellin registration, resizing and
+//!   the network-input preprocessing. Synchronous, no I/O beyond image files.
+//! - [`config`]: service settings composed of each module's `*Config`.
+//! - [`telemetry`]: `tracing` set-up (human or JSON logs).
+
+pub mod config;
+pub mod telemetry;
+pub mod vision;

@@ -1,0 +1,1 @@
+//! Fourier-Mellin registration. (Being written.)
