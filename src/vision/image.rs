@@ -176,11 +176,18 @@ impl GrayImage {
             reason: e.to_string(),
         })?;
         let (w, h) = (img.width() as usize, img.height() as usize);
-        let rgb = img.to_rgb32f();
-        let data = rgb
-            .pixels()
-            .map(|p| 255.0 * (0.299 * p[0] + 0.587 * p[1] + 0.114 * p[2]))
-            .collect();
+        let data = if img.color().has_color() {
+            img.to_rgb32f()
+                .pixels()
+                .map(|p| 255.0 * (0.299 * p[0] + 0.587 * p[1] + 0.114 * p[2]))
+                .collect()
+        } else {
+            // Gray files keep their exact values (8-bit: integers 0..=255).
+            match img.as_luma8() {
+                Some(l8) => l8.as_raw().iter().map(|&v| v as f32).collect(),
+                None => img.to_luma32f().pixels().map(|p| 255.0 * p[0]).collect(),
+            }
+        };
         let out = Self::new(w, h, data)?;
         out.validate()?;
         Ok(out)
@@ -361,7 +368,10 @@ mod tests {
         assert_eq!(a.average_endpoint_error(&b, None), Some(5.0));
         let mask: Vec<bool> = (0..16).map(|i| i < 8).collect();
         assert_eq!(a.average_endpoint_error(&b, Some(&mask)), Some(5.0));
-        assert_eq!(a.average_endpoint_error(&FlowField::zeros(3, 4), None), None);
+        assert_eq!(
+            a.average_endpoint_error(&FlowField::zeros(3, 4), None),
+            None
+        );
     }
 
     #[test]
