@@ -1,1 +1,167 @@
-//! Service settings.
+//! Settings: defaults, then an optional TOML file, then `VAMOS_*` environment variables,
+//! then a few CLI flags (applied by `main.rs`).
+//!
+//! Environment variables name a key path with `__` between levels, e.g.
+//! `VAMOS_LOG__FORMAT=json` or `VAMOS_VISION__FLOW__WARPS=3`. `VAMOS_CONFIG` names the
+//! file and is not a key. Unknown keys, in the file or the environment, are errors: a
+//! typo must not silently fall back to a default.
+
+use crate::telemetry::LogConfig;
+use crate::vision::flow::FlowParams;
+use crate::vision::preprocess::NetworkInputParams;
+use crate::vision::registration::RegistrationParams;
+use figment::Figment;
+use figment::providers::{Format, Serialized, Toml};
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+/// The environment variable that names the settings file.
+pub const CONFIG_ENV: &str = "VAMOS_CONFIG";
+
+/// Errors of loading settings.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    /// The named settings file does not exist.
+    #[error("settings file {path} does not exist")]
+    MissingFile {
+        /// The path.
+        path: String,
+    },
+    /// A value is malformed or a key unknown.
+    #[error("invalid settings: {0}")]
+    Invalid(String),
+}
+
+/// The `[vision]` section: parameters of the vision kernels.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct VisionConfig {
+    /// Worker threads for the vision kernels; 0 = one per core.
+    pub threads: usize,
+    /// TV-L1 optical flow.
+    pub flow: FlowParams,
+    /// Fourier-Mellin registration.
+    pub registration: RegistrationParams,
+    /// Flow -> network input.
+    pub network_input: NetworkInputParams,
+}
+
+/// All settings of the `vamos` binary.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct Settings {
+    /// Logging.
+    pub log: LogConfig,
+    /// Vision kernels.
+    pub vision: VisionConfig,
+}
+
+impl Settings {
+    /// Loads defaults, then `file` (if given), then `VAMOS_*` variables from the process
+    /// environment.
+    pub fn load(file: Option<&Path>) -> Result<Self, ConfigError> {
+        Self::load_with_env(file, std::env::vars())
+    }
+
+    /// As [`Settings::load`] with an explicit environment (for tests).
+    pub fn load_with_env(
+        file: Option<&Path>,
+        env: impl IntoIterator<Item = (String, String)>,
+    ) -> Result<Self, ConfigError> {
+        let mut fig = Figment::from(Serialized::defaults(Settings::default()));
+        if let Some(path) = file {
+            if !path.is_file() {
+                return Err(ConfigError::MissingFile {
+                    path: path.display().to_string(),
+                });
+            }
+            fig = fig.merge(Toml::file_exact(path));
+        }
+        // Parse the given variables with figment's own value syntax (numbers, bools,
+        // strings), keys lower-cased, `__` as the level separator.
+        let mut dict = figment::value::Dict::new();
+        for (key, value) in env {
+            let Some(rest) = key.strip_prefix("VAMOS_") else {
+                continue;
+            };
+            if key == CONFIG_ENV || rest.is_empty() {
+                continue;
+            }
+            let path: Vec<String> = rest.split("__").map(|s| s.to_ascii_lowercase()).collect();
+            insert_path(&mut dict, &path, parse_env_value(&value));
+        }
+        fig = fig.merge(Serialized::defaults(dict));
+        fig.extract().map_err(|e| ConfigError::Invalid(e.to_string()))
+    }
+}
+
+fn parse_env_value(raw: &str) -> figment::value::Value {
+    // Env::parse-like: try TOML scalar syntax, fall back to a plain string.
+    raw.parse::<figment::value::Value>()
+        .unwrap_or_else(|_| figment::value::Value::from(raw.to_string()))
+}
+
+fn insert_path(dict: &mut figment::value::Dict, path: &[String], value: figment::value::Value) {
+    use figment::value::{Dict, Value};
+    match path {
+        [] => {}
+        [last] => {
+            dict.insert(last.clone(), value);
+        }
+        [first, rest @ ..] => {
+            let entry = dict
+                .entry(first.clone())
+                .or_insert_with(|| Value::from(Dict::new()));
+            if let Value::Dict(_, inner) = entry {
+                insert_path(inner, rest, value);
+            } else {
+                let mut inner = Dict::new();
+                insert_path(&mut inner, rest, value);
+                *entry = Value::from(inner);
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::io::Write;
+
+    fn env(pairs: &[(&str, &str)]) -> Vec<(String, String)> {
+        pairs.iter().map(|(a, b)| (a.to_string(), b.to_string())).collect()
+    }
+
+    #[test]
+    fn defaults_are_the_recommended_values() {
+        let s = Settings::load_with_env(None, env(&[])).unwrap();
+        assert_eq!(s, Settings::default());
+        assert_eq!(s.vision.flow, FlowParams::default());
+    }
+
+    #[test]
+    fn file_then_environment_override() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("vamos.toml");
+        let mut f = std::fs::File::create(&path).unwrap();
+        writeln!(f, "[log]\nformat = \"json\"\n[vision]\nthreads = 3\n[vision.flow]\nwarps = 2").unwrap();
+        let s = Settings::load_with_env(
+            Some(&path),
+            env(&[("VAMOS_VISION__THREADS", "1"), ("VAMOS_CONFIG", "ignored"), ("OTHER", "x")]),
+        )
+        .unwrap();
+        assert_eq!(s.log.format, crate::telemetry::LogFormat::Json);
+        assert_eq!(s.vision.threads, 1, "environment beats the file");
+        assert_eq!(s.vision.flow.warps, 2);
+    }
+
+    #[test]
+    fn unknown_keys_and_bad_values_are_errors() {
+        let e = Settings::load_with_env(None, env(&[("VAMOS_VISION__THREDS", "1")])).unwrap_err();
+        assert!(e.to_string().contains("threds"), "{e}");
+        let e = Settings::load_with_env(None, env(&[("VAMOS_VISION__THREADS", "many")])).unwrap_err();
+        assert!(matches!(e, ConfigError::Invalid(_)));
+        let e = Settings::load_with_env(Some(Path::new("/nonexistent.toml")), env(&[])).unwrap_err();
+        assert!(matches!(e, ConfigError::MissingFile { .. }));
+    }
+}

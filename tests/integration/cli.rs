@@ -1,0 +1,135 @@
+//! The `vamos` binary end to end: real files in, real files and JSON out, clear errors.
+
+use std::path::Path;
+use std::process::{Command, Output};
+use vamos::vision::flowio::read_flo;
+use vamos::vision::synthetic::{self, Motion};
+
+fn vamos(args: &[&str], env: &[(&str, &str)]) -> Output {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_vamos"));
+    cmd.args(args).env_remove("VAMOS_CONFIG").env_remove("RUST_LOG");
+    for (k, v) in env {
+        cmd.env(k, v);
+    }
+    cmd.output().expect("the vamos binary runs")
+}
+
+fn text(b: &[u8]) -> String {
+    String::from_utf8_lossy(b).into_owned()
+}
+
+fn assert_clean_failure(out: &Output, needle: &str) {
+    let err = text(&out.stderr);
+    assert!(!out.status.success(), "expected failure, stderr: {err}");
+    assert!(err.contains(needle), "stderr lacks {needle:?}: {err}");
+    assert!(!err.contains("panicked"), "panic: {err}");
+}
+
+fn write_pair(dir: &Path, motion: &Motion) -> vamos::vision::FlowField {
+    let (a, b, truth) = synthetic::pair(160, 120, motion, 21);
+    a.save_png(&dir.join("a.png")).unwrap();
+    b.save_png(&dir.join("b.png")).unwrap();
+    truth
+}
+
+#[test]
+fn flow_writes_colour_image_and_raw_field() {
+    let dir = tempfile::tempdir().unwrap();
+    let truth = write_pair(dir.path(), &Motion::Translation { dx: 2.0, dy: 1.0 });
+    let p = |n: &str| dir.path().join(n).display().to_string();
+    let out = vamos(
+        &["flow", &p("a.png"), &p("b.png"), "-o", &p("f.png"), "--raw", &p("f.flo"), "--threads", "1", "--timing"],
+        &[],
+    );
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let line: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(line["width"], 160);
+    assert_eq!(line["threads"], 1);
+    assert!(line["ms_min"].as_f64().unwrap() > 0.0);
+    let flow = read_flo(&dir.path().join("f.flo")).unwrap();
+    let aee = flow.average_endpoint_error(&truth, None).unwrap();
+    assert!(aee < 0.2, "forward flow of a (2, 1) shift, AEE {aee}");
+    let png = image::open(dir.path().join("f.png")).unwrap();
+    assert_eq!((png.width(), png.height()), (160, 120));
+}
+
+#[test]
+fn register_prints_the_transform_as_json() {
+    let dir = tempfile::tempdir().unwrap();
+    write_pair(
+        dir.path(),
+        &Motion::Similarity {
+            tx: 3.0,
+            ty: -2.0,
+            scale: 1.0,
+            rotation_deg: 0.0,
+        },
+    );
+    let p = |n: &str| dir.path().join(n).display().to_string();
+    let out = vamos(&["register", &p("a.png"), &p("b.png")], &[]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let keys: Vec<&str> = v.as_object().unwrap().keys().map(|k| k.as_str()).collect();
+    assert_eq!(keys.len(), 5, "exactly the documented keys: {keys:?}");
+    assert!((v["tx"].as_f64().unwrap() - 3.0).abs() < 0.3, "{v}");
+    assert!((v["ty"].as_f64().unwrap() + 2.0).abs() < 0.3, "{v}");
+    assert!((v["scale"].as_f64().unwrap() - 1.0).abs() < 0.01, "{v}");
+    assert!(v["rotation_deg"].as_f64().unwrap().abs() < 0.5, "{v}");
+}
+
+#[test]
+fn bad_inputs_fail_with_clear_messages() {
+    let dir = tempfile::tempdir().unwrap();
+    write_pair(dir.path(), &Motion::Translation { dx: 1.0, dy: 0.0 });
+    let p = |n: &str| dir.path().join(n).display().to_string();
+    let missing = vamos(&["flow", &p("nope.png"), &p("b.png"), "-o", &p("f.png")], &[]);
+    assert_clean_failure(&missing, "nope.png");
+    // Not an image at all.
+    std::fs::write(dir.path().join("junk.png"), b"not a png").unwrap();
+    assert_clean_failure(&vamos(&["register", &p("junk.png"), &p("b.png")], &[]), "junk.png");
+    // Different sizes.
+    vamos::vision::GrayImage::zeros(80, 60).save_png(&dir.path().join("small.png")).unwrap();
+    let mismatch = vamos(&["flow", &p("a.png"), &p("small.png"), "-o", &p("f.png")], &[]);
+    assert_clean_failure(&mismatch, "size");
+    assert_clean_failure(&vamos(&["register", &p("a.png"), &p("small.png")], &[]), "size");
+    let preset = vamos(&["flow", &p("a.png"), &p("b.png"), "-o", &p("f.png"), "--preset", "warp9"], &[]);
+    assert_clean_failure(&preset, "warp9");
+}
+
+#[test]
+fn settings_come_from_file_and_environment() {
+    let out = vamos(&["config"], &[("VAMOS_VISION__FLOW__WARPS", "3")]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let toml = text(&out.stdout);
+    assert!(toml.contains("warps = 3"), "{toml}");
+    assert_clean_failure(&vamos(&["config"], &[("VAMOS_VISION__WRAPS", "3")]), "wraps");
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("v.toml");
+    std::fs::write(&file, "[log]\nformat = \"json\"\nlevel = \"debug\"\n").unwrap();
+    let out = vamos(&["--config", &file.display().to_string(), "config"], &[]);
+    assert!(out.status.success());
+    assert!(text(&out.stdout).contains("format = \"json\""));
+    // JSON logs on stderr, one object per line.
+    let first = text(&out.stderr).lines().next().map(str::to_owned).unwrap_or_default();
+    assert!(serde_json::from_str::<serde_json::Value>(&first).is_ok(), "not JSON: {first}");
+}
+
+#[test]
+fn demo_runs_on_the_embedded_pairs() {
+    let dir = tempfile::tempdir().unwrap();
+    let out_dir = dir.path().join("demo");
+    let out = vamos(
+        &["demo", "--out", &out_dir.display().to_string(), "--width", "160", "--height", "120"],
+        &[],
+    );
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out_dir.join("summary.json")).unwrap()).unwrap();
+    let cases = summary.as_array().unwrap();
+    assert_eq!(cases.len(), 4);
+    for c in cases {
+        let aee = c["default"]["aee_px"].as_f64().unwrap();
+        assert!(aee < 0.5, "{}: AEE {aee}", c["case"]);
+    }
+    assert!(out_dir.join("translation_flow_default.png").is_file());
+}

@@ -1,0 +1,5 @@
+//! Integration tests: one binary, one module per area.
+
+mod architecture;
+mod cli;
+mod flow_golden;
