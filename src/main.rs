@@ -1,1 +1,3 @@
+//! The `vamos` binary. (Being written.)
+
 fn main() {}
