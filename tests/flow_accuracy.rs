@@ -73,3 +73,18 @@ fn default_moving_square_160x120() {
 fn default_translation_320x240() {
     assert!(aee("translation", 320, 240, &FlowParams::default()) < 0.1);
 }
+
+/// The real-time preset trades accuracy for speed (see `FlowParams::realtime`).
+#[test]
+fn realtime_all_cases_160x120() {
+    let p = FlowParams::realtime();
+    for (name, bound) in [
+        ("translation", 0.36),
+        ("rotation", 0.36),
+        ("smooth", 0.35),
+        ("square", 0.06),
+    ] {
+        let e = aee(name, 160, 120, &p);
+        assert!(e < bound, "{name}: AEE {e} >= {bound}");
+    }
+}
