@@ -1,1 +1,470 @@
-//! TV-L1 optical flow. (Being written.)
+//! TV-L1 optical flow: the duality-based method of Zach, Pock and Bischof (2007) with
+//! Chambolle's projection, coarse-to-fine with warps, as OpenCV's `DualTVL1`.
+//!
+//! # Direction and units
+//! [`tvl1`]`(prev, cur)` returns the **forward** flow `prev -> cur` in **pixels of the
+//! input images**: the content at `(x, y)` in `prev` is at `(x + u, y + v)` in `cur` (x
+//! right, y down). This is what OpenCV's `DualTVL1OpticalFlow::calc(prev, cur)` returns.
+//! (The paper's reference code called it with the frames swapped, current -> previous,
+//! i.e. the negative of forward motion; vamos always uses forward flow.) Intensities are
+//! in 0..=255 units; the data weight `lambda` is tuned for that range.
+//!
+//! # Layout
+//! - [`params`]: [`FlowParams`] (OpenCV's defaults), the `realtime` preset, validation.
+//! - `pyramid`: OpenCV-geometry bilinear pyramid, gradients, flow resizing.
+//! - `warp`: bicubic / bilinear warp and linearisation of the data term.
+//! - `median`: vectorised median filter of the flow.
+//! - `tvl1`: the per-level solver, with a scalar reference and a fused fast kernel.
+//!
+//! # Size rule
+//! Levels smaller than [`MIN_LEVEL_SIZE_PX`] on a side are not built (so small images
+//! use fewer than `n_scales` levels, as OpenCV does); an image smaller than that on a
+//! side is [`FlowError::TooSmall`].
+//!
+//! # Threads
+//! Every kernel runs on the ambient rayon pool over row bands. Results are bit-for-bit
+//! identical whatever the number of threads (tested with pools of 1 and 2).
+//!
+//! This module imports only [`crate::vision::image`] (and `synthetic` in tests).
+
+mod median;
+pub mod params;
+mod pyramid;
+mod tvl1;
+mod warp;
+
+pub use params::{FlowParams, Interpolation, PRESET_NAMES};
+
+use crate::vision::image::{FlowField, GrayImage};
+use pyramid::{Pyramid, level_count, resize_bilinear};
+use tvl1::{Kernel, solve_level};
+
+/// Smallest side of a pyramid level, pixels; also the smallest accepted image side.
+pub const MIN_LEVEL_SIZE_PX: usize = 16;
+
+/// Errors of the flow estimation.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum FlowError {
+    /// The two images (or a frame and the estimator's previous frame) differ in size.
+    #[error("image is {width}x{height} but {expected_width}x{expected_height} was expected")]
+    SizeMismatch {
+        /// Width of the first / cached image, pixels.
+        expected_width: usize,
+        /// Height of the first / cached image, pixels.
+        expected_height: usize,
+        /// Width of the offending image, pixels.
+        width: usize,
+        /// Height of the offending image, pixels.
+        height: usize,
+    },
+    /// An image has no pixels.
+    #[error("image is empty ({width}x{height})")]
+    EmptyImage {
+        /// Width, pixels.
+        width: usize,
+        /// Height, pixels.
+        height: usize,
+    },
+    /// An image is too small for the method.
+    #[error("image is {width}x{height}; TV-L1 needs at least {min_side_px}x{min_side_px}")]
+    TooSmall {
+        /// Width, pixels.
+        width: usize,
+        /// Height, pixels.
+        height: usize,
+        /// Smallest accepted side, pixels.
+        min_side_px: usize,
+    },
+    /// A pixel is NaN or infinite.
+    #[error("pixel ({x}, {y}) is not finite ({value})")]
+    NonFinite {
+        /// Column of the first offending pixel.
+        x: usize,
+        /// Row of the first offending pixel.
+        y: usize,
+        /// Its value.
+        value: f32,
+    },
+    /// A parameter is out of range.
+    #[error("invalid flow parameter {field}: {reason}")]
+    InvalidParams {
+        /// The field of [`FlowParams`].
+        field: &'static str,
+        /// What is wrong with it.
+        reason: String,
+    },
+    /// [`FlowParams::preset`] got an unknown name.
+    #[error("unknown flow preset {name:?} (known: {known})")]
+    UnknownPreset {
+        /// The name given.
+        name: String,
+        /// The names accepted.
+        known: String,
+    },
+}
+
+/// Checks that `image` can be processed (non-empty, large enough, finite).
+fn validate_image(image: &GrayImage) -> Result<(), FlowError> {
+    let (width, height) = image.size();
+    if width == 0 || height == 0 {
+        return Err(FlowError::EmptyImage { width, height });
+    }
+    if width < MIN_LEVEL_SIZE_PX || height < MIN_LEVEL_SIZE_PX {
+        return Err(FlowError::TooSmall {
+            width,
+            height,
+            min_side_px: MIN_LEVEL_SIZE_PX,
+        });
+    }
+    if let Some(i) = image.data().iter().position(|v| !v.is_finite()) {
+        return Err(FlowError::NonFinite {
+            x: i % width,
+            y: i / width,
+            value: image.data()[i],
+        });
+    }
+    Ok(())
+}
+
+/// A frame's pyramid, cached between pushes.
+#[derive(Clone, Debug)]
+struct Cached {
+    width: usize,
+    height: usize,
+    pyramid: Pyramid,
+}
+
+/// Streaming TV-L1: push frames, get the flow from the previous frame to each new one.
+///
+/// Each frame's pyramid (images and gradients at every level) is built exactly once:
+/// it serves as the target of the flow when the frame is pushed and as the source when
+/// the next frame is pushed.
+#[derive(Clone, Debug)]
+pub struct FlowEstimator {
+    params: FlowParams,
+    prev: Option<Cached>,
+    kernel: Kernel,
+}
+
+impl FlowEstimator {
+    /// An estimator with validated `params` and no cached frame.
+    pub fn new(params: FlowParams) -> Result<Self, FlowError> {
+        params.validate()?;
+        Ok(Self {
+            params,
+            prev: None,
+            kernel: Kernel::Fast,
+        })
+    }
+
+    /// The parameters.
+    pub fn params(&self) -> &FlowParams {
+        &self.params
+    }
+
+    /// Forgets the cached frame: the next push returns `None`.
+    pub fn reset(&mut self) {
+        self.prev = None;
+    }
+
+    /// Adds a frame. Returns `None` for the first frame (after `new` or `reset`), else
+    /// the forward flow from the previous frame to `frame`.
+    ///
+    /// A frame that fails validation ([`FlowError::EmptyImage`], [`FlowError::TooSmall`],
+    /// [`FlowError::NonFinite`]) or differs in size from the cached one
+    /// ([`FlowError::SizeMismatch`]) is rejected and leaves the cache as it was; call
+    /// [`reset`](Self::reset) to start over at a new size.
+    pub fn push(&mut self, frame: &GrayImage) -> Result<Option<FlowField>, FlowError> {
+        validate_image(frame)?;
+        let (width, height) = frame.size();
+        if let Some(prev) = &self.prev
+            && (prev.width, prev.height) != (width, height)
+        {
+            return Err(FlowError::SizeMismatch {
+                expected_width: prev.width,
+                expected_height: prev.height,
+                width,
+                height,
+            });
+        }
+        let p = &self.params;
+        let levels = level_count(width, height, p.n_scales, p.scale_step, MIN_LEVEL_SIZE_PX);
+        let finest = p.finest_scale.min(levels - 1);
+        let pyramid = Pyramid::build(frame.data(), width, height, levels, p.scale_step, finest);
+        let flow = self
+            .prev
+            .as_ref()
+            .map(|prev| self.flow_between(&prev.pyramid, &pyramid, width, height, finest));
+        self.prev = Some(Cached {
+            width,
+            height,
+            pyramid,
+        });
+        Ok(flow)
+    }
+
+    /// Coarse-to-fine TV-L1 between two pyramids of the same geometry.
+    fn flow_between(
+        &self,
+        p0: &Pyramid,
+        p1: &Pyramid,
+        width: usize,
+        height: usize,
+        finest: usize,
+    ) -> FlowField {
+        let p = &self.params;
+        let coarsest = p0.levels.len() - 1;
+        let top = &p0.levels[coarsest];
+        let mut u1 = vec![0.0f32; top.width * top.height];
+        let mut u2 = u1.clone();
+        let mut s = coarsest;
+        loop {
+            let (l0, l1) = (&p0.levels[s], &p1.levels[s]);
+            solve_level(l0, l1, &mut u1, &mut u2, p, self.kernel);
+            if s == finest {
+                break;
+            }
+            // Upscale to the next finer level (OpenCV: resize to its size, then multiply
+            // by 1 / scale_step).
+            let fine = &p0.levels[s - 1];
+            let src = (l0.width, l0.height);
+            let dst = (fine.width, fine.height);
+            let inv = (
+                l0.width as f32 / fine.width as f32,
+                l0.height as f32 / fine.height as f32,
+            );
+            let k = 1.0 / p.scale_step;
+            u1 = resize_bilinear(&u1, src, dst, inv);
+            u2 = resize_bilinear(&u2, src, dst, inv);
+            u1.iter_mut().chain(u2.iter_mut()).for_each(|v| *v *= k);
+            s -= 1;
+        }
+        if finest > 0 {
+            let l = &p0.levels[finest];
+            let ratio = (p.scale_step as f64).powi(finest as i32) as f32;
+            let src = (l.width, l.height);
+            u1 = resize_bilinear(&u1, src, (width, height), (ratio, ratio));
+            u2 = resize_bilinear(&u2, src, (width, height), (ratio, ratio));
+            let k = 1.0 / ratio;
+            u1.iter_mut().chain(u2.iter_mut()).for_each(|v| *v *= k);
+        }
+        let mut flow = FlowField::zeros(width, height);
+        flow.u = u1;
+        flow.v = u2;
+        flow
+    }
+}
+
+/// Forward TV-L1 flow `prev -> cur` in pixels (see the module docs for conventions).
+///
+/// A thin wrapper over [`FlowEstimator`]: validates `params` and both images.
+pub fn tvl1(
+    prev: &GrayImage,
+    cur: &GrayImage,
+    params: &FlowParams,
+) -> Result<FlowField, FlowError> {
+    let mut est = FlowEstimator::new(params.clone())?;
+    flow_pair(&mut est, prev, cur)
+}
+
+fn flow_pair(
+    est: &mut FlowEstimator,
+    prev: &GrayImage,
+    cur: &GrayImage,
+) -> Result<FlowField, FlowError> {
+    validate_image(prev)?;
+    validate_image(cur)?;
+    if prev.size() != cur.size() {
+        return Err(FlowError::SizeMismatch {
+            expected_width: prev.width(),
+            expected_height: prev.height(),
+            width: cur.width(),
+            height: cur.height(),
+        });
+    }
+    est.push(prev)?;
+    match est.push(cur)? {
+        Some(flow) => Ok(flow),
+        // Invariant: the estimator had a cached frame (`prev`), so push returns a flow.
+        None => Err(FlowError::EmptyImage {
+            width: cur.width(),
+            height: cur.height(),
+        }),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::vision::synthetic::{Motion, moving_square_valid, pair};
+
+    fn smooth_pair(w: usize, h: usize, seed: u64) -> (GrayImage, GrayImage, FlowField) {
+        pair(
+            w,
+            h,
+            &Motion::Smooth {
+                amplitude_px: 2.0,
+                seed,
+            },
+            seed,
+        )
+    }
+
+    /// Cheap parameters for the tests that compare two code paths (the crate is built
+    /// unoptimised in `cargo test`).
+    fn quick() -> FlowParams {
+        FlowParams {
+            n_scales: 3,
+            warps: 2,
+            outer_iterations: 2,
+            inner_iterations: 10,
+            ..FlowParams::default()
+        }
+    }
+
+    fn aee(w: usize, h: usize, m: &Motion, p: &FlowParams) -> f64 {
+        let (a, b, gt) = pair(w, h, m, 7);
+        let f = tvl1(&a, &b, p).unwrap();
+        let valid = moving_square_valid(w, h, m, 2.0);
+        f.average_endpoint_error(&gt, valid.as_deref()).unwrap()
+    }
+
+    #[test]
+    fn translation_accuracy_small() {
+        let m = Motion::Translation { dx: 2.5, dy: -1.25 };
+        let e = aee(80, 60, &m, &FlowParams::default());
+        println!("translation 80x60 default AEE {e:.4}");
+        assert!(e < 0.15, "AEE {e}");
+    }
+
+    #[test]
+    fn fast_kernel_equals_reference_end_to_end() {
+        let (a, b, _) = smooth_pair(40, 32, 3);
+        let p = quick();
+        let fast = tvl1(&a, &b, &p).unwrap();
+        let mut est = FlowEstimator::new(p).unwrap();
+        est.kernel = Kernel::Reference;
+        est.push(&a).unwrap();
+        let reference = est.push(&b).unwrap().unwrap();
+        assert_eq!(fast, reference);
+    }
+
+    #[test]
+    fn same_result_with_one_and_two_threads() {
+        let (a, b, _) = smooth_pair(64, 48, 5);
+        let p = quick();
+        let run = |threads: usize| {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            pool.install(|| tvl1(&a, &b, &p).unwrap())
+        };
+        assert_eq!(run(1), run(2));
+    }
+
+    #[test]
+    fn estimator_reuses_frames() {
+        let (a, b, _) = smooth_pair(48, 40, 1);
+        let (_, c, _) = smooth_pair(48, 40, 2);
+        let p = quick();
+        let mut est = FlowEstimator::new(p.clone()).unwrap();
+        assert!(est.push(&a).unwrap().is_none());
+        assert_eq!(est.push(&b).unwrap().unwrap(), tvl1(&a, &b, &p).unwrap());
+        assert_eq!(est.push(&c).unwrap().unwrap(), tvl1(&b, &c, &p).unwrap());
+        assert_eq!(est.params(), &p);
+        est.reset();
+        assert!(est.push(&c).unwrap().is_none());
+    }
+
+    #[test]
+    fn size_mismatch_is_an_error_and_keeps_the_cache() {
+        let (a, b, _) = smooth_pair(48, 40, 1);
+        let small = GrayImage::zeros(32, 32);
+        let p = quick();
+        assert!(matches!(
+            tvl1(&a, &small, &p),
+            Err(FlowError::SizeMismatch {
+                expected_width: 48,
+                width: 32,
+                ..
+            })
+        ));
+        let mut est = FlowEstimator::new(p.clone()).unwrap();
+        est.push(&a).unwrap();
+        assert!(matches!(
+            est.push(&small),
+            Err(FlowError::SizeMismatch { .. })
+        ));
+        // The cached frame is still `a`.
+        assert_eq!(est.push(&b).unwrap().unwrap(), tvl1(&a, &b, &p).unwrap());
+    }
+
+    #[test]
+    fn empty_and_too_small_images_are_errors() {
+        let p = FlowParams::default();
+        let empty = GrayImage::zeros(0, 10);
+        assert!(matches!(
+            tvl1(&empty, &empty, &p),
+            Err(FlowError::EmptyImage { width: 0, .. })
+        ));
+        let tiny = GrayImage::zeros(15, 40);
+        let err = tvl1(&tiny, &tiny, &p).unwrap_err();
+        assert!(matches!(
+            err,
+            FlowError::TooSmall {
+                width: 15,
+                min_side_px: 16,
+                ..
+            }
+        ));
+        assert!(err.to_string().contains("16x16"));
+        // The minimum itself works (one level).
+        let (a, b, _) = smooth_pair(16, 16, 1);
+        assert_eq!(tvl1(&a, &b, &quick()).unwrap().size(), (16, 16));
+    }
+
+    #[test]
+    fn non_finite_pixels_are_errors() {
+        let (a, b, _) = smooth_pair(32, 24, 1);
+        for bad in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY] {
+            let mut c = b.clone();
+            c.data_mut()[3 * 32 + 7] = bad;
+            match tvl1(&a, &c, &quick()) {
+                Err(FlowError::NonFinite { x, y, .. }) => assert_eq!((x, y), (7, 3)),
+                other => panic!("{bad}: unexpected {other:?}"),
+            }
+        }
+    }
+
+    #[test]
+    fn invalid_params_are_errors() {
+        let (a, b, _) = smooth_pair(32, 24, 1);
+        let p = FlowParams {
+            scale_step: 1.5,
+            ..FlowParams::default()
+        };
+        assert!(matches!(
+            tvl1(&a, &b, &p),
+            Err(FlowError::InvalidParams {
+                field: "scale_step",
+                ..
+            })
+        ));
+        assert!(FlowEstimator::new(p).is_err());
+    }
+
+    #[test]
+    fn finest_scale_returns_full_resolution_flow() {
+        let m = Motion::Translation { dx: 2.0, dy: 1.0 };
+        let (a, b, gt) = pair(64, 48, &m, 3);
+        let p = FlowParams {
+            finest_scale: 1,
+            ..quick()
+        };
+        let f = tvl1(&a, &b, &p).unwrap();
+        assert_eq!(f.size(), (64, 48));
+        let e = f.average_endpoint_error(&gt, None).unwrap();
+        assert!(e < 0.5, "AEE {e}");
+    }
+}

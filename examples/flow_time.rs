@@ -1,0 +1,117 @@
+//! Quick timing and accuracy of TV-L1 on the synthetic pairs (not part of the API).
+//!
+//! `cargo run --release --example flow_time -- [preset|key=value...]`
+
+use std::time::Instant;
+
+use vamos::vision::flow::{FlowParams, Interpolation, tvl1};
+use vamos::vision::synthetic::{Motion, moving_square_valid, pair};
+
+fn cases(w: usize, h: usize) -> Vec<(&'static str, Motion)> {
+    let s = w as f64 / 160.0;
+    vec![
+        (
+            "translation",
+            Motion::Translation {
+                dx: 2.5 * s,
+                dy: -1.25 * s,
+            },
+        ),
+        (
+            "rotation",
+            Motion::Similarity {
+                tx: 0.0,
+                ty: 0.0,
+                scale: 1.0,
+                rotation_deg: 3.0,
+            },
+        ),
+        (
+            "smooth",
+            Motion::Smooth {
+                amplitude_px: 3.0 * s,
+                seed: 2,
+            },
+        ),
+        (
+            "square",
+            Motion::MovingSquare {
+                x: 0.3 * w as f64,
+                y: 0.3 * h as f64,
+                size_px: 0.35 * h as f64,
+                dx: 3.0 * s,
+                dy: 2.0 * s,
+            },
+        ),
+    ]
+}
+
+fn main() -> anyhow::Result<()> {
+    tracing_subscriber::fmt()
+        .with_env_filter(tracing_subscriber::EnvFilter::from_default_env())
+        .with_writer(std::io::stderr)
+        .init();
+    let mut p = FlowParams::default();
+    let mut size = (320usize, 240usize);
+    let mut reps = 3;
+    for arg in std::env::args().skip(1) {
+        if let Some((k, v)) = arg.split_once('=') {
+            match k {
+                "tau" => p.tau = v.parse()?,
+                "lambda" => p.lambda = v.parse()?,
+                "theta" => p.theta = v.parse()?,
+                "n_scales" => p.n_scales = v.parse()?,
+                "scale_step" => p.scale_step = v.parse()?,
+                "warps" => p.warps = v.parse()?,
+                "epsilon" => p.epsilon = v.parse()?,
+                "inner" => p.inner_iterations = v.parse()?,
+                "outer" => p.outer_iterations = v.parse()?,
+                "median" => p.median_filter = v.parse()?,
+                "finest" => p.finest_scale = v.parse()?,
+                "interp" => {
+                    p.interpolation = if v == "bilinear" {
+                        Interpolation::Bilinear
+                    } else {
+                        Interpolation::Bicubic
+                    }
+                }
+                "w" => size.0 = v.parse()?,
+                "h" => size.1 = v.parse()?,
+                "reps" => reps = v.parse()?,
+                _ => anyhow::bail!("unknown key {k}"),
+            }
+        } else {
+            p = FlowParams::preset(&arg)?;
+        }
+    }
+    let (w, h) = size;
+    let mut total_ms = 0.0;
+    let mut aees = Vec::new();
+    for (name, m) in cases(w, h) {
+        let (a, b, gt) = pair(w, h, &m, 7);
+        let mut best = f64::MAX;
+        let mut flow = None;
+        for _ in 0..reps {
+            let t = Instant::now();
+            let f = tvl1(&a, &b, &p)?;
+            best = best.min(t.elapsed().as_secs_f64() * 1e3);
+            flow = Some(f);
+        }
+        let Some(f) = flow else {
+            anyhow::bail!("no run")
+        };
+        let valid = moving_square_valid(w, h, &m, 2.0);
+        let aee = f
+            .average_endpoint_error(&gt, valid.as_deref())
+            .unwrap_or(f64::NAN);
+        println!("{name:12} {w}x{h} aee {aee:.4} min {best:.2} ms");
+        total_ms += best;
+        aees.push(aee);
+    }
+    println!(
+        "mean aee {:.4}  mean ms {:.2}",
+        aees.iter().sum::<f64>() / aees.len() as f64,
+        total_ms / aees.len() as f64
+    );
+    Ok(())
+}

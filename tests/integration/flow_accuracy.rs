@@ -1,0 +1,90 @@
+//! TV-L1 accuracy on synthetic pairs with exact ground truth.
+//!
+//! Heavy: run with `cargo test --release` (the project's test command). Each test prints
+//! the measured average endpoint error (AEE, pixels) and asserts a bound just above it,
+//! so a regression of a few percent fails. No border is excluded: out-of-image samples
+//! read 0, as in OpenCV, and the regulariser fills the flow in there. The moving square
+//! excludes 2 px around both outlines and the background it covers (occlusions have no
+//! ground truth).
+
+#![allow(clippy::unwrap_used)]
+
+use vamos::vision::flow::{FlowParams, tvl1};
+use vamos::vision::synthetic::{Motion, moving_square_valid, pair};
+
+fn motion(name: &str, w: usize, h: usize) -> Motion {
+    let s = w as f64 / 160.0;
+    match name {
+        "translation" => Motion::Translation {
+            dx: 2.5 * s,
+            dy: -1.25 * s,
+        },
+        "rotation" => Motion::Similarity {
+            tx: 0.0,
+            ty: 0.0,
+            scale: 1.0,
+            rotation_deg: 3.0,
+        },
+        "smooth" => Motion::Smooth {
+            amplitude_px: 3.0 * s,
+            seed: 2,
+        },
+        _ => Motion::MovingSquare {
+            x: 0.3 * w as f64,
+            y: 0.3 * h as f64,
+            size_px: 0.35 * h as f64,
+            dx: 3.0 * s,
+            dy: 2.0 * s,
+        },
+    }
+}
+
+fn aee(name: &str, w: usize, h: usize, params: &FlowParams) -> f64 {
+    let m = motion(name, w, h);
+    let (a, b, gt) = pair(w, h, &m, 7);
+    let flow = tvl1(&a, &b, params).unwrap();
+    let valid = moving_square_valid(w, h, &m, 2.0);
+    let e = flow.average_endpoint_error(&gt, valid.as_deref()).unwrap();
+    println!("{name} {w}x{h}: AEE {e:.4} px");
+    e
+}
+
+#[test]
+fn default_translation_160x120() {
+    assert!(aee("translation", 160, 120, &FlowParams::default()) < 0.07);
+}
+
+#[test]
+fn default_rotation_160x120() {
+    assert!(aee("rotation", 160, 120, &FlowParams::default()) < 0.095);
+}
+
+#[test]
+fn default_smooth_160x120() {
+    assert!(aee("smooth", 160, 120, &FlowParams::default()) < 0.075);
+}
+
+#[test]
+fn default_moving_square_160x120() {
+    assert!(aee("square", 160, 120, &FlowParams::default()) < 0.025);
+}
+
+#[test]
+fn default_translation_320x240() {
+    assert!(aee("translation", 320, 240, &FlowParams::default()) < 0.1);
+}
+
+/// The real-time preset trades accuracy for speed (see `FlowParams::realtime`).
+#[test]
+fn realtime_all_cases_160x120() {
+    let p = FlowParams::realtime();
+    for (name, bound) in [
+        ("translation", 0.36),
+        ("rotation", 0.36),
+        ("smooth", 0.35),
+        ("square", 0.06),
+    ] {
+        let e = aee(name, 160, 120, &p);
+        assert!(e < bound, "{name}: AEE {e} >= {bound}");
+    }
+}
