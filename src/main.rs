@@ -214,7 +214,7 @@ fn run(cli: Cli) -> Result<()> {
             }
             let r = result.context("no registration computed")?;
             let mut out = json!({
-                "tx": r.transform.tx, "ty": r.transform.ty, "scale": r.transform.scale,
+                "tx": r.transform.tx_px, "ty": r.transform.ty_px, "scale": r.transform.scale,
                 "rotation_deg": r.transform.rotation_deg, "confidence": r.confidence,
             });
             if timing {
@@ -339,7 +339,7 @@ fn demo(out: &Path, width: usize, height: usize, threads: usize, reg: &Registrat
             _ => None,
         };
         row["registration"] = json!({
-            "tx": t.tx, "ty": t.ty, "scale": t.scale, "rotation_deg": t.rotation_deg,
+            "tx": t.tx_px, "ty": t.ty_px, "scale": t.scale, "rotation_deg": t.rotation_deg,
             "confidence": r.confidence,
             "truth": truth_t.map(|(a, b, c, d)| json!([a, b, c, d])),
         });
@@ -353,8 +353,8 @@ fn demo(out: &Path, width: usize, height: usize, threads: usize, reg: &Registrat
             cells[0].1,
             cells[1].0,
             cells[1].1,
-            t.tx,
-            t.ty,
+            t.tx_px,
+            t.ty_px,
             t.scale,
             t.rotation_deg,
             r.confidence,

@@ -2,4 +2,6 @@
 
 mod architecture;
 mod cli;
+mod flow_accuracy;
 mod flow_golden;
+mod registration_accuracy;
