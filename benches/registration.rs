@@ -1,6 +1,7 @@
 //! Fourier-Mellin registration timings, single thread: a pair through a warm
 //! [`Registrar`] (plans cached, both frames processed), a pair through the free
 //! `register` (plans built per call) and the streaming `push` (one new frame per call).
+#![allow(clippy::unwrap_used, clippy::expect_used, missing_docs)] // criterion_group! generates undocumented items.
 
 use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
 use std::hint::black_box;

@@ -22,7 +22,7 @@ fn main() -> anyhow::Result<()> {
         let list: Vec<(String, String)> = serde_json::from_str(&text)?;
         list
     } else {
-        if args.is_empty() || args.len() % 2 != 0 {
+        if args.is_empty() || !args.len().is_multiple_of(2) {
             bail!("usage: register_pairs A.png B.png [A2.png B2.png ...] | --json pairs.json");
         }
         args.chunks(2)

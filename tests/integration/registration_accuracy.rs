@@ -4,6 +4,7 @@
 //! Tolerances: the synthetic pairs are exact (the texture is a continuous function), so the
 //! errors are those of the method: windowing, log-polar resampling and peak refinement.
 //! Bounds are set above the worst errors measured (quoted per test) with some margin.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
 
 use vamos::vision::registration::{Registrar, RegistrationParams, Similarity};
 use vamos::vision::synthetic::{self, Motion, SplitMix64};

@@ -116,7 +116,7 @@ impl Fft2 {
             // A Hermitian spectrum has real DC and (even w) Nyquist columns after the
             // column transform; drop the rounding residue realfft would complain about.
             self.row_spec[0].im = 0.0;
-            if w % 2 == 0 {
+            if w.is_multiple_of(2) {
                 self.row_spec[wc - 1].im = 0.0;
             }
             self.c2r
@@ -128,6 +128,7 @@ impl Fft2 {
 }
 
 #[cfg(test)]
+#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
 

@@ -342,24 +342,24 @@ pub(crate) fn cross_power(
         // conj of the half-turned spectrum: ramp * a (see `half_turn_ramp`).
         for ((o, &av), &bv) in out.iter_mut().zip(a).zip(b) {
             *o = bv * av;
-            sum += o.norm() as f64;
+            sum += o.norm_sqr().sqrt() as f64;
         }
     } else {
         for ((o, &av), &bv) in out.iter_mut().zip(a).zip(b) {
             *o = bv * av.conj();
-            sum += o.norm() as f64;
+            sum += o.norm_sqr().sqrt() as f64;
         }
     }
     let eps = ((1e-3 * sum / out.len().max(1) as f64) as f32).max(f32::MIN_POSITIVE);
     match ramp {
         None => {
             for (o, &gv) in out.iter_mut().zip(g) {
-                *o *= gv / (o.norm() + eps);
+                *o *= gv / (o.norm_sqr().sqrt() + eps);
             }
         }
         Some(r) => {
             for ((o, &gv), &rv) in out.iter_mut().zip(g).zip(r) {
-                *o *= rv * (gv / (o.norm() + eps));
+                *o *= rv * (gv / (o.norm_sqr().sqrt() + eps));
             }
         }
     }

@@ -465,7 +465,7 @@ impl SizeCache {
             &self.warped_spec
         };
         for ((m, s), &hp) in self.mag.iter_mut().zip(spec).zip(&self.highpass) {
-            *m = s.norm() * hp;
+            *m = s.norm_sqr().sqrt() * hp;
         }
         self.lp_map.sample(&self.mag, &mut self.lp);
         let mean = self.lp.iter().map(|&v| v as f64).sum::<f64>() / self.lp.len() as f64;

@@ -1,5 +1,6 @@
 //! Unit and property tests of the registration. Heavier sweeps live in
 //! `tests/registration_accuracy.rs`.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
 
 use proptest::prelude::*;
 
