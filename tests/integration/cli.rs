@@ -90,7 +90,7 @@ fn bad_inputs_fail_with_clear_messages() {
     // Different sizes.
     vamos::vision::GrayImage::zeros(80, 60).save_png(&dir.path().join("small.png")).unwrap();
     let mismatch = vamos(&["flow", &p("a.png"), &p("small.png"), "-o", &p("f.png")], &[]);
-    assert_clean_failure(&mismatch, "size");
+    assert_clean_failure(&mismatch, "160x120");
     assert_clean_failure(&vamos(&["register", &p("a.png"), &p("small.png")], &[]), "size");
     let preset = vamos(&["flow", &p("a.png"), &p("b.png"), "-o", &p("f.png"), "--preset", "warp9"], &[]);
     assert_clean_failure(&preset, "warp9");
