@@ -176,11 +176,18 @@ impl GrayImage {
             reason: e.to_string(),
         })?;
         let (w, h) = (img.width() as usize, img.height() as usize);
-        let rgb = img.to_rgb32f();
-        let data = rgb
-            .pixels()
-            .map(|p| 255.0 * (0.299 * p[0] + 0.587 * p[1] + 0.114 * p[2]))
-            .collect();
+        // Gray files are read exactly (the luma weights in f32 would not sum to 1 exactly).
+        let data = match &img {
+            image::DynamicImage::ImageLuma8(g) => g.as_raw().iter().map(|&v| v as f32).collect(),
+            image::DynamicImage::ImageLuma16(g) => {
+                g.as_raw().iter().map(|&v| v as f32 / 257.0).collect()
+            }
+            _ => img
+                .to_rgb32f()
+                .pixels()
+                .map(|p| 255.0 * (0.299 * p[0] + 0.587 * p[1] + 0.114 * p[2]))
+                .collect(),
+        };
         let out = Self::new(w, h, data)?;
         out.validate()?;
         Ok(out)
