@@ -368,7 +368,10 @@ mod tests {
         assert_eq!(a.average_endpoint_error(&b, None), Some(5.0));
         let mask: Vec<bool> = (0..16).map(|i| i < 8).collect();
         assert_eq!(a.average_endpoint_error(&b, Some(&mask)), Some(5.0));
-        assert_eq!(a.average_endpoint_error(&FlowField::zeros(3, 4), None), None);
+        assert_eq!(
+            a.average_endpoint_error(&FlowField::zeros(3, 4), None),
+            None
+        );
     }
 
     #[test]

@@ -50,7 +50,12 @@ impl Texture {
     }
 
     /// A texture of `count` waves with wavelengths in `[min, max]` pixels.
-    pub fn with_band(seed: u64, count: usize, min_wavelength_px: f64, max_wavelength_px: f64) -> Self {
+    pub fn with_band(
+        seed: u64,
+        count: usize,
+        min_wavelength_px: f64,
+        max_wavelength_px: f64,
+    ) -> Self {
         let mut rng = SplitMix64::new(seed);
         let total = 100.0;
         let waves = (0..count)
@@ -64,7 +69,12 @@ impl Texture {
                 (k * angle.cos(), k * angle.sin(), phase, amp)
             })
             .collect::<Vec<_>>();
-        let norm: f64 = waves.iter().map(|w| w.3 * w.3).sum::<f64>().sqrt().max(1e-9);
+        let norm: f64 = waves
+            .iter()
+            .map(|w| w.3 * w.3)
+            .sum::<f64>()
+            .sqrt()
+            .max(1e-9);
         let waves = waves
             .into_iter()
             .map(|(kx, ky, p, a)| (kx, ky, p, a * total / norm * 0.9))
@@ -183,11 +193,13 @@ impl SmoothField {
 
     /// Backward displacement `w(q)`: the second image at `q` shows the first at `q - w(q)`.
     fn at(&self, q: (f64, f64)) -> (f64, f64) {
-        self.bumps.iter().fold((0.0, 0.0), |acc, &(cx, cy, s, ax, ay)| {
-            let d2 = (q.0 - cx).powi(2) + (q.1 - cy).powi(2);
-            let g = (-d2 / (2.0 * s * s)).exp();
-            (acc.0 + ax * g, acc.1 + ay * g)
-        })
+        self.bumps
+            .iter()
+            .fold((0.0, 0.0), |acc, &(cx, cy, s, ax, ay)| {
+                let d2 = (q.0 - cx).powi(2) + (q.1 - cy).powi(2);
+                let g = (-d2 / (2.0 * s * s)).exp();
+                (acc.0 + ax * g, acc.1 + ay * g)
+            })
     }
 }
 
@@ -196,13 +208,20 @@ impl SmoothField {
 /// The texture is seeded by `seed`; pixels whose source falls outside the first image
 /// still get texture (the texture is infinite), so the whole ground truth is valid except
 /// at occlusions of [`Motion::MovingSquare`].
-pub fn pair(width: usize, height: usize, motion: &Motion, seed: u64) -> (GrayImage, GrayImage, FlowField) {
+pub fn pair(
+    width: usize,
+    height: usize,
+    motion: &Motion,
+    seed: u64,
+) -> (GrayImage, GrayImage, FlowField) {
     let tex = Texture::random(seed);
     let centre = ((width as f64 - 1.0) / 2.0, (height as f64 - 1.0) / 2.0);
     match *motion {
         Motion::Translation { dx, dy } => {
             let a = tex.render(width, height);
-            let b = GrayImage::from_fn(width, height, |x, y| tex.eval(x as f64 - dx, y as f64 - dy) as f32);
+            let b = GrayImage::from_fn(width, height, |x, y| {
+                tex.eval(x as f64 - dx, y as f64 - dy) as f32
+            });
             let f = FlowField::from_fn(width, height, |_, _| (dx as f32, dy as f32));
             (a, b, f)
         }
@@ -224,7 +243,10 @@ pub fn pair(width: usize, height: usize, motion: &Motion, seed: u64) -> (GrayIma
             });
             (a, b, f)
         }
-        Motion::Smooth { amplitude_px, seed: field_seed } => {
+        Motion::Smooth {
+            amplitude_px,
+            seed: field_seed,
+        } => {
             let field = SmoothField::new(width, height, amplitude_px, field_seed);
             let a = tex.render(width, height);
             let b = GrayImage::from_fn(width, height, |x, y| {
@@ -305,14 +327,17 @@ pub fn moving_square_valid(
     let near_edge = |px: f64, py: f64, ox: f64, oy: f64| {
         let (l, t) = (sx + ox, sy + oy);
         let (r, b) = (l + size_px, t + size_px);
-        let in_outer = px >= l - margin_px && px < r + margin_px && py >= t - margin_px && py < b + margin_px;
-        let in_inner = px >= l + margin_px && px < r - margin_px && py >= t + margin_px && py < b - margin_px;
+        let in_outer =
+            px >= l - margin_px && px < r + margin_px && py >= t - margin_px && py < b + margin_px;
+        let in_inner =
+            px >= l + margin_px && px < r - margin_px && py >= t + margin_px && py < b - margin_px;
         in_outer && !in_inner
     };
     let covered_later = |px: f64, py: f64| {
         px >= sx + dx && px < sx + dx + size_px && py >= sy + dy && py < sy + dy + size_px
     };
-    let in_first = |px: f64, py: f64| px >= sx && px < sx + size_px && py >= sy && py < sy + size_px;
+    let in_first =
+        |px: f64, py: f64| px >= sx && px < sx + size_px && py >= sy && py < sy + size_px;
     Some(
         (0..width * height)
             .map(|i| {

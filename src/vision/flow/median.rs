@@ -382,7 +382,15 @@ mod tests {
     #[test]
     fn fast_filter_matches_reference() {
         let mut rng = SplitMix64::new(4);
-        let sizes = [(37usize, 11usize), (5, 9), (3, 3), (16, 16), (8, 5), (9, 2), (70, 19)];
+        let sizes = [
+            (37usize, 11usize),
+            (5, 9),
+            (3, 3),
+            (16, 16),
+            (8, 5),
+            (9, 2),
+            (70, 19),
+        ];
         // Continuous values, then many ties (rounded values).
         for (round, (w, h)) in [false, true]
             .into_iter()
@@ -402,30 +410,5 @@ mod tests {
                 assert_eq!(fast, slow, "{w}x{h} side {side}");
             }
         }
-    }
-}
-#[cfg(test)]
-mod timing_tmp {
-    use super::*;
-    #[test]
-    #[ignore]
-    fn time_median() {
-        let (w, h) = (320usize, 240usize);
-        let src: Vec<f32> = (0..w * h).map(|i| ((i * 7919) % 1000) as f32 * 0.01).collect();
-        let pool = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
-        pool.install(|| {
-            for side in [5usize, 3] {
-                let mut best = f64::MAX;
-                let mut scr = Vec::new();
-                for _ in 0..30 {
-                    let mut d = src.clone();
-                    let t = std::time::Instant::now();
-                    median_filter(&mut d, w, h, side, &mut scr);
-                    best = best.min(t.elapsed().as_secs_f64());
-                }
-                let pt = 0.0;
-                println!("side {side}: {:.3} ms, {:.2} ns/px, pad {:.3} ms", best * 1e3, best * 1e9 / (w * h) as f64, pt * 1e3);
-            }
-        });
     }
 }

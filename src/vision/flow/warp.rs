@@ -359,31 +359,3 @@ mod tests {
         }
     }
 }
-#[cfg(test)]
-mod timing_tmp {
-    use super::*;
-    use crate::vision::flow::pyramid::pack_with_gradient;
-    #[test]
-    #[ignore]
-    fn time_warp() {
-        let (w, h) = (320usize, 240usize);
-        let img: Vec<f32> = (0..w * h).map(|i| ((i * 7919) % 1000) as f32 * 0.1).collect();
-        let packed = pack_with_gradient(&img, w, h);
-        let u1: Vec<f32> = (0..w * h).map(|i| 1.3 + 0.001 * (i % 97) as f32).collect();
-        let u2: Vec<f32> = (0..w * h).map(|i| -0.7 + 0.002 * (i % 89) as f32).collect();
-        let pool = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
-        pool.install(|| {
-            for interp in [Interpolation::Bicubic, Interpolation::Bilinear] {
-                let mut best = f64::MAX;
-                let mut out = Linearised::default();
-                for _ in 0..20 {
-                    let t = std::time::Instant::now();
-                    linearise(&img, &packed, &u1, &u2, w, h, interp, &mut out);
-                    best = best.min(t.elapsed().as_secs_f64());
-                }
-                let s: f64 = out.rho_c.iter().map(|&v| v as f64).sum::<f64>() + out.ix.iter().map(|&v| v as f64).sum::<f64>();
-                println!("{interp:?}: {:.3} ms, {:.2} ns/px checksum {s}", best * 1e3, best * 1e9 / (w * h) as f64);
-            }
-        });
-    }
-}
