@@ -79,10 +79,10 @@ fn default_translation_320x240() {
 fn realtime_all_cases_160x120() {
     let p = FlowParams::realtime();
     for (name, bound) in [
-        ("translation", 0.36),
-        ("rotation", 0.36),
-        ("smooth", 0.35),
-        ("square", 0.06),
+        ("translation", 0.17),
+        ("rotation", 0.175),
+        ("smooth", 0.175),
+        ("square", 0.045),
     ] {
         let e = aee(name, 160, 120, &p);
         assert!(e < bound, "{name}: AEE {e} >= {bound}");

@@ -78,27 +78,27 @@ pub const PRESET_NAMES: [&str; 2] = ["default", "realtime"];
 
 impl FlowParams {
     /// The real-time preset: half-resolution solve (`finest_scale` 1 with `scale_step`
-    /// 0.5), 3 bilinear warps of 10 iterations per level, one median filter per warp.
+    /// 0.5), 3 bicubic warps of 10 iterations per level, one median filter per warp.
     ///
-    /// Chosen by a sweep on the four synthetic 320x240 pairs of `examples/flow_time.rs`
-    /// (one thread, minimum of 3 runs, on a shared and loaded 2-core machine where
-    /// OpenCV `DualTVL1` took 1.0-2.2 s per pair). AEE in pixels for translation /
-    /// rotation / smooth / square, then mean ms per pair:
+    /// Chosen by a sweep with `examples/flow_time.rs` on the four synthetic pairs (one
+    /// thread, minimum of 3-5 runs, on a 2-core machine shared with other builds, load
+    /// average about 3: times are inflated, maybe 1.5-2x). AEE in pixels for translation /
+    /// rotation / smooth / square, then mean ms per pair (see `benches/flow_presets.md`):
     ///
-    /// | variant (from this preset)                     | AEE                       | ms   |
-    /// |------------------------------------------------|---------------------------|------|
-    /// | `default()`                                    | 0.082 / 1.92 / 0.097 / 0.35 | ~220 |
-    /// | warps 2                                        | 0.63 / 0.66 / 0.41 / 0.10 | 16.1 |
-    /// | warps 2, bicubic                               | 0.49 / 0.73 / 0.29 / 0.10 | 12.9 |
-    /// | warps 2, inner 20                              | 0.36 / 0.41 / 0.28 / 0.07 | 15.2 |
-    /// | **warps 3** (this preset)                      | 0.39 / 0.37 / 0.27 / 0.05 | 13.9 |
-    /// | warps 3, no median                             | 0.43 / 0.40 / 0.30 / 0.06 | 8.9  |
-    /// | warps 3, step 0.6                              | 0.54 / 0.48 / 0.18 / 0.05 | 22.7 |
-    /// | warps 2, full resolution, 4 scales             | 0.31 / 0.37 / 0.15 / 0.05 | 43.3 |
+    /// | variant                              | 160x120 AEE                   | ms   | 320x240 AEE                   | ms   |
+    /// |--------------------------------------|-------------------------------|------|-------------------------------|------|
+    /// | `default()`                          | 0.056 / 0.076 / 0.059 / 0.017 | 41   | 0.082 / 1.92 / 0.097 / 0.35   | 175  |
+    /// | **this preset** (bicubic)            | 0.159 / 0.163 / 0.166 / 0.040 | 3.7  | 0.228 / 0.198 / 0.145 / 0.058 | 11.2 |
+    /// | bilinear (previous preset)           | 0.322 / 0.319 / 0.309 / 0.051 | 3.5  | 0.388 / 0.373 / 0.271 / 0.048 | 11.3 |
+    /// | inner 15                             | 0.172 / 0.173 / 0.128 / 0.033 | 4.7  | 0.230 / 0.176 / 0.120 / 0.036 | 13.5 |
+    /// | warps 2, inner 15                    | 0.182 / 0.195 / 0.202 / 0.056 | 2.6  | 0.305 / 0.629 / 0.156 / 0.088 | 8.3  |
+    /// | bilinear, warps 4                    | 0.315 / 0.285 / 0.290 / 0.061 | 4.5  | 0.457 / 0.369 / 0.293 / 0.060 | 13.9 |
+    /// | bilinear, full resolution, 4 scales, warps 2 | 0.075 / 0.083 / 0.100 / 0.014 | 11.6 | 0.313 / 0.370 / 0.151 / 0.054 | 25 |
     ///
-    /// Its mean AEE over the four pairs (0.27) is below the default's (0.61), but only
-    /// because the default's 0.8-step pyramid cannot follow the 3-degree rotation at
-    /// 320x240; on translation and smooth motion it is 3-5 times less accurate.
+    /// It is 3-4x faster than the 15 ms budget at 160x120 and within it at 320x240, but
+    /// it does **not** reach the default's accuracy: on translation and smooth motion its
+    /// AEE is 1.5-3x the default's (the default fails on the 320x240 rotation and square,
+    /// where its 0.8-step pyramid does not follow the motion; this preset does).
     pub fn realtime() -> Self {
         Self {
             n_scales: 5,
@@ -108,7 +108,7 @@ impl FlowParams {
             inner_iterations: 10,
             outer_iterations: 1,
             median_filter: 5,
-            interpolation: Interpolation::Bilinear,
+            interpolation: Interpolation::Bicubic,
             finest_scale: 1,
             ..Self::default()
         }

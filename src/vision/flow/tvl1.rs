@@ -506,6 +506,7 @@ pub(crate) fn solve_level(
     let mut p = Dual::zeros(n);
     let mut lin = Linearised::default();
     let mut scratch = FastScratch::default();
+    let mut median_scratch = Vec::new();
     let (mut t_lin, mut t_med, mut t_it, mut n_it, mut n_med) = (0.0, 0.0, 0.0, 0usize, 0usize);
     for _ in 0..params.warps {
         let t0 = std::time::Instant::now();
@@ -525,8 +526,8 @@ pub(crate) fn solve_level(
         while error > scaled_eps && outer < params.outer_iterations {
             if params.median_filter > 1 {
                 let t0 = std::time::Instant::now();
-                median_filter(u1, w, h, params.median_filter);
-                median_filter(u2, w, h, params.median_filter);
+                median_filter(u1, w, h, params.median_filter, &mut median_scratch);
+                median_filter(u2, w, h, params.median_filter, &mut median_scratch);
                 t_med += t0.elapsed().as_secs_f64();
                 n_med += 1;
             }

@@ -32,6 +32,90 @@ fn cubic_weights(t: f32) -> [f32; 4] {
     [w0, w1, w2, 1.0 - w0 - w1 - w2]
 }
 
+/// Integer parts (floor) and fractions of a sample position.
+#[inline(always)]
+fn split(sx: f32, sy: f32, width: usize, height: usize) -> (isize, isize, f32, f32) {
+    // Far outside, every tap is outside anyway; clamping keeps the integer conversion in
+    // range.
+    let sx = sx.clamp(-4.0, width as f32 + 3.0);
+    let sy = sy.clamp(-4.0, height as f32 + 3.0);
+    // Truncation of a positive number is its floor (and avoids a libm call without
+    // SSE4.1).
+    let (ix, iy) = ((sx + 5.0) as isize - 5, (sy + 5.0) as isize - 5);
+    (ix, iy, sx - ix as f32, sy - iy as f32)
+}
+
+/// Bicubic sample whose 4x4 taps all lie inside the image, the top-left one at `base`:
+/// no border checks, the same arithmetic (and order) as [`sample`].
+#[inline(always)]
+fn bicubic_inside(
+    packed: &[[f32; 4]],
+    width: usize,
+    base: usize,
+    wx: [f32; 4],
+    wy: [f32; 4],
+) -> [f32; 4] {
+    #[cfg(target_arch = "x86_64")]
+    {
+        use std::arch::x86_64::{
+            __m128, _mm_add_ps, _mm_loadu_ps, _mm_mul_ps, _mm_set1_ps, _mm_setzero_ps,
+            _mm_storeu_ps,
+        };
+        let rows: [&[[f32; 4]]; 4] = std::array::from_fn(|j| &packed[base + j * width..][..4]);
+        // SAFETY: SSE is part of x86_64; every load reads a whole `[f32; 4]` of a
+        // bounds-checked slice and the store writes the local `acc`.
+        unsafe {
+            let mut acc = _mm_setzero_ps();
+            for j in 0..4 {
+                let mut racc = _mm_setzero_ps();
+                for k in 0..4 {
+                    let p: __m128 = _mm_loadu_ps(rows[j][k].as_ptr());
+                    racc = _mm_add_ps(racc, _mm_mul_ps(_mm_set1_ps(wx[k]), p));
+                }
+                acc = _mm_add_ps(acc, _mm_mul_ps(_mm_set1_ps(wy[j]), racc));
+            }
+            let mut out = [0.0f32; 4];
+            _mm_storeu_ps(out.as_mut_ptr(), acc);
+            out
+        }
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        let mut acc = [0.0f32; 4];
+        for j in 0..4 {
+            let row = &packed[base + j * width..][..4];
+            let mut racc = [0.0f32; 4];
+            for k in 0..4 {
+                let p = row[k];
+                for c in 0..4 {
+                    racc[c] += wx[k] * p[c];
+                }
+            }
+            for c in 0..4 {
+                acc[c] += wy[j] * racc[c];
+            }
+        }
+        acc
+    }
+}
+
+/// Bilinear sample whose 2x2 taps all lie inside the image, the top-left one at `base`:
+/// no border checks, the same arithmetic (and order) as [`sample`].
+#[inline(always)]
+fn bilinear_inside(packed: &[[f32; 4]], width: usize, base: usize, tx: f32, ty: f32) -> [f32; 4] {
+    let wx = [1.0 - tx, tx];
+    let wy = [1.0 - ty, ty];
+    let mut acc = [0.0f32; 4];
+    for j in 0..2 {
+        let row = &packed[base + j * width..][..2];
+        let (a, b) = (row[0], row[1]);
+        for c in 0..4 {
+            acc[c] += wy[j] * (wx[0] * a[c] + wx[1] * b[c]);
+        }
+    }
+    acc
+}
+
 /// Samples `[I, Ix, Iy, 0]` at `(sx, sy)`; taps outside the image read 0 (OpenCV
 /// `remap`'s default `BORDER_CONSTANT`): where the flow points out of the second image
 /// the data term fades out and the regulariser fills the flow in.
@@ -44,14 +128,7 @@ fn sample(
     sy: f32,
     interpolation: Interpolation,
 ) -> [f32; 4] {
-    // Far outside, every tap is outside anyway; clamping keeps the integer conversion in
-    // range.
-    let sx = sx.clamp(-4.0, width as f32 + 3.0);
-    let sy = sy.clamp(-4.0, height as f32 + 3.0);
-    // Truncation of a positive number is its floor (and avoids a libm call without
-    // SSE4.1).
-    let (ix, iy) = ((sx + 5.0) as isize - 5, (sy + 5.0) as isize - 5);
-    let (tx, ty) = (sx - ix as f32, sy - iy as f32);
+    let (ix, iy, tx, ty) = split(sx, sy, width, height);
     let (w, h) = (width as isize, height as isize);
     let mut acc = [0.0f32; 4];
     match interpolation {
@@ -196,15 +273,22 @@ fn linearise_band(job: &Job<'_>, start: usize, [ix, iy, grad, rho]: [&mut [f32];
     );
     let w = job.width;
     let (mut x, mut y) = (start % w, start / w);
+    let (wi, hi) = (w as isize, job.height as isize);
     for k in 0..n {
-        let s = sample(
-            job.packed1,
-            w,
-            job.height,
-            x as f32 + u1[k],
-            y as f32 + u2[k],
-            job.interpolation,
-        );
+        let (sx, sy) = (x as f32 + u1[k], y as f32 + u2[k]);
+        // Interior fast paths: integer/fraction split once, weights once for the three
+        // planes, no border checks; the border goes through `sample`.
+        let (fx, fy, tx, ty) = split(sx, sy, w, job.height);
+        let s = match job.interpolation {
+            Interpolation::Bicubic if fx >= 1 && fx + 2 < wi && fy >= 1 && fy + 2 < hi => {
+                let base = (fy - 1) as usize * w + (fx - 1) as usize;
+                bicubic_inside(job.packed1, w, base, cubic_weights(tx), cubic_weights(ty))
+            }
+            Interpolation::Bilinear if fx >= 0 && fx + 1 < wi && fy >= 0 && fy + 1 < hi => {
+                bilinear_inside(job.packed1, w, fy as usize * w + fx as usize, tx, ty)
+            }
+            interpolation => sample(job.packed1, w, job.height, sx, sy, interpolation),
+        };
         let (gx, gy) = (s[1], s[2]);
         ix[k] = gx;
         iy[k] = gy;
