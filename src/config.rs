@@ -91,7 +91,8 @@ impl Settings {
             insert_path(&mut dict, &path, parse_env_value(&value));
         }
         fig = fig.merge(Serialized::defaults(dict));
-        fig.extract().map_err(|e| ConfigError::Invalid(e.to_string()))
+        fig.extract()
+            .map_err(|e| ConfigError::Invalid(e.to_string()))
     }
 }
 
@@ -129,7 +130,10 @@ mod tests {
     use std::io::Write;
 
     fn env(pairs: &[(&str, &str)]) -> Vec<(String, String)> {
-        pairs.iter().map(|(a, b)| (a.to_string(), b.to_string())).collect()
+        pairs
+            .iter()
+            .map(|(a, b)| (a.to_string(), b.to_string()))
+            .collect()
     }
 
     #[test]
@@ -144,10 +148,18 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("vamos.toml");
         let mut f = std::fs::File::create(&path).unwrap();
-        writeln!(f, "[log]\nformat = \"json\"\n[vision]\nthreads = 3\n[vision.flow]\nwarps = 2").unwrap();
+        writeln!(
+            f,
+            "[log]\nformat = \"json\"\n[vision]\nthreads = 3\n[vision.flow]\nwarps = 2"
+        )
+        .unwrap();
         let s = Settings::load_with_env(
             Some(&path),
-            env(&[("VAMOS_VISION__THREADS", "1"), ("VAMOS_CONFIG", "ignored"), ("OTHER", "x")]),
+            env(&[
+                ("VAMOS_VISION__THREADS", "1"),
+                ("VAMOS_CONFIG", "ignored"),
+                ("OTHER", "x"),
+            ]),
         )
         .unwrap();
         assert_eq!(s.log.format, crate::telemetry::LogFormat::Json);
@@ -159,9 +171,11 @@ mod tests {
     fn unknown_keys_and_bad_values_are_errors() {
         let e = Settings::load_with_env(None, env(&[("VAMOS_VISION__THREDS", "1")])).unwrap_err();
         assert!(e.to_string().contains("threds"), "{e}");
-        let e = Settings::load_with_env(None, env(&[("VAMOS_VISION__THREADS", "many")])).unwrap_err();
+        let e =
+            Settings::load_with_env(None, env(&[("VAMOS_VISION__THREADS", "many")])).unwrap_err();
         assert!(matches!(e, ConfigError::Invalid(_)));
-        let e = Settings::load_with_env(Some(Path::new("/nonexistent.toml")), env(&[])).unwrap_err();
+        let e =
+            Settings::load_with_env(Some(Path::new("/nonexistent.toml")), env(&[])).unwrap_err();
         assert!(matches!(e, ConfigError::MissingFile { .. }));
     }
 }

@@ -247,7 +247,8 @@ fn load(path: &Path) -> Result<GrayImage> {
 fn flow_of(a: &GrayImage, b: &GrayImage, params: &FlowParams) -> Result<FlowField> {
     let mut est = FlowEstimator::new(params.clone())?;
     est.push(a)?;
-    est.push(b)?.context("the estimator returned no flow for the second frame")
+    est.push(b)?
+        .context("the estimator returned no flow for the second frame")
 }
 
 fn resolve_threads(n: usize) -> usize {
@@ -259,17 +260,28 @@ fn resolve_threads(n: usize) -> usize {
 }
 
 fn pool(threads: usize) -> Result<rayon::ThreadPool> {
-    Ok(rayon::ThreadPoolBuilder::new().num_threads(threads).build()?)
+    Ok(rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()?)
 }
 
 fn min_median(times: &mut [f64]) -> (f64, f64) {
     times.sort_by(f64::total_cmp);
-    (times.first().copied().unwrap_or(f64::NAN), times.get(times.len() / 2).copied().unwrap_or(f64::NAN))
+    (
+        times.first().copied().unwrap_or(f64::NAN),
+        times.get(times.len() / 2).copied().unwrap_or(f64::NAN),
+    )
 }
 
 /// The vision core on synthetic pairs with exact ground truth: flow (both presets) and
 /// registration, errors against the truth, timings; images to `out`.
-fn demo(out: &Path, width: usize, height: usize, threads: usize, reg: &RegistrationParams) -> Result<()> {
+fn demo(
+    out: &Path,
+    width: usize,
+    height: usize,
+    threads: usize,
+    reg: &RegistrationParams,
+) -> Result<()> {
     std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
     let pool = pool(threads)?;
     let cases = [
@@ -301,7 +313,10 @@ fn demo(out: &Path, width: usize, height: usize, threads: usize, reg: &Registrat
             },
         ),
     ];
-    println!("vamos demo: {width}x{height}, {threads} thread(s), output in {}", out.display());
+    println!(
+        "vamos demo: {width}x{height}, {threads} thread(s), output in {}",
+        out.display()
+    );
     println!(
         "{:<18} {:>10} {:>10} {:>12} {:>10} | registration (tx, ty, scale, rot) vs truth",
         "case", "AEE def", "ms def", "AEE realtime", "ms rt"
@@ -318,7 +333,9 @@ fn demo(out: &Path, width: usize, height: usize, threads: usize, reg: &Registrat
             let start = Instant::now();
             let flow = pool.install(|| flow_of(&a, &b, &params))?;
             let ms = start.elapsed().as_secs_f64() * 1e3;
-            let aee = flow.average_endpoint_error(&truth, valid.as_deref()).unwrap_or(f64::NAN);
+            let aee = flow
+                .average_endpoint_error(&truth, valid.as_deref())
+                .unwrap_or(f64::NAN);
             write_flow_png(&flow, None, &out.join(format!("{name}_flow_{preset}.png")))?;
             row[preset] = json!({ "aee_px": aee, "ms": ms });
             cells.push((aee, ms));

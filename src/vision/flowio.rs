@@ -197,8 +197,8 @@ pub fn flow_to_rgb(flow: &FlowField, max_magnitude_px: Option<f32>) -> Vec<u8> {
         let k0 = (fk.floor() as usize).min(ncols - 1);
         let k1 = (k0 + 1) % ncols;
         let f = fk - k0 as f32;
-        for c in 0..3 {
-            let col = ((1.0 - f) * wheel[k0][c] + f * wheel[k1][c]) / 255.0;
+        for (c0, c1) in wheel[k0].iter().zip(&wheel[k1]) {
+            let col = ((1.0 - f) * c0 + f * c1) / 255.0;
             let col = if rad <= 1.0 {
                 1.0 - rad * (1.0 - col)
             } else {

@@ -10,7 +10,9 @@ const CORE: &[&str] = &["vision", "robot", "model", "episode", "pipeline"];
 const FORBIDDEN: &[&str] = &["tokio", "tonic", "prost", "axum", "http", "hyper", "tower"];
 
 fn rust_files(dir: &Path, out: &mut Vec<PathBuf>) {
-    let Ok(entries) = std::fs::read_dir(dir) else { return };
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return;
+    };
     for e in entries.flatten() {
         let p = e.path();
         if p.is_dir() {
@@ -70,12 +72,17 @@ fn core_modules_respect_the_dependency_direction() {
             checked += 1;
         }
     }
-    assert!(checked >= 5, "expected to scan the vision sources, scanned {checked} files");
+    assert!(
+        checked >= 5,
+        "expected to scan the vision sources, scanned {checked} files"
+    );
 }
 
 #[test]
 fn the_scanner_sees_violations() {
-    let roots = referenced_roots("use tokio::sync::mpsc;\nlet x = crate::api::grpc::f();\n// use axum::Router;");
+    let roots = referenced_roots(
+        "use tokio::sync::mpsc;\nlet x = crate::api::grpc::f();\n// use axum::Router;",
+    );
     assert!(roots.contains(&"tokio".to_string()));
     assert!(roots.contains(&"crate::api".to_string()));
     assert!(!roots.contains(&"axum".to_string()), "comments are skipped");

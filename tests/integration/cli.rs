@@ -7,7 +7,9 @@ use vamos::vision::synthetic::{self, Motion};
 
 fn vamos(args: &[&str], env: &[(&str, &str)]) -> Output {
     let mut cmd = Command::new(env!("CARGO_BIN_EXE_vamos"));
-    cmd.args(args).env_remove("VAMOS_CONFIG").env_remove("RUST_LOG");
+    cmd.args(args)
+        .env_remove("VAMOS_CONFIG")
+        .env_remove("RUST_LOG");
     for (k, v) in env {
         cmd.env(k, v);
     }
@@ -38,7 +40,18 @@ fn flow_writes_colour_image_and_raw_field() {
     let truth = write_pair(dir.path(), &Motion::Translation { dx: 2.0, dy: 1.0 });
     let p = |n: &str| dir.path().join(n).display().to_string();
     let out = vamos(
-        &["flow", &p("a.png"), &p("b.png"), "-o", &p("f.png"), "--raw", &p("f.flo"), "--threads", "1", "--timing"],
+        &[
+            "flow",
+            &p("a.png"),
+            &p("b.png"),
+            "-o",
+            &p("f.png"),
+            "--raw",
+            &p("f.flo"),
+            "--threads",
+            "1",
+            "--timing",
+        ],
         &[],
     );
     assert!(out.status.success(), "{}", text(&out.stderr));
@@ -82,17 +95,42 @@ fn bad_inputs_fail_with_clear_messages() {
     let dir = tempfile::tempdir().unwrap();
     write_pair(dir.path(), &Motion::Translation { dx: 1.0, dy: 0.0 });
     let p = |n: &str| dir.path().join(n).display().to_string();
-    let missing = vamos(&["flow", &p("nope.png"), &p("b.png"), "-o", &p("f.png")], &[]);
+    let missing = vamos(
+        &["flow", &p("nope.png"), &p("b.png"), "-o", &p("f.png")],
+        &[],
+    );
     assert_clean_failure(&missing, "nope.png");
     // Not an image at all.
     std::fs::write(dir.path().join("junk.png"), b"not a png").unwrap();
-    assert_clean_failure(&vamos(&["register", &p("junk.png"), &p("b.png")], &[]), "junk.png");
+    assert_clean_failure(
+        &vamos(&["register", &p("junk.png"), &p("b.png")], &[]),
+        "junk.png",
+    );
     // Different sizes.
-    vamos::vision::GrayImage::zeros(80, 60).save_png(&dir.path().join("small.png")).unwrap();
-    let mismatch = vamos(&["flow", &p("a.png"), &p("small.png"), "-o", &p("f.png")], &[]);
+    vamos::vision::GrayImage::zeros(80, 60)
+        .save_png(&dir.path().join("small.png"))
+        .unwrap();
+    let mismatch = vamos(
+        &["flow", &p("a.png"), &p("small.png"), "-o", &p("f.png")],
+        &[],
+    );
     assert_clean_failure(&mismatch, "160x120");
-    assert_clean_failure(&vamos(&["register", &p("a.png"), &p("small.png")], &[]), "size");
-    let preset = vamos(&["flow", &p("a.png"), &p("b.png"), "-o", &p("f.png"), "--preset", "warp9"], &[]);
+    assert_clean_failure(
+        &vamos(&["register", &p("a.png"), &p("small.png")], &[]),
+        "size",
+    );
+    let preset = vamos(
+        &[
+            "flow",
+            &p("a.png"),
+            &p("b.png"),
+            "-o",
+            &p("f.png"),
+            "--preset",
+            "warp9",
+        ],
+        &[],
+    );
     assert_clean_failure(&preset, "warp9");
 }
 
@@ -102,7 +140,10 @@ fn settings_come_from_file_and_environment() {
     assert!(out.status.success(), "{}", text(&out.stderr));
     let toml = text(&out.stdout);
     assert!(toml.contains("warps = 3"), "{toml}");
-    assert_clean_failure(&vamos(&["config"], &[("VAMOS_VISION__WRAPS", "3")]), "wraps");
+    assert_clean_failure(
+        &vamos(&["config"], &[("VAMOS_VISION__WRAPS", "3")]),
+        "wraps",
+    );
     let dir = tempfile::tempdir().unwrap();
     let file = dir.path().join("v.toml");
     std::fs::write(&file, "[log]\nformat = \"json\"\nlevel = \"debug\"\n").unwrap();
@@ -110,8 +151,15 @@ fn settings_come_from_file_and_environment() {
     assert!(out.status.success());
     assert!(text(&out.stdout).contains("format = \"json\""));
     // JSON logs on stderr, one object per line.
-    let first = text(&out.stderr).lines().next().map(str::to_owned).unwrap_or_default();
-    assert!(serde_json::from_str::<serde_json::Value>(&first).is_ok(), "not JSON: {first}");
+    let first = text(&out.stderr)
+        .lines()
+        .next()
+        .map(str::to_owned)
+        .unwrap_or_default();
+    assert!(
+        serde_json::from_str::<serde_json::Value>(&first).is_ok(),
+        "not JSON: {first}"
+    );
 }
 
 #[test]
@@ -119,12 +167,21 @@ fn demo_runs_on_the_embedded_pairs() {
     let dir = tempfile::tempdir().unwrap();
     let out_dir = dir.path().join("demo");
     let out = vamos(
-        &["demo", "--out", &out_dir.display().to_string(), "--width", "160", "--height", "120"],
+        &[
+            "demo",
+            "--out",
+            &out_dir.display().to_string(),
+            "--width",
+            "160",
+            "--height",
+            "120",
+        ],
         &[],
     );
     assert!(out.status.success(), "{}", text(&out.stderr));
     let summary: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out_dir.join("summary.json")).unwrap()).unwrap();
+        serde_json::from_str(&std::fs::read_to_string(out_dir.join("summary.json")).unwrap())
+            .unwrap();
     let cases = summary.as_array().unwrap();
     assert_eq!(cases.len(), 4);
     for c in cases {

@@ -27,8 +27,14 @@ fn fixtures() -> PathBuf {
 
 fn valid_mask(dir: &Path) -> Option<Vec<bool>> {
     let p = dir.join("valid.png");
-    p.is_file()
-        .then(|| GrayImage::load(&p).unwrap().data().iter().map(|&v| v > 127.0).collect())
+    p.is_file().then(|| {
+        GrayImage::load(&p)
+            .unwrap()
+            .data()
+            .iter()
+            .map(|&v| v > 127.0)
+            .collect()
+    })
 }
 
 /// Mean endpoint difference between two fields over `valid`, excluding a border of `b`
@@ -47,7 +53,8 @@ fn mean_diff(a: &FlowField, o: &FlowField, valid: Option<&[bool]>, b: usize) -> 
 #[test]
 fn tvl1_matches_opencv_dualtvl1_on_the_golden_pairs() {
     let manifest: Value =
-        serde_json::from_str(&std::fs::read_to_string(fixtures().join("manifest.json")).unwrap()).unwrap();
+        serde_json::from_str(&std::fs::read_to_string(fixtures().join("manifest.json")).unwrap())
+            .unwrap();
     let cases = manifest["cases"].as_array().unwrap();
     assert!(cases.len() >= 4);
     let params = FlowParams::default();
@@ -64,12 +71,17 @@ fn tvl1_matches_opencv_dualtvl1_on_the_golden_pairs() {
         let aee_ours = ours.average_endpoint_error(&gt, valid.as_deref()).unwrap();
         let aee_cv = cv.average_endpoint_error(&gt, valid.as_deref()).unwrap();
         let diff = mean_diff(&ours, &cv, valid.as_deref(), 4);
-        report.push(format!("{name}: AEE vamos {aee_ours:.4}, OpenCV {aee_cv:.4}, mean |vamos - OpenCV| {diff:.4}"));
+        report.push(format!(
+            "{name}: AEE vamos {aee_ours:.4}, OpenCV {aee_cv:.4}, mean |vamos - OpenCV| {diff:.4}"
+        ));
         assert!(
             aee_ours <= aee_cv * 1.10 + 0.01,
             "{name}: vamos AEE {aee_ours:.4} worse than OpenCV's {aee_cv:.4}"
         );
-        assert!(diff < 0.15, "{name}: vamos and OpenCV differ by {diff:.4} px on average");
+        assert!(
+            diff < 0.15,
+            "{name}: vamos and OpenCV differ by {diff:.4} px on average"
+        );
     }
     println!("{}", report.join("\n"));
 }

@@ -1,5 +1,8 @@
 //! Integration tests: one binary, one module per area.
 
+// Test code may unwrap: a failure is a test failure with a backtrace.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
 mod architecture;
 mod cli;
 mod flow_accuracy;
