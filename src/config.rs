@@ -168,6 +168,20 @@ mod tests {
     }
 
     #[test]
+    fn the_shipped_example_lists_every_default() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("deploy/vamos.example.toml");
+        let s = Settings::load_with_env(Some(&path), env(&[])).unwrap();
+        assert_eq!(s, Settings::default());
+        // Every key of the defaults appears in the example (so it documents them all).
+        let text = std::fs::read_to_string(&path).unwrap();
+        let defaults = toml::to_string(&Settings::default()).unwrap();
+        for line in defaults.lines().filter(|l| l.contains(" = ")) {
+            let key = line.split(" = ").next().unwrap();
+            assert!(text.contains(&format!("{key} = ")), "example lacks {key}");
+        }
+    }
+
+    #[test]
     fn unknown_keys_and_bad_values_are_errors() {
         let e = Settings::load_with_env(None, env(&[("VAMOS_VISION__THREDS", "1")])).unwrap_err();
         assert!(e.to_string().contains("threds"), "{e}");

@@ -343,7 +343,10 @@ fn demo(
         a.save_png(&out.join(format!("{name}_a.png")))?;
         b.save_png(&out.join(format!("{name}_b.png")))?;
         write_flow_png(&truth, None, &out.join(format!("{name}_flow_truth.png")))?;
-        let r = registrar.register(&a, &b, None)?;
+        // The moving square stands in for the robot body: registration measures the
+        // camera (background) motion with those pixels masked out, as the pipeline does.
+        let mask = body_mask(width, height, motion);
+        let r = registrar.register(&a, &b, mask.as_deref())?;
         let t = &r.transform;
         let truth_t = match *motion {
             Motion::Translation { dx, dy } => Some((dx, dy, 1.0, 0.0)),
@@ -353,16 +356,21 @@ fn demo(
                 scale,
                 rotation_deg,
             } => Some((tx, ty, scale, rotation_deg)),
-            _ => None,
+            Motion::MovingSquare { .. } => Some((0.0, 0.0, 1.0, 0.0)),
+            Motion::Smooth { .. } => None,
         };
         row["registration"] = json!({
             "tx": t.tx_px, "ty": t.ty_px, "scale": t.scale, "rotation_deg": t.rotation_deg,
-            "confidence": r.confidence,
+            "confidence": r.confidence, "masked": mask.is_some(),
             "truth": truth_t.map(|(a, b, c, d)| json!([a, b, c, d])),
         });
         let truth_txt = truth_t.map_or("(no single similarity)".to_string(), |(a, b, c, d)| {
             format!("truth ({a:.2}, {b:.2}, {c:.3}, {d:.2})")
-        });
+        }) + if mask.is_some() {
+            ", moving square masked"
+        } else {
+            ""
+        };
         println!(
             "{:<18} {:>10.3} {:>10.1} {:>12.3} {:>10.1} | ({:.2}, {:.2}, {:.3}, {:.2}) conf {:.2} {}",
             name,
@@ -385,4 +393,32 @@ fn demo(
     println!("AEE: average endpoint error against the exact ground truth, pixels.");
     println!("wrote {}", path.display());
     Ok(())
+}
+
+/// Pixels covered by a [`Motion::MovingSquare`]'s square in either image (grown by 2 px).
+fn body_mask(width: usize, height: usize, motion: &Motion) -> Option<Vec<bool>> {
+    let Motion::MovingSquare {
+        x,
+        y,
+        size_px,
+        dx,
+        dy,
+    } = *motion
+    else {
+        return None;
+    };
+    let inside = |px: f64, py: f64, ox: f64, oy: f64| {
+        px >= x + ox - 2.0
+            && px < x + ox + size_px + 2.0
+            && py >= y + oy - 2.0
+            && py < y + oy + size_px + 2.0
+    };
+    Some(
+        (0..width * height)
+            .map(|i| {
+                let (px, py) = ((i % width) as f64, (i / width) as f64);
+                inside(px, py, 0.0, 0.0) || inside(px, py, dx, dy)
+            })
+            .collect(),
+    )
 }
