@@ -52,6 +52,11 @@ pub struct FlowParams {
     /// `1 / scale_step^k`) to full resolution. Clamped to the coarsest level that exists.
     /// Default 0.
     pub finest_scale: usize,
+    /// Carry the dual variables `p` from one pyramid level to the next (bilinear
+    /// upsampling) instead of restarting them at 0 on every level. Starts each level
+    /// from the coarser level's regularisation state, so fewer iterations are needed.
+    /// Default `false` (OpenCV's behaviour).
+    pub warm_start_dual: bool,
 }
 
 impl Default for FlowParams {
@@ -69,6 +74,7 @@ impl Default for FlowParams {
             median_filter: 5,
             interpolation: Interpolation::Bicubic,
             finest_scale: 0,
+            warm_start_dual: false,
         }
     }
 }

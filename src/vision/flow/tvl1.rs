@@ -486,12 +486,14 @@ pub(crate) fn iterate_fast(
     scratch.row_err.iter().sum()
 }
 
-/// Solves one level, refining `(u1, u2)` in place.
+/// Solves one level, refining `(u1, u2)` and the dual variables `p` in place (`p` is
+/// zeros for OpenCV's behaviour, or the coarser level's dual upsampled).
 pub(crate) fn solve_level(
     i0: &Level,
     i1: &Level,
     u1: &mut [f32],
     u2: &mut [f32],
+    p: &mut Dual,
     params: &FlowParams,
     kernel: Kernel,
 ) {
@@ -503,7 +505,7 @@ pub(crate) fn solve_level(
         taut: params.tau / params.theta,
     };
     let scaled_eps = (params.epsilon as f64).powi(2) * n as f64;
-    let mut p = Dual::zeros(n);
+    debug_assert_eq!(p.p11.len(), n);
     let mut lin = Linearised::default();
     let mut scratch = FastScratch::default();
     let mut median_scratch = Vec::new();
@@ -535,8 +537,8 @@ pub(crate) fn solve_level(
             let mut inner = 0;
             while error > scaled_eps && inner < params.inner_iterations {
                 error = match kernel {
-                    Kernel::Fast => iterate_fast(&lin, u1, u2, &mut p, w, h, s, &mut scratch),
-                    Kernel::Reference => iterate_reference(&lin, u1, u2, &mut p, w, h, s),
+                    Kernel::Fast => iterate_fast(&lin, u1, u2, p, w, h, s, &mut scratch),
+                    Kernel::Reference => iterate_reference(&lin, u1, u2, p, w, h, s),
                 };
                 inner += 1;
                 n_it += 1;
