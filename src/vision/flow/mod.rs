@@ -221,7 +221,12 @@ impl FlowEstimator {
         let mut s = coarsest;
         loop {
             let (l0, l1) = (&p0.levels[s], &p1.levels[s]);
-            solve_level(l0, l1, &mut u1, &mut u2, &mut dual, p, self.kernel);
+            let warps = if s == finest && p.finest_warps > 0 {
+                p.finest_warps
+            } else {
+                p.warps
+            };
+            solve_level(l0, l1, &mut u1, &mut u2, &mut dual, p, warps, self.kernel);
             if s == finest {
                 break;
             }

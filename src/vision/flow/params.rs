@@ -57,6 +57,10 @@ pub struct FlowParams {
     /// from the coarser level's regularisation state, so fewer iterations are needed.
     /// Default `false` (OpenCV's behaviour).
     pub warm_start_dual: bool,
+    /// Warps on the finest solved level, count; 0 means [`warps`](Self::warps). Coarse
+    /// levels are cheap, so a preset can warp them often and the finest level rarely.
+    /// Default 0.
+    pub finest_warps: usize,
 }
 
 impl Default for FlowParams {
@@ -75,6 +79,7 @@ impl Default for FlowParams {
             interpolation: Interpolation::Bicubic,
             finest_scale: 0,
             warm_start_dual: false,
+            finest_warps: 0,
         }
     }
 }

@@ -495,6 +495,7 @@ pub(crate) fn solve_level(
     u2: &mut [f32],
     p: &mut Dual,
     params: &FlowParams,
+    warps: usize,
     kernel: Kernel,
 ) {
     let (w, h) = (i0.width, i0.height);
@@ -510,7 +511,7 @@ pub(crate) fn solve_level(
     let mut scratch = FastScratch::default();
     let mut median_scratch = Vec::new();
     let (mut t_lin, mut t_med, mut t_it, mut n_it, mut n_med) = (0.0, 0.0, 0.0, 0usize, 0usize);
-    for _ in 0..params.warps {
+    for _ in 0..warps {
         let t0 = std::time::Instant::now();
         linearise(
             &i0.image,
