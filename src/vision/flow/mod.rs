@@ -486,4 +486,25 @@ mod tests {
         let e = f.average_endpoint_error(&gt, None).unwrap();
         assert!(e < 0.5, "AEE {e}");
     }
+
+    /// The solver knobs off the OpenCV path: dual carried across levels, one warp on the
+    /// finest level. Still accurate, and the fast kernel still equals the reference.
+    #[test]
+    fn warm_start_dual_and_finest_warps() {
+        let m = Motion::Translation { dx: 2.0, dy: 1.0 };
+        let (a, b, gt) = pair(64, 48, &m, 3);
+        let p = FlowParams {
+            warm_start_dual: true,
+            finest_warps: 1,
+            warps: 3,
+            ..quick()
+        };
+        let f = tvl1(&a, &b, &p).unwrap();
+        let e = f.average_endpoint_error(&gt, None).unwrap();
+        assert!(e < 0.5, "AEE {e}");
+        let mut est = FlowEstimator::new(p).unwrap();
+        est.kernel = Kernel::Reference;
+        est.push(&a).unwrap();
+        assert_eq!(est.push(&b).unwrap().unwrap(), f);
+    }
 }

@@ -488,6 +488,7 @@ pub(crate) fn iterate_fast(
 
 /// Solves one level, refining `(u1, u2)` and the dual variables `p` in place (`p` is
 /// zeros for OpenCV's behaviour, or the coarser level's dual upsampled).
+#[allow(clippy::too_many_arguments)]
 pub(crate) fn solve_level(
     i0: &Level,
     i1: &Level,
