@@ -68,6 +68,8 @@ fn main() -> anyhow::Result<()> {
                 "outer" => p.outer_iterations = v.parse()?,
                 "median" => p.median_filter = v.parse()?,
                 "finest" => p.finest_scale = v.parse()?,
+                "fwarps" => p.finest_warps = v.parse()?,
+                "warm" => p.warm_start_dual = v.parse()?,
                 "interp" => {
                     p.interpolation = if v == "bilinear" {
                         Interpolation::Bilinear

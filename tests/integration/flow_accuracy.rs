@@ -88,3 +88,24 @@ fn realtime_all_cases_160x120() {
         assert!(e < bound, "{name}: AEE {e} >= {bound}");
     }
 }
+
+/// Full-resolution solve with the dual carried across levels and one finest warp (the
+/// variant of `benches/flow_presets.md` that reaches the default's accuracy at 320x240,
+/// at about 3x the real-time preset's cost).
+#[test]
+fn full_res_warm_dual_one_finest_warp_320x240() {
+    let p = FlowParams {
+        scale_step: 0.5,
+        n_scales: 4,
+        warps: 4,
+        finest_warps: 1,
+        inner_iterations: 15,
+        outer_iterations: 1,
+        warm_start_dual: true,
+        ..FlowParams::default()
+    };
+    for (name, bound) in [("translation", 0.05), ("smooth", 0.095), ("square", 0.025)] {
+        let e = aee(name, 320, 240, &p);
+        assert!(e < bound, "{name}: AEE {e} >= {bound}");
+    }
+}

@@ -52,6 +52,15 @@ pub struct FlowParams {
     /// `1 / scale_step^k`) to full resolution. Clamped to the coarsest level that exists.
     /// Default 0.
     pub finest_scale: usize,
+    /// Carry the dual variables `p` from one pyramid level to the next (bilinear
+    /// upsampling) instead of restarting them at 0 on every level. Starts each level
+    /// from the coarser level's regularisation state, so fewer iterations are needed.
+    /// Default `false` (OpenCV's behaviour).
+    pub warm_start_dual: bool,
+    /// Warps on the finest solved level, count; 0 means [`warps`](Self::warps). Coarse
+    /// levels are cheap, so a preset can warp them often and the finest level rarely.
+    /// Default 0.
+    pub finest_warps: usize,
 }
 
 impl Default for FlowParams {
@@ -69,6 +78,8 @@ impl Default for FlowParams {
             median_filter: 5,
             interpolation: Interpolation::Bicubic,
             finest_scale: 0,
+            warm_start_dual: false,
+            finest_warps: 0,
         }
     }
 }
@@ -94,6 +105,19 @@ impl FlowParams {
     /// | warps 2, inner 15                    | 0.182 / 0.195 / 0.202 / 0.056 | 2.6  | 0.305 / 0.629 / 0.156 / 0.088 | 8.3  |
     /// | bilinear, warps 4                    | 0.315 / 0.285 / 0.290 / 0.061 | 4.5  | 0.457 / 0.369 / 0.293 / 0.060 | 13.9 |
     /// | bilinear, full resolution, 4 scales, warps 2 | 0.075 / 0.083 / 0.100 / 0.014 | 11.6 | 0.313 / 0.370 / 0.151 / 0.054 | 25 |
+    ///
+    /// | `finest_warps` 1, `warps` 4, `warm_start_dual`, full res, 4 scales, inner 15 | 0.070 / 0.092 / 0.084 / 0.018 | 7.7 | 0.046 / 0.161 / 0.087 / 0.023 | 36-40 |
+    /// | same, inner 10                       |                               |      | 0.137 / 0.178 / 0.093 / 0.042 | 41 (load) |
+    /// | same, inner 15, `warm_start_dual` off |                              |      | 0.030 / 0.175 / 0.104 / 0.025 | 47 (load) |
+    /// | same, inner 15, bilinear             |                               |      | 0.137 / 0.092 / 0.091 / 0.014 | 44 (load) |
+    /// | same, 3 scales                       |                               |      | 0.210 / 0.959 / 0.111 / 0.249 | 40 (load) |
+    /// | this preset + `warps` 5, `finest_warps` 3, `warm_start_dual` | 0.156 / 0.191 / 0.162 / 0.040 | 5.0 | 0.180 / 0.225 / 0.129 / 0.046 | 12.9-22.6 (this preset 12.7-16.0 beside it) |
+    /// | this preset + `warm_start_dual`      |                               |      | 0.230 / 0.210 / 0.147 / 0.054 | 16.3 (this preset 16.4 beside it) |
+    ///
+    /// The full-resolution row with one finest warp reaches (or beats) the default's AEE
+    /// at 320x240 on translation, smooth and square, but costs about 3x this preset
+    /// (36-46 ms beside this preset's 13-16 ms on the loaded machine), so it is not the
+    /// preset; build it from the knobs where accuracy matters more than the 15 ms budget.
     ///
     /// It is 3-4x faster than the 15 ms budget at 160x120 and within it at 320x240, but
     /// it does **not** reach the default's accuracy: on translation and smooth motion its

@@ -486,13 +486,17 @@ pub(crate) fn iterate_fast(
     scratch.row_err.iter().sum()
 }
 
-/// Solves one level, refining `(u1, u2)` in place.
+/// Solves one level, refining `(u1, u2)` and the dual variables `p` in place (`p` is
+/// zeros for OpenCV's behaviour, or the coarser level's dual upsampled).
+#[allow(clippy::too_many_arguments)]
 pub(crate) fn solve_level(
     i0: &Level,
     i1: &Level,
     u1: &mut [f32],
     u2: &mut [f32],
+    p: &mut Dual,
     params: &FlowParams,
+    warps: usize,
     kernel: Kernel,
 ) {
     let (w, h) = (i0.width, i0.height);
@@ -503,12 +507,12 @@ pub(crate) fn solve_level(
         taut: params.tau / params.theta,
     };
     let scaled_eps = (params.epsilon as f64).powi(2) * n as f64;
-    let mut p = Dual::zeros(n);
+    debug_assert_eq!(p.p11.len(), n);
     let mut lin = Linearised::default();
     let mut scratch = FastScratch::default();
     let mut median_scratch = Vec::new();
     let (mut t_lin, mut t_med, mut t_it, mut n_it, mut n_med) = (0.0, 0.0, 0.0, 0usize, 0usize);
-    for _ in 0..params.warps {
+    for _ in 0..warps {
         let t0 = std::time::Instant::now();
         linearise(
             &i0.image,
@@ -535,8 +539,8 @@ pub(crate) fn solve_level(
             let mut inner = 0;
             while error > scaled_eps && inner < params.inner_iterations {
                 error = match kernel {
-                    Kernel::Fast => iterate_fast(&lin, u1, u2, &mut p, w, h, s, &mut scratch),
-                    Kernel::Reference => iterate_reference(&lin, u1, u2, &mut p, w, h, s),
+                    Kernel::Fast => iterate_fast(&lin, u1, u2, p, w, h, s, &mut scratch),
+                    Kernel::Reference => iterate_reference(&lin, u1, u2, p, w, h, s),
                 };
                 inner += 1;
                 n_it += 1;
