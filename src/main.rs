@@ -345,7 +345,7 @@ fn demo(
         write_flow_png(&truth, None, &out.join(format!("{name}_flow_truth.png")))?;
         // The moving square stands in for the robot body: registration measures the
         // camera (background) motion with those pixels masked out, as the pipeline does.
-        let mask = body_mask(width, height, motion);
+        let mask = synthetic::moving_square_cover(width, height, motion, 2.0);
         let r = registrar.register(&a, &b, mask.as_deref())?;
         let t = &r.transform;
         let truth_t = match *motion {
@@ -393,32 +393,4 @@ fn demo(
     println!("AEE: average endpoint error against the exact ground truth, pixels.");
     println!("wrote {}", path.display());
     Ok(())
-}
-
-/// Pixels covered by a [`Motion::MovingSquare`]'s square in either image (grown by 2 px).
-fn body_mask(width: usize, height: usize, motion: &Motion) -> Option<Vec<bool>> {
-    let Motion::MovingSquare {
-        x,
-        y,
-        size_px,
-        dx,
-        dy,
-    } = *motion
-    else {
-        return None;
-    };
-    let inside = |px: f64, py: f64, ox: f64, oy: f64| {
-        px >= x + ox - 2.0
-            && px < x + ox + size_px + 2.0
-            && py >= y + oy - 2.0
-            && py < y + oy + size_px + 2.0
-    };
-    Some(
-        (0..width * height)
-            .map(|i| {
-                let (px, py) = ((i % width) as f64, (i / width) as f64);
-                inside(px, py, 0.0, 0.0) || inside(px, py, dx, dy)
-            })
-            .collect(),
-    )
 }

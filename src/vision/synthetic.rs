@@ -306,6 +306,40 @@ pub fn pair(
     }
 }
 
+/// Pixels covered by a [`Motion::MovingSquare`]'s square in either image, grown by
+/// `grow_px`: the mask a caller gives registration so that only the background counts
+/// (the square stands in for the robot body). `None` for other motions.
+pub fn moving_square_cover(
+    width: usize,
+    height: usize,
+    motion: &Motion,
+    grow_px: f64,
+) -> Option<Vec<bool>> {
+    let Motion::MovingSquare {
+        x,
+        y,
+        size_px,
+        dx,
+        dy,
+    } = *motion
+    else {
+        return None;
+    };
+    let inside = |px: f64, py: f64, ox: f64, oy: f64| {
+        let (l, t) = (x + ox - grow_px, y + oy - grow_px);
+        let side = size_px + 2.0 * grow_px;
+        px >= l && px < l + side && py >= t && py < t + side
+    };
+    Some(
+        (0..width * height)
+            .map(|i| {
+                let (px, py) = ((i % width) as f64, (i / width) as f64);
+                inside(px, py, 0.0, 0.0) || inside(px, py, dx, dy)
+            })
+            .collect(),
+    )
+}
+
 /// Pixels of a [`Motion::MovingSquare`] pair whose ground truth is defined in both
 /// images (not within `margin_px` of the square's outline in either image).
 pub fn moving_square_valid(
@@ -382,6 +416,25 @@ mod tests {
         // moves up (y decreases).
         let r = similarity_forward((42.0, 24.0), (32.0, 24.0), (0.0, 0.0, 1.0, 90.0));
         assert!((r.0 - 32.0).abs() < 1e-9 && (r.1 - 14.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn square_cover_spans_both_positions() {
+        let m = Motion::MovingSquare {
+            x: 10.0,
+            y: 10.0,
+            size_px: 5.0,
+            dx: 3.0,
+            dy: 0.0,
+        };
+        let c = moving_square_cover(30, 30, &m, 1.0).unwrap();
+        // x from 9 to 18 (exclusive 19 + ... ), y from 9 to 15.
+        assert!(c[9 * 30 + 9] && c[15 * 30 + 18]);
+        assert!(!c[8 * 30 + 9] && !c[9 * 30 + 19] && !c[16 * 30 + 12]);
+        assert_eq!(c.iter().filter(|&&v| v).count(), 10 * 7);
+        assert!(
+            moving_square_cover(30, 30, &Motion::Translation { dx: 1.0, dy: 0.0 }, 1.0).is_none()
+        );
     }
 
     #[test]
