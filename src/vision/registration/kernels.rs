@@ -137,13 +137,28 @@ pub(crate) fn warp_similarity(
     let (d, e) = (s / scale, c / scale);
     for y in 0..h {
         let dy = y as f64 - cy;
-        let mut px = cx + a * (-cx) + b * dy;
-        let mut py = cy + d * (-cx) + e * dy;
+        // Row start in f64, per-pixel offsets from it (no accumulated rounding).
+        let px0 = cx + a * (-cx) + b * dy;
+        let py0 = cy + d * (-cx) + e * dy;
         let row = &mut out[y * w..(y + 1) * w];
-        for o in row.iter_mut() {
+        for (x, o) in row.iter_mut().enumerate() {
+            let px = px0 + a * x as f64;
+            let py = py0 + d * x as f64;
+            // Fast interior path: truncation is the floor for non-negative coordinates,
+            // which avoids a libm `floor` call per sample.
+            if px >= 0.0 && py >= 0.0 {
+                let (xi, yi) = (px as usize, py as usize);
+                if xi + 1 < w && yi + 1 < h {
+                    let fx = (px - xi as f64) as f32;
+                    let fy = (py - yi as f64) as f32;
+                    let i = yi * w + xi;
+                    let top = src[i] + fx * (src[i + 1] - src[i]);
+                    let bot = src[i + w] + fx * (src[i + w + 1] - src[i + w]);
+                    *o = top + fy * (bot - top);
+                    continue;
+                }
+            }
             *o = sample_bilinear(src, w, h, px, py);
-            px += a;
-            py += d;
         }
     }
 }

@@ -54,6 +54,11 @@
 
 mod fft2;
 mod kernels;
+#[doc(hidden)]
+pub static STAGE_NS: [std::sync::atomic::AtomicU64; 8] = [const { std::sync::atomic::AtomicU64::new(0) }; 8];
+fn stage(k: usize, t: std::time::Instant) {
+    STAGE_NS[k].fetch_add(t.elapsed().as_nanos() as u64, std::sync::atomic::Ordering::Relaxed);
+}
 
 use realfft::num_complex::Complex;
 use serde::{Deserialize, Serialize};
@@ -345,6 +350,8 @@ struct SizeCache {
     gauss: Vec<f32>,
     lp_gauss: Vec<f32>,
     half_turn: Vec<Complex<f32>>,
+    /// Low-frequency choice between the two half-turn candidates (large images only).
+    coarse: Option<CoarseChoice>,
     /// Window times feathered mask; generation counts mask changes.
     weights: Vec<f32>,
     weights_gen: u64,
@@ -383,6 +390,7 @@ impl SizeCache {
             gauss: kernels::gaussian_spectrum(w, h, p.peak_sigma),
             lp_gauss: kernels::gaussian_spectrum(nr, na, p.peak_sigma),
             half_turn: kernels::half_turn_ramp(w, h),
+            coarse: CoarseChoice::new(w, h, p.peak_sigma),
             weights: window.clone(),
             window,
             weights_gen: 0,
@@ -445,9 +453,15 @@ impl SizeCache {
 
     /// Fills `frame.pre`, `frame.spec` and `frame.lp_spec` from `frame.raw`.
     fn preprocess(&mut self, frame: &mut Frame) -> Result<(), RegistrationError> {
+        let t = std::time::Instant::now();
         kernels::weighted_zero_mean(&frame.raw, &self.weights, &mut frame.pre);
+        stage(0, t);
+        let t = std::time::Instant::now();
         self.fft.forward(&frame.pre, &mut frame.spec)?;
+        stage(1, t);
+        let t = std::time::Instant::now();
         self.log_polar_spectrum(true, frame)?;
+        stage(2, t);
         frame.weights_gen = self.weights_gen;
         Ok(())
     }
@@ -513,7 +527,10 @@ impl SizeCache {
         p: &RegistrationParams,
     ) -> Result<Registration, RegistrationError> {
         let (w, h) = (self.w, self.h);
+        let t = std::time::Instant::now();
         let (mut rot, mut log_s) = self.rotation_scale(&a.lp_spec, &b.lp_spec, p)?;
+        stage(3, t);
+        let t = std::time::Instant::now();
         for _ in 0..p.refine_iterations {
             kernels::warp_similarity(&a.pre, w, h, log_s.exp(), rot, &mut self.warped);
             self.fft.forward(&self.warped, &mut self.warped_spec)?;
@@ -527,12 +544,27 @@ impl SizeCache {
             rot += dr;
             log_s += dls;
         }
+        stage(4, t);
         let scale = log_s.exp();
+        let t = std::time::Instant::now();
         kernels::warp_similarity(&a.pre, w, h, scale, rot, &mut self.warped);
+        stage(5, t);
+        let t = std::time::Instant::now();
         self.fft.forward(&self.warped, &mut self.warped_spec)?;
+        stage(6, t);
+        let t = std::time::Instant::now();
         let radius = (2.0 * p.peak_sigma).ceil() as usize;
         let mut best: Option<(kernels::Peak, f64)> = None;
-        for half_turn in [false, true] {
+        let choice = match self.coarse.as_mut() {
+            Some(c) => Some(c.prefers_half_turn(&self.warped_spec, &b.spec, &self.half_turn)?),
+            None => None,
+        };
+        let candidates: &[bool] = match choice {
+            Some(true) => &[true],
+            Some(false) => &[false],
+            None => &[false, true],
+        };
+        for &half_turn in candidates {
             let ramp = half_turn.then_some(self.half_turn.as_slice());
             kernels::cross_power(
                 &self.warped_spec,
@@ -548,6 +580,7 @@ impl SizeCache {
                 best = Some((pk, r));
             }
         }
+        stage(7, t);
         let Some((pk, r)) = best else {
             // Invariant: the loop above runs twice and always sets `best`.
             return Err(RegistrationError::Internal {
@@ -567,6 +600,82 @@ impl SizeCache {
             },
             confidence: pk.energy_fraction,
         })
+    }
+}
+
+/// Side of the low-frequency correlation surface that picks the half-turn candidate.
+const COARSE_SIDE: usize = 64;
+
+/// Picks between the rotation and the rotation + 180 degrees on a `COARSE_SIDE` square
+/// correlation surface made of the low frequencies only, so that only the winner needs a
+/// full-size inverse FFT. Both candidates' normalised cross-power spectra have the same
+/// magnitude (the half-turn ramp has modulus 1), hence the same surface energy: the
+/// higher maximum is the sharper peak.
+struct CoarseChoice {
+    fft: Fft2,
+    /// Full-spectrum index of each coarse-spectrum bin.
+    idx: Vec<u32>,
+    gauss: Vec<f32>,
+    a: Vec<Complex<f32>>,
+    b: Vec<Complex<f32>>,
+    ramp: Vec<Complex<f32>>,
+    cross: Vec<Complex<f32>>,
+    surface: Vec<f32>,
+}
+
+impl CoarseChoice {
+    /// `None` when the image is too small for the coarse surface to save work.
+    fn new(w: usize, h: usize, peak_sigma: f32) -> Option<Self> {
+        let n = COARSE_SIDE;
+        if w < 2 * n || h < 2 * n {
+            return None;
+        }
+        let fft = Fft2::new(n, n);
+        let len = fft.spectrum_len();
+        let mut idx = Vec::with_capacity(len);
+        for kx in 0..=n / 2 {
+            for ky in 0..n {
+                let fy = kernels::signed_freq(ky, n).rem_euclid(h as isize) as usize;
+                idx.push((kx * h + fy) as u32);
+            }
+        }
+        // The smoothing Gaussian in full-size pixels, on the coarse bins.
+        let full_gauss = kernels::gaussian_spectrum(w, h, peak_sigma);
+        let gauss = idx.iter().map(|&i| full_gauss[i as usize]).collect();
+        let zero = Complex::new(0.0, 0.0);
+        Some(Self {
+            fft,
+            idx,
+            gauss,
+            a: vec![zero; len],
+            b: vec![zero; len],
+            ramp: vec![zero; len],
+            cross: vec![zero; len],
+            surface: vec![0.0; n * n],
+        })
+    }
+
+    /// True when the half-turned candidate `a` correlates better with `b`.
+    fn prefers_half_turn(
+        &mut self,
+        a: &[Complex<f32>],
+        b: &[Complex<f32>],
+        half_turn: &[Complex<f32>],
+    ) -> Result<bool, RegistrationError> {
+        for (k, &i) in self.idx.iter().enumerate() {
+            let i = i as usize;
+            self.a[k] = a[i];
+            self.b[k] = b[i];
+            self.ramp[k] = half_turn[i];
+        }
+        let mut peaks = [0.0f32; 2];
+        for (half, peak) in peaks.iter_mut().enumerate() {
+            let ramp = (half == 1).then_some(self.ramp.as_slice());
+            kernels::cross_power(&self.a, &self.b, &self.gauss, ramp, &mut self.cross);
+            self.fft.inverse(&mut self.cross, &mut self.surface)?;
+            *peak = self.surface.iter().copied().fold(f32::NEG_INFINITY, f32::max);
+        }
+        Ok(peaks[1] > peaks[0])
     }
 }
 
