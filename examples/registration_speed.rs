@@ -144,29 +144,6 @@ fn main() {
     println!("{params:?}");
     match mode.as_str() {
         "acc" => acc(&params),
-        "stages" => stages(),
         _ => time(&params),
-    }
-}
-#[allow(dead_code)]
-fn stages() {
-    use std::sync::atomic::Ordering;
-    let params = RegistrationParams::default();
-    for n in [128usize, 256, 512] {
-        let motion = Motion::Similarity { tx: 5.0, ty: -3.0, scale: 1.05, rotation_deg: 6.0 };
-        let (a, b, _) = synthetic::pair(n, n, &motion, 1);
-        let mut s = Registrar::new(params.clone()).unwrap();
-        let frames = [a.clone(), b.clone()];
-        s.push(&frames[1], None).unwrap();
-        let names = ["zero-mean", "fwd fft", "log-polar", "rot/scale", "refine", "warp", "fwd fft warped", "translation"];
-        let mut best = [f64::INFINITY; 8];
-        for k in 0..100 {
-            for st in &vamos::vision::registration::STAGE_NS { st.store(0, Ordering::Relaxed); }
-            s.push(&frames[k % 2], None).unwrap();
-            for i in 0..8 { best[i] = best[i].min(vamos::vision::registration::STAGE_NS[i].load(Ordering::Relaxed) as f64 / 1e6); }
-        }
-        print!("{n}:");
-        for i in 0..8 { print!(" {} {:.3}", names[i], best[i]); }
-        println!();
     }
 }
