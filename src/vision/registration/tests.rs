@@ -355,7 +355,9 @@ fn every_subpixel_method_runs() {
 proptest! {
     #![proptest_config(ProptestConfig::with_cases(24))]
 
-    /// Measured over 40 random cases at 256x256: worst 0.105 px, 0.101 deg, 0.18 %.
+    /// Measured over 40 random cases at 256x256 with `refine_iterations` 1: worst 0.105 px,
+    /// 0.101 deg, 0.18 %; with the default 0, over 80 cases (`examples/registration_speed.rs`):
+    /// 0.102 px, 0.255 deg, 0.23 %.
     #[test]
     fn recovers_random_similarity_256(
         seed in 0u64..10_000,
