@@ -70,6 +70,16 @@ fn main() -> anyhow::Result<()> {
                 "finest" => p.finest_scale = v.parse()?,
                 "fwarps" => p.finest_warps = v.parse()?,
                 "warm" => p.warm_start_dual = v.parse()?,
+                "finner" => p.finest_inner_iterations = v.parse()?,
+                "relax" => p.over_relaxation = v.parse()?,
+                "cmedian" => p.coarse_median_filter = Some(v.parse()?),
+                "cinterp" => {
+                    p.coarse_interpolation = Some(if v == "bilinear" {
+                        Interpolation::Bilinear
+                    } else {
+                        Interpolation::Bicubic
+                    })
+                }
                 "interp" => {
                     p.interpolation = if v == "bilinear" {
                         Interpolation::Bilinear

@@ -37,7 +37,7 @@ pub use params::{FlowParams, Interpolation, PRESET_NAMES};
 
 use crate::vision::image::{FlowField, GrayImage};
 use pyramid::{Pyramid, level_count, resize_bilinear};
-use tvl1::{Dual, Kernel, solve_level};
+use tvl1::{Dual, Kernel, LevelPlan, solve_level};
 
 /// Smallest side of a pyramid level, pixels; also the smallest accepted image side.
 pub const MIN_LEVEL_SIZE_PX: usize = 16;
@@ -221,12 +221,8 @@ impl FlowEstimator {
         let mut s = coarsest;
         loop {
             let (l0, l1) = (&p0.levels[s], &p1.levels[s]);
-            let warps = if s == finest && p.finest_warps > 0 {
-                p.finest_warps
-            } else {
-                p.warps
-            };
-            solve_level(l0, l1, &mut u1, &mut u2, &mut dual, p, warps, self.kernel);
+            let plan = LevelPlan::new(p, s == finest);
+            solve_level(l0, l1, &mut u1, &mut u2, &mut dual, p, plan, self.kernel);
             if s == finest {
                 break;
             }

@@ -61,6 +61,23 @@ pub struct FlowParams {
     /// levels are cheap, so a preset can warp them often and the finest level rarely.
     /// Default 0.
     pub finest_warps: usize,
+    /// Iterations between two median filterings on the finest solved level, count; 0
+    /// means [`inner_iterations`](Self::inner_iterations). Lets a preset iterate the
+    /// cheap coarse levels more than the costly finest one. Default 0.
+    pub finest_inner_iterations: usize,
+    /// Interpolation of the warp on the levels coarser than the finest solved one; `None`
+    /// means [`interpolation`](Self::interpolation). Bilinear there costs about a third
+    /// of bicubic per pixel; the finest level decides the final accuracy. Default `None`.
+    pub coarse_interpolation: Option<Interpolation>,
+    /// Median filter side on the levels coarser than the finest solved one, pixels (as
+    /// [`median_filter`](Self::median_filter)); `None` means `median_filter`.
+    /// Default `None`.
+    pub coarse_median_filter: Option<usize>,
+    /// Over-relaxation `r` of the primal-dual iteration, dimensionless, in [0, 1]: the
+    /// dual step sees `u + r (u - u_prev)` instead of `u` (Chambolle and Pock 2011 use
+    /// `r = 1`), which speeds up convergence per iteration. 0 is OpenCV's scheme, exactly.
+    /// Default 0.
+    pub over_relaxation: f32,
 }
 
 impl Default for FlowParams {
@@ -80,6 +97,10 @@ impl Default for FlowParams {
             finest_scale: 0,
             warm_start_dual: false,
             finest_warps: 0,
+            finest_inner_iterations: 0,
+            coarse_interpolation: None,
+            coarse_median_filter: None,
+            over_relaxation: 0.0,
         }
     }
 }
@@ -195,6 +216,20 @@ impl FlowParams {
             return bad(
                 "median_filter",
                 format!("must be 0, 1, 3, 5 or 7, got {}", self.median_filter),
+            );
+        }
+        if let Some(m) = self.coarse_median_filter
+            && !matches!(m, 0 | 1 | 3 | 5 | 7)
+        {
+            return bad(
+                "coarse_median_filter",
+                format!("must be 0, 1, 3, 5 or 7, got {m}"),
+            );
+        }
+        if !(self.over_relaxation.is_finite() && (0.0..=1.0).contains(&self.over_relaxation)) {
+            return bad(
+                "over_relaxation",
+                format!("must be in [0, 1], got {}", self.over_relaxation),
             );
         }
         if self.finest_scale >= self.n_scales {
