@@ -175,19 +175,20 @@ impl FlowParams {
     /// levels of ratio 0.5, dual carried across levels (`warm_start_dual`), 4 warps per
     /// coarse level and 2 on the finest, 15 iterations and one 5x5 median per warp.
     ///
-    /// Measured with `examples/flow_time.rs` (one thread, minimum of 7 runs, 2-core machine
-    /// at load average 3-5, so times are inflated; ratios between rows run back to back
-    /// are what to compare). AEE translation / rotation / smooth / square:
+    /// Measured with `examples/flow_time.rs`, the three presets back to back (one thread,
+    /// minimum of 7 runs, mean ms per pair; 2-core VM running slow: `realtime` took 16.4
+    /// ms at 320x240 against 11.1 ms idle, so times are inflated about 1.5x; compare the
+    /// ratios). AEE translation / rotation / smooth / square:
     ///
-    /// | preset       | 160x120 AEE                   | ms (cpu) | 320x240 AEE                   | ms (cpu) |
-    /// |--------------|-------------------------------|----------|-------------------------------|----------|
-    /// | `default()`  | 0.056 / 0.076 / 0.059 / 0.017 | 96       | 0.082 / 1.92 / 0.097 / 0.35   | 175 (2nd sweep) |
-    /// | **balanced** | 0.057 / 0.076 / 0.063 / 0.018 | 19       | 0.030 / 0.145 / 0.074 / 0.021 | 69       |
-    /// | `realtime()` | 0.159 / 0.163 / 0.166 / 0.040 | 5.0      | 0.228 / 0.198 / 0.144 / 0.058 | 16-18    |
+    /// | preset       | 160x120 AEE                   | ms    | 320x240 AEE                   | ms    |
+    /// |--------------|-------------------------------|-------|-------------------------------|-------|
+    /// | `default()`  | 0.056 / 0.076 / 0.059 / 0.017 | 105   | 0.082 / 1.92 / 0.097 / 0.35   | 380   |
+    /// | **balanced** | 0.057 / 0.077 / 0.063 / 0.018 | 21.8  | 0.030 / 0.145 / 0.075 / 0.021 | 78.7  |
+    /// | `realtime()` | 0.159 / 0.163 / 0.166 / 0.040 | 6.1   | 0.228 / 0.198 / 0.145 / 0.058 | 16.4  |
     ///
-    /// About 5x faster than the default at 160x120 (where it is within 3-7% of the
-    /// default's AEE), and at 320x240 better than the default on every case; about 4x the
-    /// real-time preset's cost, so it does not fit a 15 ms budget at 320x240.
+    /// About 5x faster than the default (within 3-7% of its AEE at 160x120, better than
+    /// it on every 320x240 case), but 4-5x the real-time preset's cost: it does not fit a
+    /// 15 ms budget at 320x240 (estimated 50-55 ms idle).
     pub fn balanced() -> Self {
         Self {
             n_scales: 4,
