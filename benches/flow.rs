@@ -1,4 +1,4 @@
-//! TV-L1 timing: `default` and `realtime` presets at three sizes, on one thread (a rayon
+//! TV-L1 timing: `default`, `realtime` and `balanced` presets at three sizes, on one thread (a rayon
 //! pool of 1) and on all threads, on synthetic smooth-motion pairs.
 
 // criterion_group! generates undocumented items.
@@ -22,7 +22,7 @@ fn bench_flow(c: &mut Criterion) {
             seed: 2,
         };
         let (a, b, _) = pair(w, h, &motion, 7);
-        for preset in ["default", "realtime"] {
+        for preset in ["default", "realtime", "balanced"] {
             let Ok(params) = FlowParams::preset(preset) else {
                 continue;
             };

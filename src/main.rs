@@ -61,7 +61,7 @@ enum Command {
         /// Also write the raw field in Middlebury `.flo` format.
         #[arg(long)]
         raw: Option<PathBuf>,
-        /// Parameter preset: `default` (OpenCV DualTVL1's defaults) or `realtime`;
+        /// Parameter preset: `default` (OpenCV DualTVL1's defaults), `realtime` or `balanced`;
         /// without it the settings' `[vision.flow]` apply.
         #[arg(long)]
         preset: Option<String>,

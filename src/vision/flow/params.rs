@@ -61,6 +61,23 @@ pub struct FlowParams {
     /// levels are cheap, so a preset can warp them often and the finest level rarely.
     /// Default 0.
     pub finest_warps: usize,
+    /// Iterations between two median filterings on the finest solved level, count; 0
+    /// means [`inner_iterations`](Self::inner_iterations). Lets a preset iterate the
+    /// cheap coarse levels more than the costly finest one. Default 0.
+    pub finest_inner_iterations: usize,
+    /// Interpolation of the warp on the levels coarser than the finest solved one; `None`
+    /// means [`interpolation`](Self::interpolation). Bilinear there costs about a third
+    /// of bicubic per pixel; the finest level decides the final accuracy. Default `None`.
+    pub coarse_interpolation: Option<Interpolation>,
+    /// Median filter side on the levels coarser than the finest solved one, pixels (as
+    /// [`median_filter`](Self::median_filter)); `None` means `median_filter`.
+    /// Default `None`.
+    pub coarse_median_filter: Option<usize>,
+    /// Over-relaxation `r` of the primal-dual iteration, dimensionless, in [0, 1]: the
+    /// dual step sees `u + r (u - u_prev)` instead of `u` (Chambolle and Pock 2011 use
+    /// `r = 1`), which speeds up convergence per iteration. 0 is OpenCV's scheme, exactly.
+    /// Default 0.
+    pub over_relaxation: f32,
 }
 
 impl Default for FlowParams {
@@ -80,12 +97,16 @@ impl Default for FlowParams {
             finest_scale: 0,
             warm_start_dual: false,
             finest_warps: 0,
+            finest_inner_iterations: 0,
+            coarse_interpolation: None,
+            coarse_median_filter: None,
+            over_relaxation: 0.0,
         }
     }
 }
 
 /// Names accepted by [`FlowParams::preset`].
-pub const PRESET_NAMES: [&str; 2] = ["default", "realtime"];
+pub const PRESET_NAMES: [&str; 3] = ["default", "realtime", "balanced"];
 
 impl FlowParams {
     /// The real-time preset: half-resolution solve (`finest_scale` 1 with `scale_step`
@@ -123,6 +144,17 @@ impl FlowParams {
     /// it does **not** reach the default's accuracy: on translation and smooth motion its
     /// AEE is 1.5-3x the default's (the default fails on the 320x240 rotation and square,
     /// where its 0.8-step pyramid does not follow the motion; this preset does).
+    ///
+    /// A third sweep (`benches/flow_presets.md`) tried the cheaper-level knobs
+    /// ([`coarse_interpolation`](Self::coarse_interpolation),
+    /// [`coarse_median_filter`](Self::coarse_median_filter),
+    /// [`finest_inner_iterations`](Self::finest_inner_iterations)) and
+    /// [`over_relaxation`](Self::over_relaxation) within about 1.2x this preset's cost:
+    /// none improves every case robustly (the best, `warm_start_dual` + no coarse median +
+    /// `inner_iterations` 13, gains 7-24% at 320x240 but loses 15% on the 160x120 square,
+    /// and `inner_iterations` 12 or 14 beside it are worse than this preset), and
+    /// over-relaxation diverges with OpenCV's thresholding scheme. So this preset is
+    /// unchanged; [`FlowParams::balanced`] is the accurate one.
     pub fn realtime() -> Self {
         Self {
             n_scales: 5,
@@ -138,11 +170,46 @@ impl FlowParams {
         }
     }
 
-    /// A preset by name: `"default"` or `"realtime"`.
+    /// The balanced preset: the default's accuracy (within 10% on every synthetic case
+    /// where the default succeeds) at a fraction of its cost. Full-resolution solve on 4
+    /// levels of ratio 0.5, dual carried across levels (`warm_start_dual`), 4 warps per
+    /// coarse level and 2 on the finest, 15 iterations and one 5x5 median per warp.
+    ///
+    /// Measured with `examples/flow_time.rs`, the three presets back to back (one thread,
+    /// minimum of 7 runs, mean ms per pair; 2-core VM running slow: `realtime` took 16.4
+    /// ms at 320x240 against 11.1 ms idle, so times are inflated about 1.5x; compare the
+    /// ratios). AEE translation / rotation / smooth / square:
+    ///
+    /// | preset       | 160x120 AEE                   | ms    | 320x240 AEE                   | ms    |
+    /// |--------------|-------------------------------|-------|-------------------------------|-------|
+    /// | `default()`  | 0.056 / 0.076 / 0.059 / 0.017 | 105   | 0.082 / 1.92 / 0.097 / 0.35   | 380   |
+    /// | **balanced** | 0.057 / 0.077 / 0.063 / 0.018 | 21.8  | 0.030 / 0.145 / 0.075 / 0.021 | 78.7  |
+    /// | `realtime()` | 0.159 / 0.163 / 0.166 / 0.040 | 6.1   | 0.228 / 0.198 / 0.145 / 0.058 | 16.4  |
+    ///
+    /// About 5x faster than the default (within 3-7% of its AEE at 160x120, better than
+    /// it on every 320x240 case), but 4-5x the real-time preset's cost: it does not fit a
+    /// 15 ms budget at 320x240 (estimated 50-55 ms idle).
+    pub fn balanced() -> Self {
+        Self {
+            n_scales: 4,
+            scale_step: 0.5,
+            warps: 4,
+            finest_warps: 2,
+            inner_iterations: 15,
+            outer_iterations: 1,
+            median_filter: 5,
+            interpolation: Interpolation::Bicubic,
+            warm_start_dual: true,
+            ..Self::default()
+        }
+    }
+
+    /// A preset by name: one of [`PRESET_NAMES`].
     pub fn preset(name: &str) -> Result<Self, FlowError> {
         match name {
             "default" => Ok(Self::default()),
             "realtime" => Ok(Self::realtime()),
+            "balanced" => Ok(Self::balanced()),
             other => Err(FlowError::UnknownPreset {
                 name: other.to_string(),
                 known: PRESET_NAMES.join(", "),
@@ -197,6 +264,20 @@ impl FlowParams {
                 format!("must be 0, 1, 3, 5 or 7, got {}", self.median_filter),
             );
         }
+        if let Some(m) = self.coarse_median_filter
+            && !matches!(m, 0 | 1 | 3 | 5 | 7)
+        {
+            return bad(
+                "coarse_median_filter",
+                format!("must be 0, 1, 3, 5 or 7, got {m}"),
+            );
+        }
+        if !(self.over_relaxation.is_finite() && (0.0..=1.0).contains(&self.over_relaxation)) {
+            return bad(
+                "over_relaxation",
+                format!("must be in [0, 1], got {}", self.over_relaxation),
+            );
+        }
         if self.finest_scale >= self.n_scales {
             return bad(
                 "finest_scale",
@@ -234,6 +315,16 @@ mod tests {
         assert_eq!(p.finest_scale, 0);
         p.validate().unwrap();
         FlowParams::realtime().validate().unwrap();
+        FlowParams::balanced().validate().unwrap();
+        assert_eq!(
+            (
+                p.finest_inner_iterations,
+                p.coarse_interpolation,
+                p.coarse_median_filter,
+                p.over_relaxation
+            ),
+            (0, None, None, 0.0)
+        );
     }
 
     #[test]
@@ -246,6 +337,13 @@ mod tests {
             FlowParams::preset("realtime").unwrap(),
             FlowParams::realtime()
         );
+        assert_eq!(
+            FlowParams::preset("balanced").unwrap(),
+            FlowParams::balanced()
+        );
+        for name in PRESET_NAMES {
+            FlowParams::preset(name).unwrap().validate().unwrap();
+        }
         let err = FlowParams::preset("turbo").unwrap_err();
         assert!(err.to_string().contains("turbo"));
     }
@@ -329,6 +427,27 @@ mod tests {
                     ..FlowParams::default()
                 },
                 "finest_scale",
+            ),
+            (
+                FlowParams {
+                    coarse_median_filter: Some(4),
+                    ..FlowParams::default()
+                },
+                "coarse_median_filter",
+            ),
+            (
+                FlowParams {
+                    over_relaxation: 1.5,
+                    ..FlowParams::default()
+                },
+                "over_relaxation",
+            ),
+            (
+                FlowParams {
+                    over_relaxation: f32::NAN,
+                    ..FlowParams::default()
+                },
+                "over_relaxation",
             ),
         ];
         for (p, field) in cases {
