@@ -87,7 +87,6 @@ fn main() -> anyhow::Result<()> {
                 "fwarps" => p.finest_warps = v.parse()?,
                 "warm" => p.warm_start_dual = v.parse()?,
                 "finner" => p.finest_inner_iterations = v.parse()?,
-                "relax" => p.over_relaxation = v.parse()?,
                 "cmedian" => p.coarse_median_filter = Some(v.parse()?),
                 "cinterp" => {
                     p.coarse_interpolation = Some(if v == "bilinear" {

@@ -73,11 +73,6 @@ pub struct FlowParams {
     /// [`median_filter`](Self::median_filter)); `None` means `median_filter`.
     /// Default `None`.
     pub coarse_median_filter: Option<usize>,
-    /// Over-relaxation `r` of the primal-dual iteration, dimensionless, in [0, 1]: the
-    /// dual step sees `u + r (u - u_prev)` instead of `u` (Chambolle and Pock 2011 use
-    /// `r = 1`), which speeds up convergence per iteration. 0 is OpenCV's scheme, exactly.
-    /// Default 0.
-    pub over_relaxation: f32,
 }
 
 impl Default for FlowParams {
@@ -100,7 +95,6 @@ impl Default for FlowParams {
             finest_inner_iterations: 0,
             coarse_interpolation: None,
             coarse_median_filter: None,
-            over_relaxation: 0.0,
         }
     }
 }
@@ -148,8 +142,9 @@ impl FlowParams {
     /// A third sweep (`benches/flow_presets.md`) tried the cheaper-level knobs
     /// ([`coarse_interpolation`](Self::coarse_interpolation),
     /// [`coarse_median_filter`](Self::coarse_median_filter),
-    /// [`finest_inner_iterations`](Self::finest_inner_iterations)) and
-    /// [`over_relaxation`](Self::over_relaxation) within about 1.2x this preset's cost:
+    /// [`finest_inner_iterations`](Self::finest_inner_iterations)) and an over-relaxed
+    /// primal (`u + r (u - u_prev)` in the dual step, since removed: it slowed the kernel
+    /// and never helped) within about 1.2x this preset's cost:
     /// none improves every case robustly (the best, `warm_start_dual` + no coarse median +
     /// `inner_iterations` 13, gains 7-24% at 320x240 but loses 15% on the 160x120 square,
     /// and `inner_iterations` 12 or 14 beside it are worse than this preset), and
@@ -272,12 +267,6 @@ impl FlowParams {
                 format!("must be 0, 1, 3, 5 or 7, got {m}"),
             );
         }
-        if !(self.over_relaxation.is_finite() && (0.0..=1.0).contains(&self.over_relaxation)) {
-            return bad(
-                "over_relaxation",
-                format!("must be in [0, 1], got {}", self.over_relaxation),
-            );
-        }
         if self.finest_scale >= self.n_scales {
             return bad(
                 "finest_scale",
@@ -321,9 +310,8 @@ mod tests {
                 p.finest_inner_iterations,
                 p.coarse_interpolation,
                 p.coarse_median_filter,
-                p.over_relaxation
             ),
-            (0, None, None, 0.0)
+            (0, None, None)
         );
     }
 
@@ -434,20 +422,6 @@ mod tests {
                     ..FlowParams::default()
                 },
                 "coarse_median_filter",
-            ),
-            (
-                FlowParams {
-                    over_relaxation: 1.5,
-                    ..FlowParams::default()
-                },
-                "over_relaxation",
-            ),
-            (
-                FlowParams {
-                    over_relaxation: f32::NAN,
-                    ..FlowParams::default()
-                },
-                "over_relaxation",
             ),
         ];
         for (p, field) in cases {

@@ -70,9 +70,6 @@ pub(crate) struct Steps {
     pub theta: f32,
     /// `tau / theta`.
     pub taut: f32,
-    /// Over-relaxation `r` of the primal seen by the dual step: `u + r (u - u_prev)`.
-    /// 0 is OpenCV's scheme.
-    pub relax: f32,
 }
 
 /// Thresholding + primal update of one pixel (branch-free form; equals the branchy
@@ -168,10 +165,9 @@ pub(crate) fn iterate_reference(
         let up = if y > 0 { pb[i - width] } else { 0.0 };
         (pa[i] - left) + (pb[i] - up)
     };
-    // 2. primal update and error; the updates are kept for the over-relaxation.
+    // 2. primal update and error.
     let mut error = 0.0f64;
     let mut e = vec![0.0f32; width];
-    let (mut du1, mut du2) = (vec![0.0f32; n], vec![0.0f32; n]);
     for y in 0..height {
         for x in 0..width {
             let i = y * width + x;
@@ -179,23 +175,11 @@ pub(crate) fn iterate_reference(
             let n2 = v2[i] + s.theta * div(&p.p21, &p.p22, x, y);
             let (d1, d2) = (n1 - u1[i], n2 - u2[i]);
             e[x] = d1 * d1 + d2 * d2;
-            du1[i] = d1;
-            du2[i] = d2;
             u1[i] = n1;
             u2[i] = n2;
         }
         error += row_sum(&e);
     }
-    // The primal the dual step sees: u itself, or u + r (u - u_prev) when over-relaxed.
-    let (ub1, ub2): (Vec<f32>, Vec<f32>) = if s.relax != 0.0 {
-        (
-            (0..n).map(|i| u1[i] + s.relax * du1[i]).collect(),
-            (0..n).map(|i| u2[i] + s.relax * du2[i]).collect(),
-        )
-    } else {
-        (u1.to_vec(), u2.to_vec())
-    };
-    let (u1, u2) = (&ub1[..], &ub2[..]);
     // 3. dual update with forward differences (0 at the last column / row).
     for y in 0..height {
         for x in 0..width {
@@ -226,7 +210,6 @@ fn primal_row(
     u1: &mut [f32],
     u2: &mut [f32],
     e: &mut [f32],
-    du: Option<(&mut [f32], &mut [f32])>,
     s: Steps,
 ) {
     let w = u1.len();
@@ -235,7 +218,6 @@ fn primal_row(
     let (p12_up, p22_up) = (&p12_up[..w], &p22_up[..w]);
     let u2 = &mut u2[..w];
     let e = &mut e[..w];
-    let mut du = du.map(|(d1, d2)| (&mut d1[..w], &mut d2[..w]));
     // Column 0: p is 0 left of the image.
     {
         let d1 = p11[0] + (p12[0] - p12_up[0]);
@@ -243,10 +225,6 @@ fn primal_row(
         let (n1, n2) = primal_px(ix[0], iy[0], g[0], rc[0], u1[0], u2[0], d1, d2, s);
         let (a, b) = (n1 - u1[0], n2 - u2[0]);
         e[0] = a * a + b * b;
-        if let Some((d1, d2)) = du.as_mut() {
-            d1[0] = a;
-            d2[0] = b;
-        }
         u1[0] = n1;
         u2[0] = n2;
     }
@@ -264,17 +242,12 @@ fn primal_row(
     let u1 = &mut u1[1..][..m];
     let u2 = &mut u2[1..][..m];
     let e = &mut e[1..][..m];
-    let mut du = du.map(|(d1, d2)| (&mut d1[1..][..m], &mut d2[1..][..m]));
     for x in 0..m {
         let d1 = (p11[x] - p11l[x]) + (p12[x] - p12_up[x]);
         let d2 = (p21[x] - p21l[x]) + (p22[x] - p22_up[x]);
         let (n1, n2) = primal_px(ix[x], iy[x], g[x], rc[x], u1[x], u2[x], d1, d2, s);
         let (a, b) = (n1 - u1[x], n2 - u2[x]);
         e[x] = a * a + b * b;
-        if let Some((d1, d2)) = du.as_mut() {
-            d1[x] = a;
-            d2[x] = b;
-        }
         u1[x] = n1;
         u2[x] = n2;
     }
@@ -318,16 +291,6 @@ struct Band<'a> {
     p21: &'a mut [f32],
     p22: &'a mut [f32],
     err: &'a mut [f64],
-    /// This iteration's primal updates (empty unless over-relaxed).
-    du1: &'a mut [f32],
-    du2: &'a mut [f32],
-}
-
-/// `out = u + r d`, the over-relaxed primal of one row.
-#[inline(always)]
-fn relaxed_row(u: &[f32], d: &[f32], r: f32, out: &mut Vec<f32>) {
-    out.clear();
-    out.extend(u.iter().zip(d).map(|(&u, &d)| u + r * d));
 }
 
 /// Scratch of the fast kernel, reused across iterations.
@@ -337,9 +300,6 @@ pub(crate) struct FastScratch {
     above: Vec<f32>,
     /// Per-row error sums.
     row_err: Vec<f64>,
-    /// Primal updates of the iteration, for the over-relaxation.
-    du1: Vec<f32>,
-    du2: Vec<f32>,
 }
 
 /// Splits the first `n` elements off `s`.
@@ -386,13 +346,9 @@ fn band_pass(lin: &Linearised, band: Band<'_>, up: &[f32], w: usize, height: usi
         p21,
         p22,
         err,
-        du1,
-        du2,
     } = band;
     let h = err.len();
-    let relax = s.relax != 0.0;
     let mut e = vec![0.0f32; w];
-    let mut bars: [Vec<f32>; 4] = Default::default();
     for r in 0..h {
         let i = (y0 + r) * w;
         let row = r * w..(r + 1) * w;
@@ -422,32 +378,14 @@ fn band_pass(lin: &Linearised, band: Band<'_>, up: &[f32], w: usize, height: usi
             &mut u1[row.clone()],
             &mut u2[row.clone()],
             &mut e,
-            if relax {
-                Some((&mut du1[row.clone()], &mut du2[row.clone()]))
-            } else {
-                None
-            },
             s,
         );
         err[r] = row_sum(&e);
         if r > 0 {
             let prev = row.start - w..row.start;
-            let [b1, b2, b1n, b2n] = &mut bars;
-            let (cur, next) = if relax {
-                relaxed_row(&u1[prev.clone()], &du1[prev.clone()], s.relax, b1);
-                relaxed_row(&u2[prev.clone()], &du2[prev.clone()], s.relax, b2);
-                relaxed_row(&u1[row.clone()], &du1[row.clone()], s.relax, b1n);
-                relaxed_row(&u2[row.clone()], &du2[row.clone()], s.relax, b2n);
-                ((&b1[..], &b2[..]), (&b1n[..], &b2n[..]))
-            } else {
-                (
-                    (&u1[prev.clone()], &u2[prev.clone()]),
-                    (&u1[row.clone()], &u2[row.clone()]),
-                )
-            };
             dual_row(
-                cur,
-                next,
+                (&u1[prev.clone()], &u2[prev.clone()]),
+                (&u1[row.clone()], &u2[row.clone()]),
                 &mut p11[prev.clone()],
                 &mut p12[prev.clone()],
                 &mut p21[prev.clone()],
@@ -458,14 +396,7 @@ fn band_pass(lin: &Linearised, band: Band<'_>, up: &[f32], w: usize, height: usi
     }
     if y0 + h == height {
         let last = (h - 1) * w..h * w;
-        let (mut a1, mut a2) = (Vec::new(), Vec::new());
-        if relax {
-            relaxed_row(&u1[last.clone()], &du1[last.clone()], s.relax, &mut a1);
-            relaxed_row(&u2[last.clone()], &du2[last.clone()], s.relax, &mut a2);
-        } else {
-            a1.extend_from_slice(&u1[last.clone()]);
-            a2.extend_from_slice(&u2[last.clone()]);
-        }
+        let (a1, a2) = (u1[last.clone()].to_vec(), u2[last.clone()].to_vec());
         dual_row(
             (&a1, &a2),
             (&a1, &a2),
@@ -504,10 +435,6 @@ pub(crate) fn iterate_fast(
     }
     scratch.row_err.clear();
     scratch.row_err.resize(height, 0.0);
-    let relax = s.relax != 0.0;
-    let nd = if relax { w * height } else { 0 };
-    scratch.du1.resize(nd, 0.0);
-    scratch.du2.resize(nd, 0.0);
 
     // Split every array into bands.
     let mut bands = Vec::with_capacity(nbands);
@@ -520,7 +447,6 @@ pub(crate) fn iterate_fast(
             &mut p.p22[..],
         );
         let mut re = &mut scratch.row_err[..];
-        let (mut d1, mut d2) = (&mut scratch.du1[..], &mut scratch.du2[..]);
         for b in 0..nbands {
             let y0 = b * rows;
             let h = rows.min(height - y0);
@@ -534,8 +460,6 @@ pub(crate) fn iterate_fast(
                 p21: take_front(&mut q21, n),
                 p22: take_front(&mut q22, n),
                 err: take_front(&mut re, h),
-                du1: take_front(&mut d1, if relax { n } else { 0 }),
-                du2: take_front(&mut d2, if relax { n } else { 0 }),
             });
         }
     }
@@ -546,27 +470,12 @@ pub(crate) fn iterate_fast(
     });
     // Deferred dual rows: the last row of every band but the last needs the next band's
     // first row of u.
-    let mut bars: [Vec<f32>; 4] = Default::default();
     for b in 1..nbands {
         let y = b * rows - 1;
         let (cur, next) = (y * w..(y + 1) * w, (y + 1) * w..(y + 2) * w);
-        let [b1, b2, b1n, b2n] = &mut bars;
-        let (rc, rn) = if relax {
-            let (d1, d2) = (&scratch.du1, &scratch.du2);
-            relaxed_row(&u1[cur.clone()], &d1[cur.clone()], s.relax, b1);
-            relaxed_row(&u2[cur.clone()], &d2[cur.clone()], s.relax, b2);
-            relaxed_row(&u1[next.clone()], &d1[next.clone()], s.relax, b1n);
-            relaxed_row(&u2[next.clone()], &d2[next.clone()], s.relax, b2n);
-            ((&b1[..], &b2[..]), (&b1n[..], &b2n[..]))
-        } else {
-            (
-                (&u1[cur.clone()], &u2[cur.clone()]),
-                (&u1[next.clone()], &u2[next.clone()]),
-            )
-        };
         dual_row(
-            rc,
-            rn,
+            (&u1[cur.clone()], &u2[cur.clone()]),
+            (&u1[next.clone()], &u2[next]),
             &mut p.p11[cur.clone()],
             &mut p.p12[cur.clone()],
             &mut p.p21[cur.clone()],
@@ -628,7 +537,6 @@ pub(crate) fn solve_level(
         lt: params.lambda * params.theta,
         theta: params.theta,
         taut: params.tau / params.theta,
-        relax: params.over_relaxation,
     };
     let scaled_eps = (params.epsilon as f64).powi(2) * n as f64;
     debug_assert_eq!(p.p11.len(), n);
@@ -727,12 +635,8 @@ mod tests {
             lt: 0.045,
             theta: 0.3,
             taut: 0.25 / 0.3,
-            relax: 0.0,
         };
-        for (s, (w, h)) in [0.0, 1.0, 0.5].into_iter().flat_map(|relax| {
-            [(37usize, 29usize), (64, 70), (2, 2), (9, 1), (1, 7)]
-                .map(|size| (Steps { relax, ..s }, size))
-        }) {
+        for (w, h) in [(37usize, 29usize), (64, 70), (2, 2), (9, 1), (1, 7)] {
             let (lin, u1, u2) = setup(w, h);
             let (mut a1, mut a2, mut pa) = (u1.clone(), u2.clone(), Dual::zeros(w * h));
             let (mut b1, mut b2, mut pb) = (u1.clone(), u2.clone(), Dual::zeros(w * h));
