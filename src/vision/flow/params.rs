@@ -165,8 +165,10 @@ impl FlowParams {
         }
     }
 
-    /// The balanced preset: the default's accuracy (within 10% on every synthetic case
-    /// where the default succeeds) at a fraction of its cost. Full-resolution solve on 4
+    /// The balanced preset: close to the default's accuracy at a third of its cost
+    /// (within 10% of its AEE on the four 160x120 accuracy pairs below and better on the
+    /// 320x240 ones; 1.1-2.1x its AEE on the smooth/translation pairs of
+    /// `benches/compare_flow.py`). Full-resolution solve on 4
     /// levels of ratio 0.5, dual carried across levels (`warm_start_dual`), 4 warps per
     /// coarse level and 2 on the finest, 15 iterations and one 5x5 median per warp.
     ///
@@ -181,9 +183,10 @@ impl FlowParams {
     /// | **balanced** | 0.057 / 0.077 / 0.063 / 0.018 | 21.8  | 0.030 / 0.145 / 0.075 / 0.021 | 78.7  |
     /// | `realtime()` | 0.159 / 0.163 / 0.166 / 0.040 | 6.1   | 0.228 / 0.198 / 0.145 / 0.058 | 16.4  |
     ///
-    /// About 5x faster than the default (within 3-7% of its AEE at 160x120, better than
-    /// it on every 320x240 case), but 4-5x the real-time preset's cost: it does not fit a
-    /// 15 ms budget at 320x240 (estimated 50-55 ms idle).
+    /// The `default()` times in this table include a since-removed slowdown of the
+    /// kernel (`benches/flow_presets.md`). On an idle machine after the fix
+    /// (`benches/README.md`), 320x240, one thread: default 111-117 ms, balanced 38-41 ms,
+    /// realtime 10-11 ms. It does not fit a 15 ms budget at 320x240.
     pub fn balanced() -> Self {
         Self {
             n_scales: 4,
