@@ -21,46 +21,7 @@ fn process_cpu_ms() -> f64 {
 }
 
 use vamos::vision::flow::{FlowParams, Interpolation, tvl1};
-use vamos::vision::synthetic::{Motion, moving_square_valid, pair};
-
-fn cases(w: usize, h: usize) -> Vec<(&'static str, Motion)> {
-    let s = w as f64 / 160.0;
-    vec![
-        (
-            "translation",
-            Motion::Translation {
-                dx: 2.5 * s,
-                dy: -1.25 * s,
-            },
-        ),
-        (
-            "rotation",
-            Motion::Similarity {
-                tx: 0.0,
-                ty: 0.0,
-                scale: 1.0,
-                rotation_deg: 3.0,
-            },
-        ),
-        (
-            "smooth",
-            Motion::Smooth {
-                amplitude_px: 3.0 * s,
-                seed: 2,
-            },
-        ),
-        (
-            "square",
-            Motion::MovingSquare {
-                x: 0.3 * w as f64,
-                y: 0.3 * h as f64,
-                size_px: 0.35 * h as f64,
-                dx: 3.0 * s,
-                dy: 2.0 * s,
-            },
-        ),
-    ]
-}
+use vamos::vision::synthetic::{accuracy_cases, moving_square_valid, pair};
 
 fn main() -> anyhow::Result<()> {
     tracing_subscriber::fmt()
@@ -115,7 +76,7 @@ fn main() -> anyhow::Result<()> {
     let mut total_ms = 0.0;
     let mut total_cpu = 0.0;
     let mut aees = Vec::new();
-    for (name, m) in cases(w, h) {
+    for (name, m) in accuracy_cases(w, h) {
         let (a, b, gt) = pair(w, h, &m, 7);
         let mut best = f64::MAX;
         let mut best_cpu = f64::MAX;

@@ -144,6 +144,50 @@ pub enum Motion {
     },
 }
 
+/// The four accuracy cases of the flow tests, benches and sweeps, scaled to a
+/// `width x height` image (displacements grow with the width from their 160x120 values):
+/// `translation` (2.5, -1.25 px), `rotation` (3 deg about the centre), `smooth`
+/// (non-rigid, 3 px), `square` (a square of 0.35 h moving (3, 2) px over a static
+/// background).
+pub fn accuracy_cases(width: usize, height: usize) -> Vec<(&'static str, Motion)> {
+    let s = width as f64 / 160.0;
+    vec![
+        (
+            "translation",
+            Motion::Translation {
+                dx: 2.5 * s,
+                dy: -1.25 * s,
+            },
+        ),
+        (
+            "rotation",
+            Motion::Similarity {
+                tx: 0.0,
+                ty: 0.0,
+                scale: 1.0,
+                rotation_deg: 3.0,
+            },
+        ),
+        (
+            "smooth",
+            Motion::Smooth {
+                amplitude_px: 3.0 * s,
+                seed: 2,
+            },
+        ),
+        (
+            "square",
+            Motion::MovingSquare {
+                x: 0.3 * width as f64,
+                y: 0.3 * height as f64,
+                size_px: 0.35 * height as f64,
+                dx: 3.0 * s,
+                dy: 2.0 * s,
+            },
+        ),
+    ]
+}
+
 /// Forward map of a similarity about `(cx, cy)`: the point `p` of the first image lands
 /// at the returned position in the second.
 pub fn similarity_forward(

@@ -10,33 +10,14 @@
 #![allow(clippy::unwrap_used)]
 
 use vamos::vision::flow::{FlowParams, tvl1};
-use vamos::vision::synthetic::{Motion, moving_square_valid, pair};
+use vamos::vision::synthetic::{Motion, accuracy_cases, moving_square_valid, pair};
 
 fn motion(name: &str, w: usize, h: usize) -> Motion {
-    let s = w as f64 / 160.0;
-    match name {
-        "translation" => Motion::Translation {
-            dx: 2.5 * s,
-            dy: -1.25 * s,
-        },
-        "rotation" => Motion::Similarity {
-            tx: 0.0,
-            ty: 0.0,
-            scale: 1.0,
-            rotation_deg: 3.0,
-        },
-        "smooth" => Motion::Smooth {
-            amplitude_px: 3.0 * s,
-            seed: 2,
-        },
-        _ => Motion::MovingSquare {
-            x: 0.3 * w as f64,
-            y: 0.3 * h as f64,
-            size_px: 0.35 * h as f64,
-            dx: 3.0 * s,
-            dy: 2.0 * s,
-        },
-    }
+    accuracy_cases(w, h)
+        .into_iter()
+        .find(|(n, _)| *n == name)
+        .map(|(_, m)| m)
+        .unwrap_or_else(|| panic!("no accuracy case {name}"))
 }
 
 fn aee(name: &str, w: usize, h: usize, params: &FlowParams) -> f64 {
