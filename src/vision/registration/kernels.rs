@@ -537,6 +537,38 @@ mod tests {
     }
 
     #[test]
+    fn warp_fast_path_matches_per_pixel_sampling() {
+        let (w, h) = (37usize, 29usize);
+        let src: Vec<f32> = (0..w * h).map(|i| ((i * 7919) % 251) as f32).collect();
+        let mut out = vec![0.0; w * h];
+        for &(scale, rot) in &[
+            (1.0, 0.0),
+            (1.1, 7.0),
+            (0.8, -33.0),
+            (1.3, 90.0),
+            (0.9, 180.0),
+            (1.0, 45.0),
+        ] {
+            warp_similarity(&src, w, h, scale, rot, &mut out);
+            let (s, c) = rot.to_radians().sin_cos();
+            let (cx, cy) = ((w as f64 - 1.0) / 2.0, (h as f64 - 1.0) / 2.0);
+            for y in 0..h {
+                for x in 0..w {
+                    let (qx, qy) = (x as f64 - cx, y as f64 - cy);
+                    let px = cx + (c * qx - s * qy) / scale;
+                    let py = cy + (s * qx + c * qy) / scale;
+                    let want = sample_bilinear(&src, w, h, px, py);
+                    let got = out[y * w + x];
+                    assert!(
+                        (got - want).abs() < 0.05,
+                        "scale {scale} rot {rot} ({x},{y}): {got} vs {want}"
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
     fn warp_identity_copies_and_half_turn_reverses() {
         let (w, h) = (9, 7);
         let src: Vec<f32> = (0..w * h).map(|i| i as f32).collect();
