@@ -13,16 +13,15 @@ use std::time::Instant;
 use vamos::vision::registration::{Registrar, RegistrationParams, Similarity, register};
 use vamos::vision::synthetic::{self, Motion, SplitMix64};
 
-fn ang_err(a: f64, b: f64) -> f64 {
-    ((a - b + 180.0).rem_euclid(360.0) - 180.0).abs()
-}
-
+/// (translation px, rotation deg, scale error in percent).
 fn errors(t: &Similarity, tx: f64, ty: f64, scale: f64, rot: f64) -> (f64, f64, f64) {
-    (
-        (t.tx_px - tx).abs().max((t.ty_px - ty).abs()),
-        ang_err(t.rotation_deg, rot),
-        (t.scale / scale - 1.0).abs() * 100.0,
-    )
+    let (dt, dr, ds) = t.difference(&Similarity {
+        tx_px: tx,
+        ty_px: ty,
+        scale,
+        rotation_deg: rot,
+    });
+    (dt, dr, ds * 100.0)
 }
 
 fn min_ms(runs: usize, mut f: impl FnMut()) -> f64 {

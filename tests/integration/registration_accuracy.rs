@@ -9,16 +9,13 @@
 use vamos::vision::registration::{Registrar, RegistrationParams, Similarity};
 use vamos::vision::synthetic::{self, Motion, SplitMix64};
 
-fn ang_err(a: f64, b: f64) -> f64 {
-    ((a - b + 180.0).rem_euclid(360.0) - 180.0).abs()
-}
-
 fn errors(t: &Similarity, tx: f64, ty: f64, scale: f64, rot: f64) -> (f64, f64, f64) {
-    (
-        (t.tx_px - tx).abs().max((t.ty_px - ty).abs()),
-        ang_err(t.rotation_deg, rot),
-        (t.scale / scale - 1.0).abs(),
-    )
+    t.difference(&Similarity {
+        tx_px: tx,
+        ty_px: ty,
+        scale,
+        rotation_deg: rot,
+    })
 }
 
 /// Random similarities in the documented range at 128x128: the spectrum holds fewer

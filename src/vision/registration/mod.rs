@@ -297,6 +297,21 @@ impl Similarity {
         scale: 1.0,
         rotation_deg: 0.0,
     };
+
+    /// How far `self` is from `other`, per component: the larger absolute translation
+    /// difference (pixels), the absolute rotation difference wrapped to `[0, 180]`
+    /// (degrees), and the relative scale difference `|self.scale / other.scale - 1|`.
+    pub fn difference(&self, other: &Similarity) -> (f64, f64, f64) {
+        let rotation =
+            ((self.rotation_deg - other.rotation_deg + 180.0).rem_euclid(360.0) - 180.0).abs();
+        (
+            (self.tx_px - other.tx_px)
+                .abs()
+                .max((self.ty_px - other.ty_px).abs()),
+            rotation,
+            (self.scale / other.scale - 1.0).abs(),
+        )
+    }
 }
 
 /// The result of registering two images.

@@ -30,17 +30,14 @@ fn sim_pair(
     (a, b)
 }
 
-fn ang_err(a: f64, b: f64) -> f64 {
-    ((a - b + 180.0).rem_euclid(360.0) - 180.0).abs()
-}
-
 /// (max translation error px, rotation error deg, relative scale error).
 fn errors(t: &Similarity, tx: f64, ty: f64, scale: f64, rot: f64) -> (f64, f64, f64) {
-    (
-        (t.tx_px - tx).abs().max((t.ty_px - ty).abs()),
-        ang_err(t.rotation_deg, rot),
-        (t.scale / scale - 1.0).abs(),
-    )
+    t.difference(&Similarity {
+        tx_px: tx,
+        ty_px: ty,
+        scale,
+        rotation_deg: rot,
+    })
 }
 
 fn registrar() -> Registrar {
@@ -407,4 +404,28 @@ proptest! {
         let _ = r.push(&a, Some(&mask));
         let _ = r.push(&b, None);
     }
+}
+
+#[test]
+fn similarity_difference_wraps_rotation() {
+    let a = Similarity {
+        tx_px: 1.0,
+        ty_px: -2.0,
+        scale: 1.1,
+        rotation_deg: 179.0,
+    };
+    let b = Similarity {
+        tx_px: 1.5,
+        ty_px: 1.0,
+        scale: 1.0,
+        rotation_deg: -179.0,
+    };
+    let (t, r, s) = a.difference(&b);
+    assert_eq!(t, 3.0);
+    assert!((r - 2.0).abs() < 1e-9, "{r}");
+    assert!((s - 0.1).abs() < 1e-9, "{s}");
+    assert_eq!(
+        Similarity::IDENTITY.difference(&Similarity::IDENTITY),
+        (0.0, 0.0, 0.0)
+    );
 }
