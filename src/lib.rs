@@ -7,9 +7,12 @@
 //! Modules, in dependency order (a module imports only those before it):
 //! - [`vision`]: images, TV-L1 optical flow, Fourier-Mellin registration, resizing and
 //!   the network-input preprocessing. Synchronous, no I/O beyond image files.
+//! - [`robot`]: URDF robots, kinematics, expected camera motion, rendering and the
+//!   body-motion error. Synchronous.
 //! - [`config`]: service settings composed of each module's `*Config`.
 //! - [`telemetry`]: `tracing` set-up (human or JSON logs).
 
 pub mod config;
+pub mod robot;
 pub mod telemetry;
 pub mod vision;

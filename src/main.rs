@@ -1,5 +1,7 @@
 //! The `vamos` binary: CLI -> settings -> run. The only place that uses `anyhow`.
 
+mod cli;
+
 use anyhow::{Context, Result, bail};
 use clap::{Parser, Subcommand};
 use serde_json::json;
