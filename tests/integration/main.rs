@@ -4,6 +4,7 @@
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
 mod architecture;
+mod camera_motion;
 mod cli;
 mod flow_accuracy;
 mod flow_golden;
