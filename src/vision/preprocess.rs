@@ -414,7 +414,17 @@ pub fn network_input(
         flow.v.iter().map(norm).collect(),
     )?;
     let n = params.size_px;
-    let (rw, rh) = if w <= h {
+    let (rw, rh) = network_resize((w, h), n);
+    let resized = resize_flow(&scaled, rw, rh, ResizeFilter::Bilinear, false)?;
+    let o = crop_origin((rw, rh), (n, n))?;
+    let mut out = crop_plane(&resized.u, rw, o, (n, n));
+    out.extend(crop_plane(&resized.v, rw, o, (n, n)));
+    Ok(out)
+}
+
+/// Size of the resized image before the centre crop: the shorter side becomes `n`.
+fn network_resize((w, h): (usize, usize), n: usize) -> (usize, usize) {
+    if w <= h {
         (
             n,
             ((h as f64 * n as f64 / w as f64).round() as usize).max(n),
@@ -424,17 +434,63 @@ pub fn network_input(
             ((w as f64 * n as f64 / h as f64).round() as usize).max(n),
             n,
         )
-    };
-    let resized = resize_flow(&scaled, rw, rh, ResizeFilter::Bilinear, false)?;
-    let o = crop_origin((rw, rh), (n, n))?;
-    let mut out = crop_plane(&resized.u, rw, o, (n, n));
-    out.extend(crop_plane(&resized.v, rw, o, (n, n)));
-    Ok(out)
+    }
+}
+
+/// The pixels of the network input that a body mask leaves valid: `excluded` (true = robot
+/// body, `width x height`, the flow's resolution) goes through the same resize and crop as
+/// [`network_input`]; an input pixel is valid when less than half of its footprint is
+/// excluded. Row-major `size_px x size_px`.
+pub fn network_mask(
+    excluded: &[bool],
+    width: usize,
+    height: usize,
+    params: &NetworkInputParams,
+) -> Result<Vec<bool>, PreprocessError> {
+    let img = GrayImage::new(
+        width,
+        height,
+        excluded
+            .iter()
+            .map(|&e| if e { 1.0 } else { 0.0 })
+            .collect(),
+    )?;
+    if width == 0 || height == 0 {
+        return Err(ImageError::Empty { width, height }.into());
+    }
+    if params.size_px == 0 {
+        return Err(PreprocessError::InvalidParams {
+            field: "size_px",
+            reason: "must be positive".into(),
+        });
+    }
+    let n = params.size_px;
+    let (rw, rh) = network_resize((width, height), n);
+    let resized = resize(&img, rw, rh, ResizeFilter::Bilinear)?;
+    let cropped = centre_crop(&resized, n, n)?;
+    Ok(cropped.data().iter().map(|&f| f < 0.5).collect())
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn network_mask_follows_the_input_geometry() {
+        // 128x96 -> 85x64 -> crop 64x64 at x0 = 10. Excluding source columns < 50 puts the
+        // edge at source x = 49.5, i.e. resized x = 50 * 85 / 128 - 0.5 = 32.7, so resized
+        // columns >= 33 are mostly valid: input columns >= 23.
+        let (w, h) = (128, 96);
+        let excluded: Vec<bool> = (0..w * h).map(|i| i % w < 50).collect();
+        let valid = network_mask(&excluded, w, h, &NetworkInputParams::default()).unwrap();
+        assert_eq!(valid.len(), 64 * 64);
+        let row: Vec<bool> = valid[10 * 64..11 * 64].to_vec();
+        let first_valid = row.iter().position(|&v| v).unwrap();
+        assert_eq!(first_valid, 23);
+        assert!(row[first_valid..].iter().all(|&v| v));
+        assert!(valid.chunks(64).all(|r| r == row.as_slice()));
+        assert!(network_mask(&excluded[1..], w, h, &NetworkInputParams::default()).is_err());
+    }
 
     #[test]
     fn gray_from_rgb_uses_bt601_and_checks_size() {

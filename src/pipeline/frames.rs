@@ -1,0 +1,439 @@
+//! The visual front end: one processed frame at a time.
+//!
+//! Per pushed image (already the processed stream: the caller applies the frame stride):
+//! 1. gray image resized to the processing resolution (area filter) and histogram
+//!    equalised (REFERENCE.md section 3);
+//! 2. forward TV-L1 flow from the previous pushed frame (`vision::flow`, the previous
+//!    frame's pyramid is reused);
+//! 3. Fourier-Mellin registration of the previous frame onto this one, ignoring the robot
+//!    body where a body mask is given (REFERENCE.md section 1);
+//! 4. the flow variant (REFERENCE.md section 3): `registered` subtracts the image motion of
+//!    the registered similarity from the flow; `masked` sets the flow to zero on the body
+//!    mask of this (the target) frame; then the network input (`network_input`) and, for
+//!    masked variants, which of its 64x64 pixels are valid (`network_mask`).
+
+use crate::vision::flow::{FlowError, FlowEstimator, FlowParams};
+use crate::vision::preprocess::{
+    NetworkInputParams, PreprocessError, ResizeFilter, equalize_histogram, network_input,
+    network_mask, resize,
+};
+use crate::vision::registration::{
+    Registrar, Registration, RegistrationError, RegistrationParams, Similarity,
+};
+use crate::vision::synthetic::similarity_forward;
+use crate::vision::{FlowField, GrayImage};
+use serde::{Deserialize, Serialize};
+use std::fmt;
+use std::str::FromStr;
+
+/// Which flow the predictor sees (REFERENCE.md section 3; masked was best in the paper).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum FlowVariant {
+    /// The observed flow as is.
+    #[default]
+    Plain,
+    /// The observed flow minus the registered camera motion.
+    Registered,
+    /// Zero flow on the robot body (target frame's mask).
+    Masked,
+    /// Both.
+    MaskedRegistered,
+}
+
+impl FlowVariant {
+    /// All variants, in the paper's order.
+    pub const ALL: [FlowVariant; 4] = [
+        Self::Plain,
+        Self::Registered,
+        Self::Masked,
+        Self::MaskedRegistered,
+    ];
+
+    /// The name used in files and settings.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Plain => "plain",
+            Self::Registered => "registered",
+            Self::Masked => "masked",
+            Self::MaskedRegistered => "masked_registered",
+        }
+    }
+
+    /// Whether the robot body is masked out.
+    pub fn is_masked(self) -> bool {
+        matches!(self, Self::Masked | Self::MaskedRegistered)
+    }
+
+    /// Whether camera motion is removed.
+    pub fn is_registered(self) -> bool {
+        matches!(self, Self::Registered | Self::MaskedRegistered)
+    }
+}
+
+impl fmt::Display for FlowVariant {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl FromStr for FlowVariant {
+    type Err = PipelineError;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        Self::ALL
+            .into_iter()
+            .find(|v| v.name() == s)
+            .ok_or_else(|| PipelineError::UnknownVariant { name: s.into() })
+    }
+}
+
+/// Errors of the front end. Each names the failing stage; the processor's state is left as
+/// it was before the failing push (a bad frame loses nothing that came before).
+#[derive(Debug, thiserror::Error)]
+pub enum PipelineError {
+    /// A flow variant name that does not exist.
+    #[error(
+        "unknown flow variant {name:?} (expected plain, registered, masked or masked_registered)"
+    )]
+    UnknownVariant {
+        /// The name given.
+        name: String,
+    },
+    /// A parameter is out of range.
+    #[error("pipeline parameter {name} is invalid: {reason}")]
+    InvalidParams {
+        /// Parameter name.
+        name: &'static str,
+        /// What is wrong.
+        reason: String,
+    },
+    /// A masked variant got a frame without a body mask.
+    #[error("flow variant {variant} needs a body mask for every frame")]
+    MissingMask {
+        /// The configured variant.
+        variant: FlowVariant,
+    },
+    /// The body mask does not have the processing resolution.
+    #[error("body mask has {len} pixels, expected {width}x{height}")]
+    MaskSize {
+        /// Pixels given.
+        len: usize,
+        /// Processing width.
+        width: usize,
+        /// Processing height.
+        height: usize,
+    },
+    /// Resizing, equalisation or the network input failed.
+    #[error("preprocessing: {0}")]
+    Preprocess(#[from] PreprocessError),
+    /// Optical flow failed.
+    #[error("optical flow: {0}")]
+    Flow(#[from] FlowError),
+    /// Registration failed.
+    #[error("registration: {0}")]
+    Registration(#[from] RegistrationError),
+}
+
+/// Parameters of the front end.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct FrameProcessorParams {
+    /// Processing width, pixels (the paper: 640). Images of another size are resized.
+    pub width: usize,
+    /// Processing height, pixels (the paper: 480).
+    pub height: usize,
+    /// Histogram-equalise every frame before flow and registration (the paper does).
+    pub equalize: bool,
+    /// The flow the predictor sees.
+    pub variant: FlowVariant,
+}
+
+impl Default for FrameProcessorParams {
+    fn default() -> Self {
+        Self {
+            width: 640,
+            height: 480,
+            equalize: true,
+            variant: FlowVariant::Plain,
+        }
+    }
+}
+
+/// What the front end computed for one frame (from the second pushed frame on).
+#[derive(Debug, Clone)]
+pub struct ProcessedFrame {
+    /// Forward TV-L1 flow previous -> this frame at the processing resolution, before the
+    /// variant is applied (what the body-motion error compares).
+    pub flow: FlowField,
+    /// The previous frame registered onto this one (the observed camera motion).
+    pub registration: Registration,
+    /// The predictor's input `[2, n, n]` in the configured variant.
+    pub network_input: Vec<f32>,
+    /// For masked variants: which of the `n x n` input pixels are valid (not robot body).
+    pub network_valid: Option<Vec<bool>>,
+}
+
+/// The stateful front end of one stream (a session or an episode).
+pub struct FrameProcessor {
+    params: FrameProcessorParams,
+    network: NetworkInputParams,
+    flow: FlowEstimator,
+    registrar: Registrar,
+}
+
+impl FrameProcessor {
+    /// A front end with the given flow, registration and network-input parameters.
+    pub fn new(
+        params: FrameProcessorParams,
+        flow: FlowParams,
+        registration: RegistrationParams,
+        network: NetworkInputParams,
+    ) -> Result<Self, PipelineError> {
+        if params.width < 16 || params.height < 16 {
+            return Err(PipelineError::InvalidParams {
+                name: "width/height",
+                reason: format!(
+                    "processing resolution {}x{} is below 16x16",
+                    params.width, params.height
+                ),
+            });
+        }
+        Ok(Self {
+            params,
+            network,
+            flow: FlowEstimator::new(flow)?,
+            registrar: Registrar::new(registration)?,
+        })
+    }
+
+    /// The parameters.
+    pub fn params(&self) -> &FrameProcessorParams {
+        &self.params
+    }
+
+    /// Forgets the previous frame (the next push starts a new stream).
+    pub fn reset(&mut self) {
+        self.flow.reset();
+        self.registrar.reset();
+    }
+
+    /// The gray image at the processing resolution, equalised if configured.
+    pub fn prepare(&self, image: &GrayImage) -> Result<GrayImage, PipelineError> {
+        let (w, h) = (self.params.width, self.params.height);
+        let resized = if image.size() == (w, h) {
+            image.clone()
+        } else {
+            resize(image, w, h, ResizeFilter::Area)?
+        };
+        Ok(if self.params.equalize {
+            equalize_histogram(&resized)?
+        } else {
+            resized
+        })
+    }
+
+    /// Adds the next processed frame. `body_mask` (true = robot body, processing
+    /// resolution) is this frame's mask: registration ignores those pixels, and masked
+    /// variants need it. Returns `None` for the first frame of a stream.
+    pub fn push(
+        &mut self,
+        image: &GrayImage,
+        body_mask: Option<&[bool]>,
+    ) -> Result<Option<ProcessedFrame>, PipelineError> {
+        let (w, h) = (self.params.width, self.params.height);
+        if let Some(m) = body_mask
+            && m.len() != w * h
+        {
+            return Err(PipelineError::MaskSize {
+                len: m.len(),
+                width: w,
+                height: h,
+            });
+        }
+        if self.params.variant.is_masked() && body_mask.is_none() {
+            return Err(PipelineError::MissingMask {
+                variant: self.params.variant,
+            });
+        }
+        let frame = self.prepare(image)?;
+        // Registration first: if it fails the flow estimator has not advanced either.
+        let registration = self.registrar.push(&frame, body_mask)?;
+        let flow = match self.flow.push(&frame) {
+            Ok(f) => f,
+            Err(e) => {
+                // Keep both streams in step: the registrar saw this frame, the flow did
+                // not, so start both afresh from this frame's successor.
+                self.registrar.reset();
+                return Err(e.into());
+            }
+        };
+        let (Some(flow), Some(registration)) = (flow, registration) else {
+            return Ok(None);
+        };
+        let variant_flow = apply_variant(
+            &flow,
+            self.params.variant,
+            &registration.transform,
+            body_mask,
+        );
+        let network_input = network_input(&variant_flow, &self.network)?;
+        let network_valid = match (self.params.variant.is_masked(), body_mask) {
+            (true, Some(m)) => Some(network_mask(m, w, h, &self.network)?),
+            _ => None,
+        };
+        Ok(Some(ProcessedFrame {
+            flow,
+            registration,
+            network_input,
+            network_valid,
+        }))
+    }
+}
+
+/// The flow the predictor sees: `registered` subtracts the displacement of `camera`
+/// (previous -> current similarity about the image centre) at every pixel; `masked` zeroes
+/// the flow where `body_mask` is true.
+pub fn apply_variant(
+    flow: &FlowField,
+    variant: FlowVariant,
+    camera: &Similarity,
+    body_mask: Option<&[bool]>,
+) -> FlowField {
+    let (w, h) = flow.size();
+    let mut out = flow.clone();
+    if variant.is_registered() {
+        let centre = ((w as f64 - 1.0) / 2.0, (h as f64 - 1.0) / 2.0);
+        let t = (
+            camera.tx_px,
+            camera.ty_px,
+            camera.scale,
+            camera.rotation_deg,
+        );
+        for y in 0..h {
+            for x in 0..w {
+                let (qx, qy) = similarity_forward((x as f64, y as f64), centre, t);
+                let i = y * w + x;
+                out.u[i] -= (qx - x as f64) as f32;
+                out.v[i] -= (qy - y as f64) as f32;
+            }
+        }
+    }
+    if variant.is_masked()
+        && let Some(mask) = body_mask
+    {
+        for (i, &m) in mask.iter().enumerate() {
+            if m {
+                out.u[i] = 0.0;
+                out.v[i] = 0.0;
+            }
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::vision::flow::FlowParams;
+    use crate::vision::synthetic::{self, Motion};
+
+    fn processor(variant: FlowVariant) -> FrameProcessor {
+        FrameProcessor::new(
+            FrameProcessorParams {
+                width: 160,
+                height: 120,
+                equalize: true,
+                variant,
+            },
+            FlowParams::realtime(),
+            RegistrationParams::default(),
+            NetworkInputParams::default(),
+        )
+        .unwrap()
+    }
+
+    #[test]
+    fn variant_names_round_trip() {
+        for v in FlowVariant::ALL {
+            assert_eq!(v.name().parse::<FlowVariant>().unwrap(), v);
+        }
+        assert!(matches!(
+            "masked+registered".parse::<FlowVariant>(),
+            Err(PipelineError::UnknownVariant { .. })
+        ));
+    }
+
+    #[test]
+    fn registered_variant_removes_camera_translation() {
+        // A pure translation of the whole image: the registered flow is about zero, the
+        // plain one is the translation.
+        let motion = Motion::Translation { dx: 2.0, dy: -1.0 };
+        let (a, b, _) = synthetic::pair(160, 120, &motion, 3);
+        let mut plain = processor(FlowVariant::Plain);
+        let mut registered = processor(FlowVariant::Registered);
+        for p in [&mut plain, &mut registered] {
+            assert!(p.push(&a, None).unwrap().is_none());
+        }
+        let fp = plain.push(&b, None).unwrap().unwrap();
+        let fr = registered.push(&b, None).unwrap().unwrap();
+        let t = fp.registration.transform;
+        assert!(
+            (t.tx_px - 2.0).abs() < 0.1 && (t.ty_px + 1.0).abs() < 0.1,
+            "{t:?}"
+        );
+        // Network inputs: 2 px at 160 px wide = 8 px at 640 -> 8 / 15 * 0.5 = 0.267.
+        let mean = |v: &[f32]| v.iter().map(|&x| f64::from(x)).sum::<f64>() / v.len() as f64;
+        let n = 64 * 64;
+        assert!((mean(&fp.network_input[..n]) - 0.2667).abs() < 0.02);
+        assert!((mean(&fp.network_input[n..]) + 0.1333).abs() < 0.02);
+        assert!(mean(&fr.network_input[..n]).abs() < 0.01);
+        assert!(mean(&fr.network_input[n..]).abs() < 0.01);
+        assert!(fp.network_valid.is_none());
+    }
+
+    #[test]
+    fn masked_variant_zeroes_the_body_and_reports_valid_pixels() {
+        let motion = Motion::Translation { dx: 1.5, dy: 0.0 };
+        let (a, b, _) = synthetic::pair(160, 120, &motion, 4);
+        let mask: Vec<bool> = (0..160 * 120).map(|i| i % 160 >= 120).collect();
+        let mut p = processor(FlowVariant::Masked);
+        assert!(matches!(
+            p.push(&a, None),
+            Err(PipelineError::MissingMask { .. })
+        ));
+        assert!(matches!(
+            p.push(&a, Some(&mask[1..])),
+            Err(PipelineError::MaskSize { .. })
+        ));
+        assert!(p.push(&a, Some(&mask)).unwrap().is_none());
+        let f = p.push(&b, Some(&mask)).unwrap().unwrap();
+        let valid = f.network_valid.unwrap();
+        // The right quarter of the image is the body: masked input is zero there.
+        for (i, &ok) in valid.iter().enumerate() {
+            if !ok {
+                assert_eq!(f.network_input[i], 0.0);
+            }
+        }
+        let invalid = valid.iter().filter(|&&v| !v).count();
+        // 40 of 160 columns -> of the 85-wide resized image ~21 columns, minus the 10
+        // cropped on the right: ~11 columns of 64.
+        assert!((10 * 64..=12 * 64).contains(&invalid), "{invalid}");
+    }
+
+    #[test]
+    fn a_bad_frame_is_an_error_and_the_stream_goes_on() {
+        let motion = Motion::Translation { dx: 1.0, dy: 1.0 };
+        let (a, b, _) = synthetic::pair(160, 120, &motion, 5);
+        let mut p = processor(FlowVariant::Plain);
+        assert!(p.push(&a, None).unwrap().is_none());
+        let mut bad = b.clone();
+        bad.data_mut()[10] = f32::NAN;
+        assert!(p.push(&bad, None).is_err());
+        // The bad frame was refused before any stage advanced: the next good frame pairs
+        // with `a`.
+        let f = p.push(&b, None).unwrap().unwrap();
+        let mean_u = f.flow.u.iter().map(|&x| f64::from(x)).sum::<f64>() / f.flow.u.len() as f64;
+        assert!((mean_u - 1.0).abs() < 0.1, "{mean_u}");
+        assert!(p.push(&a, None).unwrap().is_some());
+    }
+}
