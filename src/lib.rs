@@ -9,12 +9,14 @@
 //!   the network-input preprocessing. Synchronous, no I/O beyond image files.
 //! - [`robot`]: URDF robots, kinematics, expected camera motion, rendering and the
 //!   body-motion error. Synchronous.
+//! - [`episode`]: recorded executions, read frame by frame (image folders; MCAP later).
 //! - [`pipeline`]: frame in, scores out (so far: the visual front end that turns images
 //!   into flow, registration and the predictor's input).
 //! - [`config`]: service settings composed of each module's `*Config`.
 //! - [`telemetry`]: `tracing` set-up (human or JSON logs).
 
 pub mod config;
+pub mod episode;
 pub mod pipeline;
 pub mod robot;
 pub mod telemetry;

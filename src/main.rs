@@ -101,6 +101,32 @@ enum Command {
     },
     /// Print the effective settings (defaults + file + environment) as TOML.
     Config,
+    /// Write the flow predictor's training data (64x64 network inputs of every processed
+    /// frame) from nominal episodes: one .npy per episode plus manifest.json.
+    ExportDataset {
+        /// Episode folders: images (.png/.jpg) in name order, or listed with stamps in
+        /// `frames.csv` (`file,stamp_ns`).
+        #[arg(required = true)]
+        episodes: Vec<PathBuf>,
+        /// Output folder.
+        #[arg(short, long)]
+        out: PathBuf,
+        /// Flow variant: plain or registered (default: `pipeline.frames.variant`).
+        #[arg(long)]
+        variant: Option<vamos::pipeline::FlowVariant>,
+        /// Process every N-th image (default: `pipeline.stride`).
+        #[arg(long)]
+        stride: Option<usize>,
+        /// Frame rate of folders without frames.csv.
+        #[arg(long, default_value_t = 10.0)]
+        fps: f64,
+        /// TV-L1 preset (default: the settings' `[vision.flow]`).
+        #[arg(long)]
+        preset: Option<String>,
+        /// Worker threads (0 = one per core; default from the settings).
+        #[arg(long)]
+        threads: Option<usize>,
+    },
 }
 
 fn main() -> std::process::ExitCode {
@@ -128,6 +154,27 @@ fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Config => {
             print!("{}", toml::to_string_pretty(&settings)?);
+            Ok(())
+        }
+        Command::ExportDataset {
+            episodes,
+            out,
+            variant,
+            stride,
+            fps,
+            preset,
+            threads,
+        } => {
+            let threads = resolve_threads(threads.unwrap_or(settings.vision.threads));
+            let opts = cli::export::ExportOptions {
+                episodes,
+                out,
+                variant,
+                stride,
+                fps,
+                preset,
+            };
+            pool(threads)?.install(|| cli::export::run(&settings, opts))?;
             Ok(())
         }
         Command::Flow {
