@@ -8,3 +8,4 @@ mod cli;
 mod flow_accuracy;
 mod flow_golden;
 mod registration_accuracy;
+mod robot_fk;
