@@ -7,6 +7,7 @@
 //! typo must not silently fall back to a default.
 
 use crate::pipeline::PipelineConfig;
+use crate::robot::RobotConfig;
 use crate::telemetry::LogConfig;
 use crate::vision::flow::FlowParams;
 use crate::vision::preprocess::NetworkInputParams;
@@ -57,6 +58,8 @@ pub struct Settings {
     pub vision: VisionConfig,
     /// The detection pipeline.
     pub pipeline: PipelineConfig,
+    /// Robot descriptions: mesh and archive caps, tessellation.
+    pub robot: RobotConfig,
 }
 
 impl Settings {

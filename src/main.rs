@@ -127,6 +127,26 @@ enum Command {
         #[arg(long)]
         threads: Option<usize>,
     },
+    /// Robot descriptions (URDF + meshes).
+    Robot {
+        #[command(subcommand)]
+        command: RobotCommand,
+    },
+}
+
+#[derive(Subcommand, Debug)]
+enum RobotCommand {
+    /// Load a robot and print its joints, links, visuals, warnings (and link poses for
+    /// given joint positions) as one JSON object.
+    Inspect {
+        /// URDF file, robot package folder, or .zip / .tar.gz package archive.
+        #[arg(long)]
+        robot: PathBuf,
+        /// JSON object of joint name -> position (rad or m): adds `poses` and
+        /// `out_of_limits`.
+        #[arg(long)]
+        joints: Option<PathBuf>,
+    },
 }
 
 fn main() -> std::process::ExitCode {
@@ -175,6 +195,13 @@ fn run(cli: Cli) -> Result<()> {
                 preset,
             };
             pool(threads)?.install(|| cli::export::run(&settings, opts))?;
+            Ok(())
+        }
+        Command::Robot {
+            command: RobotCommand::Inspect { robot, joints },
+        } => {
+            let out = cli::robot::inspect(&robot, joints.as_deref(), &settings.robot)?;
+            println!("{out}");
             Ok(())
         }
         Command::Flow {

@@ -1,3 +1,4 @@
 //! Implementations of the larger CLI sub-commands (binary-only; `main.rs` dispatches).
 
 pub mod export;
+pub mod robot;

@@ -10,3 +10,4 @@ mod export_dataset;
 mod flow_accuracy;
 mod flow_golden;
 mod registration_accuracy;
+mod robot_fk;

@@ -1,0 +1,943 @@
+//! Loading a robot: URDF text (file, string, package folder or archive) -> validated
+//! [`Robot`] with its joint tree and per-link visual meshes.
+//!
+//! Mesh paths are resolved here, never by `urdf-rs` (its `package://` expansion needs ROS):
+//! - relative paths: against the URDF's folder;
+//! - `package://NAME/REST`: in the URDF's folder and each folder above it, a folder that
+//!   *is* `NAME` or *holds* `NAME` (this covers pybullet's layout, where `package://meshes/`
+//!   sits beside the URDF); then a folder named `NAME` anywhere in the package (three
+//!   levels deep at most); then the package root itself (packages renamed on disk);
+//! - `file:///abs` and absolute paths: as given (folders only; refused inside archives).
+//!
+//! A mesh that cannot be found, read or parsed, or is over a cap, is left out with a
+//! warning naming it ([`Robot::warnings`]); the robot still loads.
+
+use super::camera::CameraConvention;
+use super::config::RobotConfig;
+use super::error::RobotError;
+use super::geometry::{LinkMesh, TriMesh};
+use super::joints::JointMapper;
+use super::kinematics::{
+    CameraMount, Joint, JointKind, JointLimits, JointPositions, Kinematics, LimitViolation,
+    Mimic, isometry_from_xyz_rpy,
+};
+use super::mesh;
+use nalgebra::{Isometry3, Unit, Vector3};
+use rayon::prelude::*;
+use serde::Serialize;
+use std::collections::{HashMap, HashSet};
+use std::io::Read;
+use std::path::{Component, Path, PathBuf};
+
+/// What a visual element of a link is.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+#[serde(tag = "type", rename_all = "snake_case")]
+pub enum VisualGeometry {
+    /// A mesh file.
+    Mesh {
+        /// The filename as written in the URDF.
+        uri: String,
+        /// Where it was found (`archive!/entry` inside archives); `None` when not found.
+        resolved: Option<String>,
+        /// Per-axis scale.
+        scale: [f64; 3],
+    },
+    /// A box centred on the visual origin.
+    Box {
+        /// Side lengths, metres.
+        size_m: [f64; 3],
+    },
+    /// A cylinder along the visual origin's z.
+    Cylinder {
+        /// Radius, metres.
+        radius_m: f64,
+        /// Length, metres.
+        length_m: f64,
+    },
+    /// A capsule along z.
+    Capsule {
+        /// Radius, metres.
+        radius_m: f64,
+        /// Length of the cylindrical part, metres.
+        length_m: f64,
+    },
+    /// A sphere.
+    Sphere {
+        /// Radius, metres.
+        radius_m: f64,
+    },
+}
+
+/// One `<visual>` of a link and what came of it.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct VisualInfo {
+    /// The geometry.
+    #[serde(flatten)]
+    pub geometry: VisualGeometry,
+    /// Triangles it contributes to the link mesh (0 when left out).
+    pub triangles: usize,
+}
+
+/// A loaded robot: names, joint tree, forward kinematics, visual meshes, load warnings.
+///
+/// Link indices (`links()`, [`LinkMesh::link`], the poses of [`Robot::forward`]) and joint
+/// indices (`joints()`, [`JointPositions`]) follow the URDF's order.
+#[derive(Debug, Clone)]
+pub struct Robot {
+    name: String,
+    kinematics: Kinematics,
+    visuals: Vec<Vec<VisualInfo>>,
+    link_meshes: Vec<LinkMesh>,
+    warnings: Vec<String>,
+}
+
+impl Robot {
+    /// Loads `path`: a folder (robot package), a `.zip`, `.tar.gz` or `.tgz` archive, or
+    /// a URDF file.
+    pub fn load(path: &Path, cfg: &RobotConfig) -> Result<Self, RobotError> {
+        if path.is_dir() {
+            return Self::from_package_dir(path, cfg);
+        }
+        let lower = path.to_string_lossy().to_ascii_lowercase();
+        if [".zip", ".tar.gz", ".tgz"]
+            .iter()
+            .any(|ext| lower.ends_with(ext))
+        {
+            return Self::from_archive_file(path, cfg);
+        }
+        Self::from_urdf_file(path, cfg)
+    }
+
+    /// A URDF file; meshes resolved against its folder.
+    pub fn from_urdf_file(path: &Path, cfg: &RobotConfig) -> Result<Self, RobotError> {
+        let xml = std::fs::read_to_string(path).map_err(|e| RobotError::io(path, &e))?;
+        let dir = urdf_folder(path)?;
+        Self::from_parts(
+            &xml,
+            &path.display().to_string(),
+            &Store::Dir,
+            &dir,
+            &dir,
+            cfg,
+        )
+    }
+
+    /// URDF text (e.g. ROS `/robot_description`); relative and `package://` mesh paths are
+    /// resolved against `mesh_root` (as if the URDF were a file in it). Without a root,
+    /// only absolute and `file://` meshes load.
+    pub fn from_urdf_str(
+        xml: &str,
+        mesh_root: Option<&Path>,
+        cfg: &RobotConfig,
+    ) -> Result<Self, RobotError> {
+        let root = match mesh_root {
+            Some(r) => std::fs::canonicalize(r).map_err(|e| RobotError::io(r, &e))?,
+            None => PathBuf::new(),
+        };
+        let store = if mesh_root.is_some() {
+            Store::Dir
+        } else {
+            Store::Nothing
+        };
+        Self::from_parts(xml, "<string>", &store, &root, &root, cfg)
+    }
+
+    /// A robot package folder: the one `.urdf` file nearest its top (at most four levels
+    /// down) is loaded, meshes resolved within and above the folder.
+    pub fn from_package_dir(dir: &Path, cfg: &RobotConfig) -> Result<Self, RobotError> {
+        let root = std::fs::canonicalize(dir).map_err(|e| RobotError::io(dir, &e))?;
+        let mut urdfs = Vec::new();
+        walk_dir(&root, 0, 4, &mut |p: &Path, is_dir| {
+            if !is_dir && has_urdf_extension(p) {
+                urdfs.push(p.to_path_buf());
+            }
+        });
+        let urdf = pick_urdf(&root, &urdfs, &dir.display().to_string())?;
+        let xml = std::fs::read_to_string(&urdf).map_err(|e| RobotError::io(&urdf, &e))?;
+        let urdf_dir = urdf.parent().map(Path::to_path_buf).unwrap_or(root.clone());
+        Self::from_parts(
+            &xml,
+            &urdf.display().to_string(),
+            &Store::Dir,
+            &urdf_dir,
+            &root,
+            cfg,
+        )
+    }
+
+    /// A `.zip` or `.tar.gz` robot package file (see [`Robot::from_archive_bytes`]).
+    pub fn from_archive_file(path: &Path, cfg: &RobotConfig) -> Result<Self, RobotError> {
+        let bytes = std::fs::read(path).map_err(|e| RobotError::io(path, &e))?;
+        Self::from_archive_bytes(&bytes, &path.display().to_string(), cfg)
+    }
+
+    /// A robot package archive in memory (zip or gzip-compressed tar, told apart by their
+    /// magic bytes), unpacked into memory: entries with absolute paths or `..` are
+    /// errors, links are skipped, sizes are capped (`max_archive_bytes`,
+    /// `max_archive_entries`). `label` names the archive in messages. When every entry
+    /// sits in one top folder, that folder is the package root.
+    pub fn from_archive_bytes(
+        bytes: &[u8],
+        label: &str,
+        cfg: &RobotConfig,
+    ) -> Result<Self, RobotError> {
+        let files = unpack_archive(bytes, label, cfg)?;
+        let mut tops = files
+            .keys()
+            .filter_map(|p| (p.components().count() > 1).then(|| p.components().next()))
+            .flatten()
+            .map(|c| PathBuf::from(c.as_os_str()))
+            .collect::<HashSet<_>>();
+        let single_top = files.keys().all(|p| p.components().count() > 1) && tops.len() == 1;
+        let root = match (single_top, tops.drain().next()) {
+            (true, Some(top)) => top,
+            _ => PathBuf::new(),
+        };
+        let urdfs: Vec<PathBuf> = files
+            .keys()
+            .filter(|p| has_urdf_extension(p))
+            .cloned()
+            .collect();
+        let urdf = pick_urdf(&root, &urdfs, label)?;
+        let xml = String::from_utf8_lossy(files.get(&urdf).map_or(&[][..], Vec::as_slice))
+            .into_owned();
+        let urdf_dir = urdf.parent().map(Path::to_path_buf).unwrap_or_default();
+        let store = Store::Memory {
+            label: label.to_string(),
+            files,
+        };
+        Self::from_parts(
+            &xml,
+            &format!("{label}!/{}", urdf.display()),
+            &store,
+            &urdf_dir,
+            &root,
+            cfg,
+        )
+    }
+
+    fn from_parts(
+        xml: &str,
+        source_name: &str,
+        store: &Store,
+        urdf_dir: &Path,
+        package_root: &Path,
+        cfg: &RobotConfig,
+    ) -> Result<Self, RobotError> {
+        let urdf = urdf_rs::read_from_string(xml).map_err(|e| RobotError::MalformedUrdf {
+            source_name: source_name.to_string(),
+            message: e.to_string(),
+        })?;
+        let kinematics = kinematics_from_urdf(&urdf)?;
+        let resolver = Resolver {
+            store,
+            urdf_dir,
+            package_root,
+        };
+        let (visuals, link_meshes, warnings) = load_visuals(&urdf, &resolver, cfg)?;
+        for w in &warnings {
+            tracing::warn!(robot = %urdf.name, "{w}");
+        }
+        Ok(Self {
+            name: urdf.name,
+            kinematics,
+            visuals,
+            link_meshes,
+            warnings,
+        })
+    }
+
+    /// The URDF robot name.
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+
+    /// Link names; index = link index ([`LinkMesh::link`], pose index).
+    pub fn links(&self) -> &[String] {
+        self.kinematics.links()
+    }
+
+    /// Joints in URDF order (the order of [`JointPositions`]).
+    pub fn joints(&self) -> &[Joint] {
+        self.kinematics.joints()
+    }
+
+    /// Index of the root link: the base frame of every pose.
+    pub fn root(&self) -> usize {
+        self.kinematics.root()
+    }
+
+    /// The joint tree and forward kinematics.
+    pub fn kinematics(&self) -> &Kinematics {
+        &self.kinematics
+    }
+
+    /// The visuals of link `link` (empty for an unknown index).
+    pub fn visuals(&self, link: usize) -> &[VisualInfo] {
+        self.visuals.get(link).map_or(&[], Vec::as_slice)
+    }
+
+    /// One merged mesh per link that has visual geometry, in the link's frame.
+    pub fn link_meshes(&self) -> &[LinkMesh] {
+        &self.link_meshes
+    }
+
+    /// Total visual triangles.
+    pub fn triangle_count(&self) -> usize {
+        self.link_meshes.iter().map(|m| m.mesh.triangle_count()).sum()
+    }
+
+    /// What was left out while loading (missing or unreadable meshes, limits), by name.
+    pub fn warnings(&self) -> &[String] {
+        &self.warnings
+    }
+
+    /// All joints at zero.
+    pub fn zero_positions(&self) -> JointPositions {
+        self.kinematics.zero_positions()
+    }
+
+    /// Checked joint positions in joint order (see [`Kinematics::positions`]).
+    pub fn positions(&self, values: Vec<f64>) -> Result<JointPositions, RobotError> {
+        self.kinematics.positions(values)
+    }
+
+    /// A name -> joint-vector mapper for this robot (build once per session).
+    pub fn joint_mapper(&self) -> JointMapper {
+        JointMapper::new(&self.kinematics)
+    }
+
+    /// `base_from_link` of every link (base = root link).
+    pub fn forward(&self, q: &JointPositions) -> Result<Vec<Isometry3<f64>>, RobotError> {
+        self.kinematics.forward(q)
+    }
+
+    /// As [`Robot::forward`] into a reusable buffer.
+    pub fn forward_into(
+        &self,
+        q: &JointPositions,
+        out: &mut Vec<Isometry3<f64>>,
+    ) -> Result<(), RobotError> {
+        self.kinematics.forward_into(q, out)
+    }
+
+    /// Joints outside their limits at `q` (limits are never enforced).
+    pub fn out_of_limits(&self, q: &JointPositions) -> Vec<LimitViolation> {
+        self.kinematics.out_of_limits(q)
+    }
+
+    /// Resolves a camera link once (for per-frame [`CameraMount::camera_from_base`]).
+    pub fn camera(
+        &self,
+        frame: &str,
+        convention: CameraConvention,
+    ) -> Result<CameraMount, RobotError> {
+        self.kinematics.camera(frame, convention)
+    }
+
+    /// `camera_from_base` (optical frame) of the camera link `frame` at `q`.
+    pub fn camera_from_base(
+        &self,
+        q: &JointPositions,
+        frame: &str,
+        convention: CameraConvention,
+    ) -> Result<Isometry3<f64>, RobotError> {
+        let mount = self.camera(frame, convention)?;
+        let poses = self.forward(q)?;
+        mount
+            .camera_from_base(&poses)
+            .ok_or_else(|| RobotError::UnknownCameraLink {
+                name: frame.to_string(),
+            })
+    }
+}
+
+fn urdf_folder(path: &Path) -> Result<PathBuf, RobotError> {
+    let abs = std::fs::canonicalize(path).map_err(|e| RobotError::io(path, &e))?;
+    Ok(abs.parent().map(Path::to_path_buf).unwrap_or_default())
+}
+
+fn has_urdf_extension(p: &Path) -> bool {
+    p.extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("urdf"))
+}
+
+/// The shallowest `.urdf` below `root`; several at that depth is an error.
+fn pick_urdf(root: &Path, urdfs: &[PathBuf], label: &str) -> Result<PathBuf, RobotError> {
+    let depth = |p: &Path| p.strip_prefix(root).unwrap_or(p).components().count();
+    let Some(best) = urdfs.iter().map(|p| depth(p)).min() else {
+        return Err(RobotError::UrdfNotFound {
+            path: label.to_string(),
+            reason: "it holds no .urdf file".into(),
+        });
+    };
+    let mut at_best: Vec<&PathBuf> = urdfs.iter().filter(|p| depth(p) == best).collect();
+    at_best.sort();
+    match at_best.as_slice() {
+        [one] => Ok((*one).clone()),
+        many => Err(RobotError::UrdfNotFound {
+            path: label.to_string(),
+            reason: format!(
+                "several .urdf files at the same level: {}",
+                many.iter()
+                    .map(|p| p.display().to_string())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ),
+        }),
+    }
+}
+
+/// Visits entries below `dir` up to `max_depth` levels (hidden entries and links skipped).
+fn walk_dir(dir: &Path, depth: usize, max_depth: usize, visit: &mut dyn FnMut(&Path, bool)) {
+    if depth >= max_depth {
+        return;
+    }
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return;
+    };
+    let mut entries: Vec<_> = entries.filter_map(Result::ok).collect();
+    entries.sort_by_key(|e| e.file_name());
+    for e in entries {
+        if e.file_name().to_string_lossy().starts_with('.') {
+            continue;
+        }
+        let Ok(ft) = e.file_type() else { continue };
+        let p = e.path();
+        if ft.is_dir() {
+            visit(&p, true);
+            walk_dir(&p, depth + 1, max_depth, visit);
+        } else if ft.is_file() {
+            visit(&p, false);
+        }
+    }
+}
+
+/// Lexically normalised relative path: no root, no `..` above the start.
+fn normalize_relative(p: &Path) -> Option<PathBuf> {
+    let mut out = PathBuf::new();
+    for c in p.components() {
+        match c {
+            Component::Normal(s) => out.push(s),
+            Component::CurDir => {}
+            Component::ParentDir => {
+                if !out.pop() {
+                    return None;
+                }
+            }
+            Component::RootDir | Component::Prefix(_) => return None,
+        }
+    }
+    Some(out)
+}
+
+fn unpack_archive(
+    bytes: &[u8],
+    label: &str,
+    cfg: &RobotConfig,
+) -> Result<HashMap<PathBuf, Vec<u8>>, RobotError> {
+    let archive_err = |message: String| RobotError::Archive {
+        path: label.to_string(),
+        message,
+    };
+    let mut files = HashMap::new();
+    let mut total = 0u64;
+    let mut add = |name: &str, path: Option<PathBuf>, reader: &mut dyn Read| {
+        let Some(rel) = path.as_deref().and_then(normalize_relative) else {
+            return Err(RobotError::ArchiveUnsafeEntry {
+                path: label.to_string(),
+                entry: name.to_string(),
+            });
+        };
+        if files.len() >= cfg.max_archive_entries {
+            return Err(RobotError::ArchiveTooLarge {
+                path: label.to_string(),
+                what: "entries",
+                limit: cfg.max_archive_entries as u64,
+            });
+        }
+        let left = cfg.max_archive_bytes.saturating_sub(total);
+        let mut data = Vec::new();
+        reader
+            .take(left + 1)
+            .read_to_end(&mut data)
+            .map_err(|e| archive_err(format!("{name}: {e}")))?;
+        total += data.len() as u64;
+        if total > cfg.max_archive_bytes {
+            return Err(RobotError::ArchiveTooLarge {
+                path: label.to_string(),
+                what: "bytes",
+                limit: cfg.max_archive_bytes,
+            });
+        }
+        files.insert(rel, data);
+        Ok(())
+    };
+    if bytes.starts_with(b"PK\x03\x04") || bytes.starts_with(b"PK\x05\x06") {
+        let mut zip = zip::ZipArchive::new(std::io::Cursor::new(bytes))
+            .map_err(|e| archive_err(e.to_string()))?;
+        for i in 0..zip.len() {
+            let mut f = zip.by_index(i).map_err(|e| archive_err(e.to_string()))?;
+            if f.is_dir() || f.is_symlink() {
+                continue;
+            }
+            let name = f.name().map_or_else(|_| format!("entry {i}"), |n| n.to_string());
+            let path = f.enclosed_name();
+            add(&name, path, &mut f)?;
+        }
+    } else if bytes.starts_with(&[0x1f, 0x8b]) {
+        let mut tar = tar::Archive::new(flate2::read::GzDecoder::new(bytes));
+        let entries = tar.entries().map_err(|e| archive_err(e.to_string()))?;
+        for entry in entries {
+            let mut e = entry.map_err(|e| archive_err(e.to_string()))?;
+            if !e.header().entry_type().is_file() {
+                continue; // folders, links, pax headers
+            }
+            let path = e.path().map_err(|e| archive_err(e.to_string()))?.into_owned();
+            let name = path.display().to_string();
+            add(&name, Some(path), &mut e)?;
+        }
+    } else {
+        return Err(archive_err(
+            "not a zip or gzip-compressed tar archive".into(),
+        ));
+    }
+    Ok(files)
+}
+
+/// Where the files of a robot come from.
+enum Store {
+    /// The file system (absolute paths).
+    Dir,
+    /// An unpacked archive (relative, normalised paths).
+    Memory {
+        label: String,
+        files: HashMap<PathBuf, Vec<u8>>,
+    },
+    /// No files (a URDF string without a mesh root).
+    Nothing,
+}
+
+impl Store {
+    fn is_file(&self, p: &Path) -> bool {
+        match self {
+            Self::Dir => p.is_file(),
+            Self::Memory { files, .. } => files.contains_key(p),
+            Self::Nothing => false,
+        }
+    }
+
+    fn display(&self, p: &Path) -> String {
+        match self {
+            Self::Memory { label, .. } => format!("{label}!/{}", p.display()),
+            _ => p.display().to_string(),
+        }
+    }
+
+    /// Reads a file, refusing files over `cap` bytes before reading them.
+    fn read(&self, p: &Path, cap: u64) -> Result<Vec<u8>, RobotError> {
+        let too_large = |bytes: u64| RobotError::MeshFileTooLarge {
+            path: self.display(p),
+            bytes,
+            limit_bytes: cap,
+        };
+        match self {
+            Self::Dir => {
+                let unreadable = |e: std::io::Error| RobotError::MeshUnreadable {
+                    path: p.display().to_string(),
+                    message: e.to_string(),
+                };
+                let len = std::fs::metadata(p).map_err(unreadable)?.len();
+                if len > cap {
+                    return Err(too_large(len));
+                }
+                std::fs::read(p).map_err(unreadable)
+            }
+            Self::Memory { files, .. } => {
+                let data = files.get(p).ok_or_else(|| RobotError::MeshUnreadable {
+                    path: self.display(p),
+                    message: "not in the archive".into(),
+                })?;
+                if data.len() as u64 > cap {
+                    return Err(too_large(data.len() as u64));
+                }
+                Ok(data.clone())
+            }
+            Self::Nothing => Err(RobotError::MeshUnreadable {
+                path: p.display().to_string(),
+                message: "no mesh root given".into(),
+            }),
+        }
+    }
+
+    /// Folders named `name` within `root`, at most `max_depth` levels down.
+    fn folders_named(&self, root: &Path, name: &str, max_depth: usize) -> Vec<PathBuf> {
+        let mut found = Vec::new();
+        match self {
+            Self::Dir => walk_dir(root, 0, max_depth, &mut |p: &Path, is_dir| {
+                if is_dir && p.file_name().is_some_and(|n| n == name) {
+                    found.push(p.to_path_buf());
+                }
+            }),
+            Self::Memory { files, .. } => {
+                let mut set = HashSet::new();
+                for f in files.keys() {
+                    let Ok(rel) = f.strip_prefix(root) else {
+                        continue;
+                    };
+                    let mut dir = root.to_path_buf();
+                    let comps: Vec<_> = rel.components().collect();
+                    for c in comps.iter().take(comps.len().saturating_sub(1)).take(max_depth) {
+                        dir.push(c.as_os_str());
+                        if c.as_os_str() == name {
+                            set.insert(dir.clone());
+                        }
+                    }
+                }
+                found = set.into_iter().collect();
+                found.sort();
+            }
+            Self::Nothing => {}
+        }
+        found
+    }
+}
+
+/// Mesh path resolution for one URDF.
+struct Resolver<'a> {
+    store: &'a Store,
+    urdf_dir: &'a Path,
+    package_root: &'a Path,
+}
+
+impl Resolver<'_> {
+    /// The path of a mesh `uri` in the store, or why it was not found.
+    fn resolve(&self, uri: &str) -> Result<PathBuf, String> {
+        let in_memory = matches!(self.store, Store::Memory { .. });
+        if let Some(rest) = uri.strip_prefix("package://") {
+            let (name, rel) = rest.split_once('/').ok_or("no path after the package name")?;
+            let rel = normalize_relative(Path::new(rel)).ok_or("path leaves the package")?;
+            let mut candidates = Vec::new();
+            for dir in self.urdf_dir.ancestors() {
+                if dir.file_name().is_some_and(|n| n == name) {
+                    candidates.push(dir.join(&rel));
+                }
+                candidates.push(dir.join(name).join(&rel));
+            }
+            for dir in self.store.folders_named(self.package_root, name, 3) {
+                candidates.push(dir.join(&rel));
+            }
+            candidates.push(self.package_root.join(&rel));
+            candidates.push(self.urdf_dir.join(&rel));
+            return candidates
+                .into_iter()
+                .find(|c| self.store.is_file(c))
+                .ok_or_else(|| format!("no folder named {name:?} in or above the package holds it"));
+        }
+        let plain = uri.strip_prefix("file://").unwrap_or(uri);
+        let path = Path::new(plain);
+        let candidate = if path.is_absolute() {
+            if in_memory {
+                return Err("absolute paths are not allowed inside an archive".into());
+            }
+            path.to_path_buf()
+        } else if in_memory {
+            let joined = self.urdf_dir.join(path);
+            normalize_relative(&joined).ok_or("path leaves the archive")?
+        } else {
+            self.urdf_dir.join(path)
+        };
+        if self.store.is_file(&candidate) {
+            Ok(candidate)
+        } else {
+            Err(format!("{} does not exist", self.store.display(&candidate)))
+        }
+    }
+}
+
+fn kind_of(t: &urdf_rs::JointType) -> JointKind {
+    match t {
+        urdf_rs::JointType::Revolute => JointKind::Revolute,
+        urdf_rs::JointType::Continuous => JointKind::Continuous,
+        urdf_rs::JointType::Prismatic => JointKind::Prismatic,
+        urdf_rs::JointType::Fixed => JointKind::Fixed,
+        urdf_rs::JointType::Floating => JointKind::Floating,
+        urdf_rs::JointType::Planar => JointKind::Planar,
+        urdf_rs::JointType::Spherical => JointKind::Spherical,
+    }
+}
+
+fn kinematics_from_urdf(urdf: &urdf_rs::Robot) -> Result<Kinematics, RobotError> {
+    let mut link_index = HashMap::new();
+    for (i, l) in urdf.links.iter().enumerate() {
+        if link_index.insert(l.name.as_str(), i).is_some() {
+            return Err(RobotError::DuplicateLink {
+                name: l.name.clone(),
+            });
+        }
+    }
+    let mut joint_index = HashMap::new();
+    for (i, j) in urdf.joints.iter().enumerate() {
+        if joint_index.insert(j.name.as_str(), i).is_some() {
+            return Err(RobotError::DuplicateJoint {
+                name: j.name.clone(),
+            });
+        }
+    }
+    let mut joints = Vec::with_capacity(urdf.joints.len());
+    for j in &urdf.joints {
+        let find = |link: &str| {
+            link_index
+                .get(link)
+                .copied()
+                .ok_or_else(|| RobotError::MissingLink {
+                    joint: j.name.clone(),
+                    link: link.to_string(),
+                })
+        };
+        let (parent, child) = (find(&j.parent.link)?, find(&j.child.link)?);
+        let kind = kind_of(&j.joint_type);
+        let invalid = |what| RobotError::InvalidJoint {
+            joint: j.name.clone(),
+            what,
+        };
+        let (xyz, rpy) = (j.origin.xyz.0, j.origin.rpy.0);
+        if !xyz.iter().chain(&rpy).all(|v| v.is_finite()) {
+            return Err(invalid("origin"));
+        }
+        let axis = Vector3::from(j.axis.xyz.0);
+        let axis = match Unit::try_new(axis, 1e-12) {
+            Some(a) if axis.iter().all(|v| v.is_finite()) => a,
+            _ if kind.is_moving() => return Err(invalid("axis")),
+            _ => Vector3::x_axis(),
+        };
+        let lim = &j.limit;
+        let limits = (matches!(kind, JointKind::Revolute | JointKind::Prismatic)
+            && lim.lower <= lim.upper
+            && !(lim.lower == 0.0 && lim.upper == 0.0))
+            .then_some(JointLimits {
+                lower: lim.lower,
+                upper: lim.upper,
+            });
+        joints.push(Joint {
+            name: j.name.clone(),
+            kind,
+            parent,
+            child,
+            parent_from_joint: isometry_from_xyz_rpy(xyz, rpy),
+            axis,
+            limits,
+            mimic: None,
+        });
+    }
+    // Mimic relations, chains composed down to a joint that is not itself a mimic.
+    for (i, j) in urdf.joints.iter().enumerate() {
+        let Some(m) = &j.mimic else { continue };
+        if !joints[i].kind.is_moving() {
+            continue;
+        }
+        let (mut multiplier, mut offset) = (m.multiplier.unwrap_or(1.0), m.offset.unwrap_or(0.0));
+        if !multiplier.is_finite() || !offset.is_finite() {
+            return Err(RobotError::InvalidJoint {
+                joint: j.name.clone(),
+                what: "mimic",
+            });
+        }
+        let mut target_name = &m.joint;
+        let mut hops = 0;
+        let target = loop {
+            let t = joint_index
+                .get(target_name.as_str())
+                .copied()
+                .filter(|&t| joints[t].kind.is_moving())
+                .ok_or_else(|| RobotError::MimicUnknownJoint {
+                    joint: j.name.clone(),
+                    mimicked: target_name.clone(),
+                })?;
+            match &urdf.joints[t].mimic {
+                None => break t,
+                Some(next) => {
+                    hops += 1;
+                    if t == i || hops > urdf.joints.len() {
+                        return Err(RobotError::MimicCycle {
+                            joint: j.name.clone(),
+                        });
+                    }
+                    // q_t = m' q_next + o'  =>  q_i = m m' q_next + (m o' + o)
+                    let (m2, o2) = (next.multiplier.unwrap_or(1.0), next.offset.unwrap_or(0.0));
+                    offset += multiplier * o2;
+                    multiplier *= m2;
+                    target_name = &next.joint;
+                }
+            }
+        };
+        joints[i].mimic = Some(Mimic {
+            joint: target,
+            multiplier,
+            offset,
+        });
+    }
+    let links = urdf.links.iter().map(|l| l.name.clone()).collect();
+    Kinematics::new(links, joints)
+}
+
+type Visuals = (Vec<Vec<VisualInfo>>, Vec<LinkMesh>, Vec<String>);
+
+fn load_visuals(
+    urdf: &urdf_rs::Robot,
+    resolver: &Resolver<'_>,
+    cfg: &RobotConfig,
+) -> Result<Visuals, RobotError> {
+    let mut warnings = Vec::new();
+    let mut infos: Vec<Vec<VisualInfo>> = Vec::with_capacity(urdf.links.len());
+    // Resolve every mesh first, then parse each distinct file once, in parallel.
+    let mut resolved: HashMap<String, Option<PathBuf>> = HashMap::new();
+    for link in &urdf.links {
+        for v in &link.visual {
+            if let urdf_rs::Geometry::Mesh { filename, .. } = &v.geometry {
+                if resolved.contains_key(filename) {
+                    continue;
+                }
+                let r = match resolver.resolve(filename) {
+                    Ok(p) => Some(p),
+                    Err(why) => {
+                        warnings.push(format!(
+                            "mesh {filename:?} of link {:?} left out: not found ({why})",
+                            link.name
+                        ));
+                        None
+                    }
+                };
+                resolved.insert(filename.clone(), r);
+            }
+        }
+    }
+    let mut paths: Vec<&PathBuf> = resolved.values().flatten().collect();
+    paths.sort();
+    paths.dedup();
+    let parsed: HashMap<&PathBuf, Result<TriMesh, RobotError>> = paths
+        .par_iter()
+        .map(|&p| {
+            let m = resolver
+                .store
+                .read(p, cfg.max_mesh_file_bytes)
+                .and_then(|bytes| mesh::mesh_from_bytes(&bytes, p, [1.0; 3], cfg));
+            (p, m)
+        })
+        .collect();
+    let mut reported = HashSet::new();
+    let mut link_meshes = Vec::new();
+    let mut total = 0usize;
+    for (li, link) in urdf.links.iter().enumerate() {
+        let mut merged = TriMesh::default();
+        let mut link_infos = Vec::new();
+        for v in &link.visual {
+            let (xyz, rpy) = (v.origin.xyz.0, v.origin.rpy.0);
+            let link_from_visual = isometry_from_xyz_rpy(xyz, rpy).cast::<f32>();
+            let (geometry, part) = match &v.geometry {
+                urdf_rs::Geometry::Mesh { filename, scale } => {
+                    let scale = scale.as_ref().map_or([1.0; 3], |s| s.0);
+                    let path = resolved.get(filename).cloned().flatten();
+                    let part = match path.as_ref().and_then(|p| parsed.get(p)) {
+                        Some(Ok(m)) => Some(scaled(m, scale)),
+                        Some(Err(e)) => {
+                            if reported.insert(filename.clone()) {
+                                warnings.push(format!(
+                                    "mesh {filename:?} of link {:?} left out: {e}",
+                                    link.name
+                                ));
+                            }
+                            None
+                        }
+                        None => None,
+                    };
+                    let resolved = path.map(|p| resolver.store.display(&p));
+                    (
+                        VisualGeometry::Mesh {
+                            uri: filename.clone(),
+                            resolved,
+                            scale,
+                        },
+                        part,
+                    )
+                }
+                urdf_rs::Geometry::Box { size } => (
+                    VisualGeometry::Box { size_m: size.0 },
+                    Some(mesh::box_mesh(size.0)),
+                ),
+                urdf_rs::Geometry::Cylinder { radius, length } => (
+                    VisualGeometry::Cylinder {
+                        radius_m: *radius,
+                        length_m: *length,
+                    },
+                    Some(mesh::cylinder_mesh(*radius, *length, cfg.cylinder_segments)),
+                ),
+                urdf_rs::Geometry::Capsule { radius, length } => (
+                    VisualGeometry::Capsule {
+                        radius_m: *radius,
+                        length_m: *length,
+                    },
+                    Some(mesh::capsule_mesh(
+                        *radius,
+                        *length,
+                        cfg.cylinder_segments,
+                        cfg.sphere_rings,
+                    )),
+                ),
+                urdf_rs::Geometry::Sphere { radius } => (
+                    VisualGeometry::Sphere { radius_m: *radius },
+                    Some(mesh::sphere_mesh(*radius, cfg.sphere_rings)),
+                ),
+            };
+            let part = part.filter(|m| {
+                let ok = m.is_valid();
+                if !ok {
+                    warnings.push(format!(
+                        "a visual of link {:?} has non-finite geometry; left out",
+                        link.name
+                    ));
+                }
+                ok
+            });
+            let triangles = part.as_ref().map_or(0, TriMesh::triangle_count);
+            if let Some(p) = &part {
+                merged.append_transformed(p, &link_from_visual);
+            }
+            link_infos.push(VisualInfo {
+                geometry,
+                triangles,
+            });
+        }
+        total += merged.triangle_count();
+        if total > cfg.max_robot_triangles {
+            return Err(RobotError::TooManyTriangles {
+                what: "robot".into(),
+                triangles: total,
+                limit: cfg.max_robot_triangles,
+            });
+        }
+        if !merged.triangles.is_empty() {
+            link_meshes.push(LinkMesh {
+                link: li,
+                mesh: merged,
+            });
+        }
+        infos.push(link_infos);
+    }
+    Ok((infos, link_meshes, warnings))
+}
+
+fn scaled(m: &TriMesh, scale: [f64; 3]) -> TriMesh {
+    if scale == [1.0; 3] {
+        return m.clone();
+    }
+    let s = scale.map(|v| v as f32);
+    TriMesh {
+        positions: m
+            .positions
+            .iter()
+            .map(|p| nalgebra::Point3::new(p.x * s[0], p.y * s[1], p.z * s[2]))
+            .collect(),
+        triangles: m.triangles.clone(),
+    }
+}

@@ -1,0 +1,333 @@
+//! Visual geometry: mesh files (STL, OBJ, COLLADA via `mesh-loader`) and tessellated URDF
+//! primitives, as indexed [`TriMesh`]es in metres.
+
+use super::config::RobotConfig;
+use super::error::RobotError;
+use super::geometry::TriMesh;
+use nalgebra::Point3;
+use std::collections::HashMap;
+use std::f32::consts::PI;
+use std::path::Path;
+
+/// Parses a mesh file's bytes (`path` names it in messages and selects the format by its
+/// extension or content), merges its sub-meshes, welds duplicate vertices and applies
+/// `scale` (per axis). Caps: `cfg.max_mesh_file_bytes`, `cfg.max_mesh_triangles`.
+/// OBJ material libraries are not read (the renderer draws no colours).
+pub fn mesh_from_bytes(
+    bytes: &[u8],
+    path: &Path,
+    scale: [f64; 3],
+    cfg: &RobotConfig,
+) -> Result<TriMesh, RobotError> {
+    let name = path.display().to_string();
+    let len = bytes.len() as u64;
+    if len > cfg.max_mesh_file_bytes {
+        return Err(RobotError::MeshFileTooLarge {
+            path: name,
+            bytes: len,
+            limit_bytes: cfg.max_mesh_file_bytes,
+        });
+    }
+    let loader = mesh_loader::Loader::default();
+    // No material files: the reader refuses, which mesh-loader treats as "no materials".
+    let scene = loader
+        .load_from_slice_with_reader(bytes, path, |_| {
+            Err(std::io::Error::from(std::io::ErrorKind::NotFound))
+        })
+        .map_err(|e| RobotError::MeshUnreadable {
+            path: name.clone(),
+            message: e.to_string(),
+        })?;
+    let triangles: usize = scene.meshes.iter().map(|m| m.faces.len()).sum();
+    if triangles > cfg.max_mesh_triangles {
+        return Err(RobotError::TooManyTriangles {
+            what: name,
+            triangles,
+            limit: cfg.max_mesh_triangles,
+        });
+    }
+    let s = scale.map(|v| v as f32);
+    let mut welder = Welder::with_capacity(triangles);
+    for m in &scene.meshes {
+        for face in &m.faces {
+            let mut tri = [0u32; 3];
+            for (slot, &i) in tri.iter_mut().zip(face) {
+                let Some(v) = m.vertices.get(i as usize) else {
+                    return Err(RobotError::MeshUnreadable {
+                        path: name,
+                        message: format!("face index {i} out of range"),
+                    });
+                };
+                if !v.iter().all(|c| c.is_finite()) {
+                    return Err(RobotError::MeshUnreadable {
+                        path: name,
+                        message: "non-finite vertex".into(),
+                    });
+                }
+                *slot = welder.index(Point3::new(v[0] * s[0], v[1] * s[1], v[2] * s[2]));
+            }
+            welder.mesh.triangles.push(tri);
+        }
+    }
+    Ok(welder.mesh)
+}
+
+/// Builds an indexed mesh, giving bit-identical positions one index.
+struct Welder {
+    mesh: TriMesh,
+    seen: HashMap<[u32; 3], u32>,
+}
+
+impl Welder {
+    fn with_capacity(triangles: usize) -> Self {
+        Self {
+            mesh: TriMesh {
+                positions: Vec::with_capacity(triangles / 2 + 3),
+                triangles: Vec::with_capacity(triangles),
+            },
+            seen: HashMap::with_capacity(triangles / 2 + 3),
+        }
+    }
+
+    fn index(&mut self, p: Point3<f32>) -> u32 {
+        // +0.0 and -0.0 are the same point.
+        let key = [p.x + 0.0, p.y + 0.0, p.z + 0.0].map(f32::to_bits);
+        let next = self.mesh.positions.len() as u32;
+        *self.seen.entry(key).or_insert_with(|| {
+            self.mesh.positions.push(p);
+            next
+        })
+    }
+}
+
+/// An axis-aligned box centred on the origin with side lengths `size_m`: 8 vertices,
+/// 12 triangles, counter-clockwise seen from outside.
+pub fn box_mesh(size_m: [f64; 3]) -> TriMesh {
+    let h = size_m.map(|v| (v / 2.0) as f32);
+    let positions = (0..8)
+        .map(|i| {
+            let sx = if i & 1 == 0 { -h[0] } else { h[0] };
+            let sy = if i & 2 == 0 { -h[1] } else { h[1] };
+            let sz = if i & 4 == 0 { -h[2] } else { h[2] };
+            Point3::new(sx, sy, sz)
+        })
+        .collect();
+    // Corner i has bit 0 = +x, bit 1 = +y, bit 2 = +z.
+    let triangles = vec![
+        [0, 2, 3],
+        [0, 3, 1], // -z
+        [4, 5, 7],
+        [4, 7, 6], // +z
+        [0, 1, 5],
+        [0, 5, 4], // -y
+        [2, 6, 7],
+        [2, 7, 3], // +y
+        [0, 4, 6],
+        [0, 6, 2], // -x
+        [1, 3, 7],
+        [1, 7, 5], // +x
+    ];
+    TriMesh {
+        positions,
+        triangles,
+    }
+}
+
+/// A closed cylinder along z, centred on the origin: `segments` (at least 3) around,
+/// `2 segments + 2` vertices, `4 segments` triangles.
+pub fn cylinder_mesh(radius_m: f64, length_m: f64, segments: u32) -> TriMesh {
+    let n = segments.max(3);
+    let (r, h) = (radius_m as f32, (length_m / 2.0) as f32);
+    let mut positions = Vec::with_capacity(2 * n as usize + 2);
+    for k in 0..n {
+        let a = 2.0 * PI * k as f32 / n as f32;
+        positions.push(Point3::new(r * a.cos(), r * a.sin(), -h));
+        positions.push(Point3::new(r * a.cos(), r * a.sin(), h));
+    }
+    let (bottom, top) = (2 * n, 2 * n + 1);
+    positions.push(Point3::new(0.0, 0.0, -h));
+    positions.push(Point3::new(0.0, 0.0, h));
+    let mut triangles = Vec::with_capacity(4 * n as usize);
+    for k in 0..n {
+        let (b0, t0) = (2 * k, 2 * k + 1);
+        let (b1, t1) = (2 * ((k + 1) % n), 2 * ((k + 1) % n) + 1);
+        triangles.push([b0, b1, t1]);
+        triangles.push([b0, t1, t0]);
+        triangles.push([bottom, b1, b0]);
+        triangles.push([top, t0, t1]);
+    }
+    TriMesh {
+        positions,
+        triangles,
+    }
+}
+
+/// A UV sphere centred on the origin: `rings` (at least 2) latitude bands and
+/// `2 rings` longitude segments; `2 + (rings - 1) 2 rings` vertices and
+/// `2 (2 rings) (rings - 1)` triangles.
+pub fn sphere_mesh(radius_m: f64, rings: u32) -> TriMesh {
+    let rings = rings.max(2);
+    let segs = 2 * rings;
+    let r = radius_m as f32;
+    let mut positions = vec![Point3::new(0.0, 0.0, r), Point3::new(0.0, 0.0, -r)];
+    for i in 1..rings {
+        let polar = PI * i as f32 / rings as f32;
+        for k in 0..segs {
+            let a = 2.0 * PI * k as f32 / segs as f32;
+            positions.push(Point3::new(
+                r * polar.sin() * a.cos(),
+                r * polar.sin() * a.sin(),
+                r * polar.cos(),
+            ));
+        }
+    }
+    let at = |i: u32, k: u32| 2 + (i - 1) * segs + k % segs;
+    let mut triangles = Vec::with_capacity((2 * segs * (rings - 1)) as usize);
+    for k in 0..segs {
+        triangles.push([0, at(1, k), at(1, k + 1)]);
+        triangles.push([1, at(rings - 1, k + 1), at(rings - 1, k)]);
+    }
+    for i in 1..rings - 1 {
+        for k in 0..segs {
+            triangles.push([at(i, k), at(i + 1, k), at(i + 1, k + 1)]);
+            triangles.push([at(i, k), at(i + 1, k + 1), at(i, k + 1)]);
+        }
+    }
+    TriMesh {
+        positions,
+        triangles,
+    }
+}
+
+/// A capsule along z: a cylinder of `length_m` with hemispherical caps (drawn as whole
+/// spheres at the ends; the overlap is hidden inside).
+pub fn capsule_mesh(radius_m: f64, length_m: f64, segments: u32, rings: u32) -> TriMesh {
+    let mut m = cylinder_mesh(radius_m, length_m, segments);
+    let sphere = sphere_mesh(radius_m, rings);
+    for z in [-length_m / 2.0, length_m / 2.0] {
+        let pose = nalgebra::Isometry3::translation(0.0, 0.0, z as f32);
+        m.append_transformed(&sphere, &pose);
+    }
+    m
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn extents(m: &TriMesh) -> ([f32; 3], [f32; 3]) {
+        let mut lo = [f32::MAX; 3];
+        let mut hi = [f32::MIN; 3];
+        for p in &m.positions {
+            for a in 0..3 {
+                lo[a] = lo[a].min(p[a]);
+                hi[a] = hi[a].max(p[a]);
+            }
+        }
+        (lo, hi)
+    }
+
+    /// Signed volume by the divergence theorem: positive iff the faces wind outwards.
+    fn volume(m: &TriMesh) -> f64 {
+        m.triangles
+            .iter()
+            .map(|t| {
+                let [a, b, c] = t.map(|i| m.positions[i as usize].coords.cast::<f64>());
+                a.dot(&b.cross(&c)) / 6.0
+            })
+            .sum()
+    }
+
+    #[test]
+    fn box_has_12_outward_triangles_and_its_size() {
+        let m = box_mesh([0.2, 0.4, 1.0]);
+        assert_eq!((m.positions.len(), m.triangle_count()), (8, 12));
+        assert_eq!(extents(&m), ([-0.1, -0.2, -0.5], [0.1, 0.2, 0.5]));
+        assert!((volume(&m) - 0.08).abs() < 1e-6, "{}", volume(&m));
+        assert!(m.is_valid());
+    }
+
+    #[test]
+    fn cylinder_counts_extents_and_volume() {
+        let m = cylinder_mesh(0.5, 2.0, 32);
+        assert_eq!((m.positions.len(), m.triangle_count()), (66, 128));
+        let (lo, hi) = extents(&m);
+        assert_eq!((lo[2], hi[2]), (-1.0, 1.0));
+        assert!((hi[0] - 0.5).abs() < 1e-6 && (lo[0] + 0.5).abs() < 1e-6);
+        // Volume of the inscribed 32-gon prism: n/2 r^2 sin(2 pi/n) * length.
+        let expect = 16.0 * 0.25 * (2.0 * std::f64::consts::PI / 32.0).sin() * 2.0;
+        assert!((volume(&m) - expect).abs() < 1e-5, "{}", volume(&m));
+    }
+
+    #[test]
+    fn sphere_counts_and_radius() {
+        let m = sphere_mesh(0.3, 12);
+        assert_eq!(m.positions.len(), 2 + 11 * 24);
+        assert_eq!(m.triangle_count(), 2 * 24 * 11);
+        assert!(m.positions.iter().all(|p| (p.coords.norm() - 0.3).abs() < 1e-6));
+        let v = volume(&m);
+        let ball = 4.0 / 3.0 * std::f64::consts::PI * 0.027;
+        assert!(v > 0.95 * ball && v < ball, "{v} vs {ball}");
+    }
+
+    #[test]
+    fn capsule_spans_length_plus_diameter() {
+        let m = capsule_mesh(0.1, 0.5, 16, 8);
+        let (lo, hi) = extents(&m);
+        assert!((lo[2] + 0.35).abs() < 1e-6 && (hi[2] - 0.35).abs() < 1e-6);
+        assert!(m.is_valid());
+    }
+
+    #[test]
+    fn ascii_stl_is_welded_and_scaled() {
+        // Two triangles of a unit square sharing an edge: 6 corners, 4 distinct points.
+        let stl = b"solid s
+facet normal 0 0 1
+outer loop
+vertex 0 0 0
+vertex 1 0 0
+vertex 1 1 0
+endloop
+endfacet
+facet normal 0 0 1
+outer loop
+vertex 0 0 0
+vertex 1 1 0
+vertex 0 1 0
+endloop
+endfacet
+endsolid s
+";
+        let m = mesh_from_bytes(
+            stl,
+            Path::new("square.stl"),
+            [2.0, 3.0, 1.0],
+            &RobotConfig::default(),
+        )
+        .unwrap();
+        assert_eq!(m.positions.len(), 4);
+        assert_eq!(m.triangle_count(), 2);
+        assert!(m.positions.contains(&Point3::new(2.0, 3.0, 0.0)));
+        assert_eq!(m.triangles[0][0], m.triangles[1][0]);
+    }
+
+    #[test]
+    fn caps_and_garbage_are_errors() {
+        let cfg = RobotConfig {
+            max_mesh_file_bytes: 10,
+            ..RobotConfig::default()
+        };
+        let e = mesh_from_bytes(&[0u8; 11], Path::new("x.stl"), [1.0; 3], &cfg).unwrap_err();
+        assert!(matches!(e, RobotError::MeshFileTooLarge { bytes: 11, .. }), "{e}");
+        let obj = b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nf 1 3 2\n";
+        let cfg = RobotConfig {
+            max_mesh_triangles: 1,
+            ..RobotConfig::default()
+        };
+        let e = mesh_from_bytes(obj, Path::new("t.obj"), [1.0; 3], &cfg).unwrap_err();
+        assert!(matches!(e, RobotError::TooManyTriangles { triangles: 2, .. }), "{e}");
+        let e = mesh_from_bytes(b"hello", Path::new("t.xyz"), [1.0; 3], &RobotConfig::default())
+            .unwrap_err();
+        assert!(matches!(e, RobotError::MeshUnreadable { .. }), "{e}");
+    }
+}
