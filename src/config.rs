@@ -8,6 +8,7 @@
 
 use crate::pipeline::PipelineConfig;
 use crate::robot::RobotConfig;
+use crate::robot::render::RenderConfig;
 use crate::telemetry::LogConfig;
 use crate::vision::flow::FlowParams;
 use crate::vision::preprocess::NetworkInputParams;
@@ -60,6 +61,8 @@ pub struct Settings {
     pub pipeline: PipelineConfig,
     /// Robot descriptions: mesh and archive caps, tessellation.
     pub robot: RobotConfig,
+    /// Rendering of the robot body (mask, depth, expected body flow).
+    pub render: RenderConfig,
 }
 
 impl Settings {
@@ -185,6 +188,23 @@ mod tests {
             let key = line.split(" = ").next().unwrap();
             assert!(text.contains(&format!("{key} = ")), "example lacks {key}");
         }
+    }
+
+    #[test]
+    fn render_section_is_read_from_the_environment() {
+        let s = Settings::load_with_env(
+            None,
+            env(&[
+                ("VAMOS_RENDER__MASK_MARGIN_PX", "3"),
+                ("VAMOS_RENDER__BACKEND", "cpu"),
+                ("VAMOS_RENDER__FLOW_GRID", "source"),
+            ]),
+        )
+        .unwrap();
+        assert_eq!(s.render.mask_margin_px, 3);
+        assert_eq!(s.render.backend, crate::robot::render::RenderBackend::Cpu);
+        assert_eq!(s.render.flow_grid, crate::robot::render::FlowGrid::Source);
+        assert_eq!(s.render.near_m, 0.05);
     }
 
     #[test]

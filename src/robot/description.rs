@@ -18,8 +18,8 @@ use super::error::RobotError;
 use super::geometry::{LinkMesh, TriMesh};
 use super::joints::JointMapper;
 use super::kinematics::{
-    CameraMount, Joint, JointKind, JointLimits, JointPositions, Kinematics, LimitViolation,
-    Mimic, isometry_from_xyz_rpy,
+    CameraMount, Joint, JointKind, JointLimits, JointPositions, Kinematics, LimitViolation, Mimic,
+    isometry_from_xyz_rpy,
 };
 use super::mesh;
 use nalgebra::{Isometry3, Unit, Vector3};
@@ -199,8 +199,8 @@ impl Robot {
             .cloned()
             .collect();
         let urdf = pick_urdf(&root, &urdfs, label)?;
-        let xml = String::from_utf8_lossy(files.get(&urdf).map_or(&[][..], Vec::as_slice))
-            .into_owned();
+        let xml =
+            String::from_utf8_lossy(files.get(&urdf).map_or(&[][..], Vec::as_slice)).into_owned();
         let urdf_dir = urdf.parent().map(Path::to_path_buf).unwrap_or_default();
         let store = Store::Memory {
             label: label.to_string(),
@@ -284,7 +284,10 @@ impl Robot {
 
     /// Total visual triangles.
     pub fn triangle_count(&self) -> usize {
-        self.link_meshes.iter().map(|m| m.mesh.triangle_count()).sum()
+        self.link_meshes
+            .iter()
+            .map(|m| m.mesh.triangle_count())
+            .sum()
     }
 
     /// What was left out while loading (missing or unreadable meshes, limits), by name.
@@ -481,7 +484,9 @@ fn unpack_archive(
             if f.is_dir() || f.is_symlink() {
                 continue;
             }
-            let name = f.name().map_or_else(|_| format!("entry {i}"), |n| n.to_string());
+            let name = f
+                .name()
+                .map_or_else(|_| format!("entry {i}"), |n| n.to_string());
             let path = f.enclosed_name();
             add(&name, path, &mut f)?;
         }
@@ -493,7 +498,10 @@ fn unpack_archive(
             if !e.header().entry_type().is_file() {
                 continue; // folders, links, pax headers
             }
-            let path = e.path().map_err(|e| archive_err(e.to_string()))?.into_owned();
+            let path = e
+                .path()
+                .map_err(|e| archive_err(e.to_string()))?
+                .into_owned();
             let name = path.display().to_string();
             add(&name, Some(path), &mut e)?;
         }
@@ -587,7 +595,11 @@ impl Store {
                     };
                     let mut dir = root.to_path_buf();
                     let comps: Vec<_> = rel.components().collect();
-                    for c in comps.iter().take(comps.len().saturating_sub(1)).take(max_depth) {
+                    for c in comps
+                        .iter()
+                        .take(comps.len().saturating_sub(1))
+                        .take(max_depth)
+                    {
                         dir.push(c.as_os_str());
                         if c.as_os_str() == name {
                             set.insert(dir.clone());
@@ -615,7 +627,9 @@ impl Resolver<'_> {
     fn resolve(&self, uri: &str) -> Result<PathBuf, String> {
         let in_memory = matches!(self.store, Store::Memory { .. });
         if let Some(rest) = uri.strip_prefix("package://") {
-            let (name, rel) = rest.split_once('/').ok_or("no path after the package name")?;
+            let (name, rel) = rest
+                .split_once('/')
+                .ok_or("no path after the package name")?;
             let rel = normalize_relative(Path::new(rel)).ok_or("path leaves the package")?;
             let mut candidates = Vec::new();
             for dir in self.urdf_dir.ancestors() {
@@ -632,7 +646,9 @@ impl Resolver<'_> {
             return candidates
                 .into_iter()
                 .find(|c| self.store.is_file(c))
-                .ok_or_else(|| format!("no folder named {name:?} in or above the package holds it"));
+                .ok_or_else(|| {
+                    format!("no folder named {name:?} in or above the package holds it")
+                });
         }
         let plain = uri.strip_prefix("file://").unwrap_or(uri);
         let path = Path::new(plain);

@@ -10,6 +10,8 @@
 //!   registration's convention) and the camera-motion error `e_c`.
 //! - [`geometry`]: triangle meshes attached to links (what the renderer draws).
 //! - [`config`]: [`RobotConfig`], the `[robot]` settings (caps, tessellation).
+//! - [`render`]: body mask, depth and exact expected body flow (CPU rasteriser).
+//! - [`body_motion`]: the body-motion error `e_b`.
 //!
 //! Frames: `base` is the URDF's root link; poses are written `a_from_b` (the transform
 //! that maps coordinates in frame `b` to frame `a`), as nalgebra `Isometry3<f64>`.
@@ -26,6 +28,7 @@
 //! # Ok(()) }
 //! ```
 
+pub mod body_motion;
 pub mod camera;
 pub mod camera_motion;
 pub mod config;
@@ -35,7 +38,9 @@ pub mod geometry;
 pub mod joints;
 pub mod kinematics;
 pub mod mesh;
+pub mod render;
 
+pub use body_motion::{BodyMotion, BodyMotionError, body_motion_error};
 pub use camera::{CameraConvention, Intrinsics, IntrinsicsError};
 pub use config::RobotConfig;
 pub use description::{Robot, VisualGeometry, VisualInfo};

@@ -1,0 +1,582 @@
+//! The CPU back-end: a z-buffer rasteriser.
+//!
+//! Per frame: every link's `camera_from_link` is formed once (f64, then f32), links whose
+//! bounding sphere lies outside the view frustum are skipped, the remaining vertices are
+//! transformed and projected once (f32, planar buffers), and each triangle is clipped
+//! against the near plane (cut into at most two triangles) and scan-converted with
+//! integer edge functions in 24.8 fixed point over its bounding box, evaluated
+//! incrementally along each row, with the top-left fill rule (a pixel centre on a shared
+//! edge is drawn once) and a depth test on `1/z` (perspective-correct: `1/z` is affine in
+//! screen space). Each pixel keeps the id of the nearest triangle; a second pass over the
+//! covered pixels turns `1/z` into depth, recovers the 3-D point from pixel and depth,
+//! moves it rigidly with its link to the other time and projects it: the exact flow.
+//!
+//! Single-threaded by design (see the parent module); buffers are kept between frames.
+
+use super::mask::grow_mask;
+use super::{FlowGrid, NO_LINK, RenderConfig, RenderError, RenderFrame, RenderOutput, RobotView};
+use crate::robot::camera::Intrinsics;
+use crate::robot::geometry::LinkMesh;
+use crate::vision::image::{FlowField, GrayImage};
+use nalgebra::{Isometry3, Matrix3, Point3, Vector3};
+
+/// Vertices further than this from the image origin (pixels, after projection) are out
+/// of the rasteriser's fixed-point range; their triangles are skipped.
+pub const GUARD_BAND_PX: f32 = 1_048_576.0;
+
+/// Sub-pixel precision of the rasteriser: 8 bits (1/256 px).
+const SUB_BITS: u32 = 8;
+const SUB_SCALE: f64 = (1u32 << SUB_BITS) as f64;
+/// `tri_id` of a pixel that no triangle covers.
+const NO_TRIANGLE: u32 = u32::MAX;
+/// Gray levels of the shaded image: background, darkest and brightest robot pixel.
+const GRAY_BACKGROUND: f32 = 255.0;
+const GRAY_DARK: f32 = 38.0;
+const GRAY_BRIGHT: f32 = 217.0;
+
+/// Geometry of one mesh: a contiguous range of the renderer's vertex and triangle
+/// buffers, attached to one link.
+#[derive(Debug, Clone)]
+struct Group {
+    link: usize,
+    vertices: std::ops::Range<usize>,
+    triangles: std::ops::Range<usize>,
+    /// Bounding sphere in the link frame.
+    centre: Vector3<f32>,
+    radius: f32,
+}
+
+/// The CPU z-buffer renderer (see the module docs).
+#[derive(Debug, Clone)]
+pub struct CpuRenderer {
+    near_m: f32,
+    margin_px: u32,
+    grid: FlowGrid,
+    cull_back_faces: bool,
+    groups: Vec<Group>,
+    /// Vertex positions in their link's frame.
+    positions: Vec<[f32; 3]>,
+    /// Triangles with indices into `positions`.
+    triangles: Vec<[u32; 3]>,
+    /// Group of each triangle.
+    triangle_group: Vec<u32>,
+    max_link: Option<usize>,
+    // Per-frame scratch, kept between frames.
+    camera_xyz: Vec<[f32; 3]>,
+    screen: Vec<[f32; 3]>,
+    inv_z: Vec<f32>,
+    tri_id: Vec<u32>,
+    other_from_shown: Vec<Option<Isometry3<f64>>>,
+}
+
+impl CpuRenderer {
+    /// A renderer with `config`'s near plane, mask margin, flow grid and culling.
+    pub fn new(config: &RenderConfig) -> Result<Self, RenderError> {
+        config.validate()?;
+        Ok(Self {
+            near_m: config.near_m as f32,
+            margin_px: config.mask_margin_px,
+            grid: config.flow_grid,
+            cull_back_faces: config.cull_back_faces,
+            groups: Vec::new(),
+            positions: Vec::new(),
+            triangles: Vec::new(),
+            triangle_group: Vec::new(),
+            max_link: None,
+            camera_xyz: Vec::new(),
+            screen: Vec::new(),
+            inv_z: Vec::new(),
+            tri_id: Vec::new(),
+            other_from_shown: Vec::new(),
+        })
+    }
+
+    /// Triangles prepared.
+    pub fn triangle_count(&self) -> usize {
+        self.triangles.len()
+    }
+
+    fn check_links(&self, view: &RobotView<'_>, which: &'static str) -> Result<(), RenderError> {
+        view.validate(which)?;
+        if let Some(link) = self.max_link
+            && link >= view.base_from_link.len()
+        {
+            return Err(RenderError::LinkOutOfRange {
+                link,
+                link_count: view.base_from_link.len(),
+                which,
+            });
+        }
+        Ok(())
+    }
+}
+
+impl super::BodyRenderer for CpuRenderer {
+    fn prepare(&mut self, meshes: &[LinkMesh]) -> Result<(), RenderError> {
+        let vertex_count: usize = meshes.iter().map(|m| m.mesh.positions.len()).sum();
+        let triangle_count: usize = meshes.iter().map(|m| m.mesh.triangles.len()).sum();
+        // Triangle ids must stay below the NO_TRIANGLE sentinel.
+        let max = (u32::MAX - 1) as usize;
+        for (what, count) in [("vertices", vertex_count), ("triangles", triangle_count)] {
+            if count > max {
+                return Err(RenderError::TooLarge { what, count, max });
+            }
+        }
+        for (m, lm) in meshes.iter().enumerate() {
+            let n = lm.mesh.positions.len();
+            if let Some(vertex) = lm
+                .mesh
+                .positions
+                .iter()
+                .position(|p| !p.coords.iter().all(|c| c.is_finite()))
+            {
+                return Err(RenderError::NonFiniteVertex {
+                    mesh: m,
+                    link: lm.link,
+                    vertex,
+                });
+            }
+            for (t, tri) in lm.mesh.triangles.iter().enumerate() {
+                if let Some(&index) = tri.iter().find(|&&i| i as usize >= n) {
+                    return Err(RenderError::IndexOutOfRange {
+                        mesh: m,
+                        link: lm.link,
+                        triangle: t,
+                        index,
+                        vertex_count: n,
+                    });
+                }
+            }
+        }
+        self.groups.clear();
+        self.positions.clear();
+        self.triangles.clear();
+        self.triangle_group.clear();
+        self.max_link = None;
+        for lm in meshes.iter().filter(|m| !m.mesh.triangles.is_empty()) {
+            let v0 = self.positions.len();
+            let t0 = self.triangles.len();
+            self.positions
+                .extend(lm.mesh.positions.iter().map(|p| [p.x, p.y, p.z]));
+            let offset = v0 as u32;
+            self.triangles.extend(
+                lm.mesh
+                    .triangles
+                    .iter()
+                    .map(|t| [t[0] + offset, t[1] + offset, t[2] + offset]),
+            );
+            let g = self.groups.len() as u32;
+            self.triangle_group
+                .extend(std::iter::repeat_n(g, lm.mesh.triangles.len()));
+            let (centre, radius) = bounding_sphere(&self.positions[v0..]);
+            self.groups.push(Group {
+                link: lm.link,
+                vertices: v0..self.positions.len(),
+                triangles: t0..self.triangles.len(),
+                centre,
+                radius,
+            });
+            self.max_link = Some(self.max_link.map_or(lm.link, |l| l.max(lm.link)));
+        }
+        Ok(())
+    }
+
+    fn render(
+        &mut self,
+        frame: &RenderFrame<'_>,
+        out: &mut RenderOutput,
+    ) -> Result<(), RenderError> {
+        let k = frame.intrinsics;
+        k.validate()?;
+        self.check_links(&frame.current, "current")?;
+        if let Some(prev) = &frame.previous {
+            self.check_links(prev, "previous")?;
+        }
+        let (shown, other) = match (frame.previous, self.grid) {
+            (None, _) => (frame.current, None),
+            (Some(prev), FlowGrid::Target) => (frame.current, Some(prev)),
+            (Some(prev), FlowGrid::Source) => (prev, Some(frame.current)),
+        };
+        let (w, h) = (k.width as usize, k.height as usize);
+        let n = w * h;
+        self.inv_z.clear();
+        self.inv_z.resize(n, 0.0);
+        self.tri_id.clear();
+        self.tri_id.resize(n, NO_TRIANGLE);
+        self.camera_xyz.resize(self.positions.len(), [0.0; 3]);
+        self.screen.resize(self.positions.len(), [0.0; 3]);
+        self.other_from_shown.clear();
+
+        let frustum = Frustum::new(k, self.near_m);
+        let mut target = Target {
+            inv_z: &mut self.inv_z,
+            tri_id: &mut self.tri_id,
+            width: w,
+            height: h,
+            cull_back_faces: self.cull_back_faces,
+        };
+        let proj = [k.fx as f32, k.fy as f32, k.cx as f32, k.cy as f32];
+        for group in &self.groups {
+            let shown_from_link = shown.camera_from_base * shown.base_from_link[group.link];
+            self.other_from_shown.push(other.map(|o| {
+                o.camera_from_base * o.base_from_link[group.link] * shown_from_link.inverse()
+            }));
+            let rot: Matrix3<f32> = shown_from_link
+                .rotation
+                .to_rotation_matrix()
+                .matrix()
+                .cast();
+            let tr: Vector3<f32> = shown_from_link.translation.vector.cast();
+            if !frustum.may_see(&(rot * group.centre + tr), group.radius) {
+                continue;
+            }
+            transform_vertices(
+                &self.positions[group.vertices.clone()],
+                &rot,
+                &tr,
+                proj,
+                self.near_m,
+                &mut self.camera_xyz[group.vertices.clone()],
+                &mut self.screen[group.vertices.clone()],
+            );
+            for t in group.triangles.clone() {
+                let [a, b, c] = self.triangles[t].map(|i| i as usize);
+                let za = self.camera_xyz[a][2];
+                let zb = self.camera_xyz[b][2];
+                let zc = self.camera_xyz[c][2];
+                let near = self.near_m;
+                if za >= near && zb >= near && zc >= near {
+                    target.raster([self.screen[a], self.screen[b], self.screen[c]], t as u32);
+                } else if za >= near || zb >= near || zc >= near {
+                    let poly = clip_near(
+                        [self.camera_xyz[a], self.camera_xyz[b], self.camera_xyz[c]],
+                        near,
+                    );
+                    let s: Vec<[f32; 3]> = poly.iter().map(|p| project(p, proj)).collect();
+                    for i in 1..s.len() - 1 {
+                        target.raster([s[0], s[i], s[i + 1]], t as u32);
+                    }
+                }
+            }
+        }
+        self.resolve(k, frame.shade, other.is_some(), out);
+        Ok(())
+    }
+
+    fn name(&self) -> &'static str {
+        "cpu"
+    }
+}
+
+impl CpuRenderer {
+    /// Second pass: depth, link, flow, gray and mask from the z-buffer.
+    fn resolve(&self, k: &Intrinsics, shade: bool, with_flow: bool, out: &mut RenderOutput) {
+        let (w, h) = (k.width as usize, k.height as usize);
+        let n = w * h;
+        out.width = w;
+        out.height = h;
+        out.coverage.clear();
+        out.coverage.resize(n, false);
+        out.depth_m.clear();
+        out.depth_m.resize(n, f32::INFINITY);
+        out.link.clear();
+        out.link.resize(n, NO_LINK);
+        if out.flow.size() != (w, h) {
+            out.flow = FlowField::zeros(w, h);
+        }
+        out.flow.u.fill(f32::NAN);
+        out.flow.v.fill(f32::NAN);
+        let mut gray = if shade {
+            let mut data = out
+                .gray
+                .take()
+                .map(GrayImage::into_data)
+                .unwrap_or_default();
+            data.clear();
+            data.resize(n, GRAY_BACKGROUND);
+            Some(data)
+        } else {
+            out.gray = None;
+            None
+        };
+        let source_grid = self.grid == FlowGrid::Source;
+        for y in 0..h {
+            let ray_y = (y as f64 - k.cy) / k.fy;
+            for x in 0..w {
+                let i = y * w + x;
+                let id = self.tri_id[i];
+                if id == NO_TRIANGLE {
+                    continue;
+                }
+                let g = self.triangle_group[id as usize] as usize;
+                let z = 1.0 / f64::from(self.inv_z[i]);
+                out.coverage[i] = true;
+                out.depth_m[i] = z as f32;
+                out.link[i] = self.groups[g].link as u32;
+                let ray_x = (x as f64 - k.cx) / k.fx;
+                let p = Point3::new(ray_x * z, ray_y * z, z);
+                if with_flow && let Some(m) = &self.other_from_shown[g] {
+                    let q = m * p;
+                    if q.z > 0.0 {
+                        let qx = k.fx * q.x / q.z + k.cx;
+                        let qy = k.fy * q.y / q.z + k.cy;
+                        let (du, dv) = if source_grid {
+                            (qx - x as f64, qy - y as f64)
+                        } else {
+                            (x as f64 - qx, y as f64 - qy)
+                        };
+                        out.flow.u[i] = du as f32;
+                        out.flow.v[i] = dv as f32;
+                    }
+                }
+                if let Some(data) = gray.as_mut() {
+                    let [a, b, c] =
+                        self.triangles[id as usize].map(|v| self.camera_xyz[v as usize]);
+                    let e1 = Vector3::new(b[0] - a[0], b[1] - a[1], b[2] - a[2]);
+                    let e2 = Vector3::new(c[0] - a[0], c[1] - a[1], c[2] - a[2]);
+                    let normal = e1.cross(&e2);
+                    // Headlight along the optical axis: constant over a flat face.
+                    let len = normal.norm();
+                    let cos = if len > 0.0 {
+                        (normal.z / len).abs()
+                    } else {
+                        0.0
+                    };
+                    data[i] = GRAY_DARK + (GRAY_BRIGHT - GRAY_DARK) * cos.min(1.0);
+                }
+            }
+        }
+        if let Some(data) = gray {
+            // Invariant: `data` has exactly w * h values.
+            out.gray = GrayImage::new(w, h, data).ok();
+        }
+        grow_mask(&out.coverage, w, h, self.margin_px, &mut out.mask);
+    }
+}
+
+/// Transforms link-frame vertices into the camera frame and projects those in front of
+/// the near plane to `(x_px, y_px, 1/z)`.
+fn transform_vertices(
+    positions: &[[f32; 3]],
+    rot: &Matrix3<f32>,
+    tr: &Vector3<f32>,
+    proj: [f32; 4],
+    near: f32,
+    camera_xyz: &mut [[f32; 3]],
+    screen: &mut [[f32; 3]],
+) {
+    let r = rot;
+    for ((p, c), s) in positions
+        .iter()
+        .zip(camera_xyz.iter_mut())
+        .zip(screen.iter_mut())
+    {
+        let x = r[(0, 0)] * p[0] + r[(0, 1)] * p[1] + r[(0, 2)] * p[2] + tr.x;
+        let y = r[(1, 0)] * p[0] + r[(1, 1)] * p[1] + r[(1, 2)] * p[2] + tr.y;
+        let z = r[(2, 0)] * p[0] + r[(2, 1)] * p[1] + r[(2, 2)] * p[2] + tr.z;
+        *c = [x, y, z];
+        if z >= near {
+            *s = project(c, proj);
+        }
+    }
+}
+
+fn project(p: &[f32; 3], [fx, fy, cx, cy]: [f32; 4]) -> [f32; 3] {
+    let iz = 1.0 / p[2];
+    [fx * p[0] * iz + cx, fy * p[1] * iz + cy, iz]
+}
+
+/// Clips a camera-space triangle to `z >= near` (Sutherland-Hodgman against one plane):
+/// a convex polygon of 3 or 4 vertices (at least one vertex must be in front).
+fn clip_near(tri: [[f32; 3]; 3], near: f32) -> Vec<[f32; 3]> {
+    let mut out = Vec::with_capacity(4);
+    for i in 0..3 {
+        let p = tri[i];
+        let q = tri[(i + 1) % 3];
+        let p_in = p[2] >= near;
+        let q_in = q[2] >= near;
+        if p_in {
+            out.push(p);
+        }
+        if p_in != q_in {
+            let t = (near - p[2]) / (q[2] - p[2]);
+            out.push([p[0] + t * (q[0] - p[0]), p[1] + t * (q[1] - p[1]), near]);
+        }
+    }
+    out
+}
+
+/// Bounding sphere of points (centre of the box around them; radius to the furthest).
+fn bounding_sphere(points: &[[f32; 3]]) -> (Vector3<f32>, f32) {
+    let mut lo = [f32::INFINITY; 3];
+    let mut hi = [f32::NEG_INFINITY; 3];
+    for p in points {
+        for a in 0..3 {
+            lo[a] = lo[a].min(p[a]);
+            hi[a] = hi[a].max(p[a]);
+        }
+    }
+    let c = Vector3::new(
+        (lo[0] + hi[0]) * 0.5,
+        (lo[1] + hi[1]) * 0.5,
+        (lo[2] + hi[2]) * 0.5,
+    );
+    let r = points
+        .iter()
+        .map(|p| (Vector3::new(p[0], p[1], p[2]) - c).norm())
+        .fold(0.0f32, f32::max);
+    // Pad for f32 rounding of the transformed centre.
+    (c, r * 1.0001 + 1e-6)
+}
+
+/// The view frustum's planes through the camera centre plus the near plane, for
+/// conservative bounding-sphere culling.
+struct Frustum {
+    /// Unit normals pointing into the frustum.
+    sides: [Vector3<f32>; 4],
+    near: f32,
+}
+
+impl Frustum {
+    fn new(k: &Intrinsics, near: f32) -> Self {
+        let (w, h) = (f64::from(k.width), f64::from(k.height));
+        let side = |x: f64, y: f64, z: f64| Vector3::new(x, y, z).normalize().cast::<f32>();
+        Self {
+            sides: [
+                side(k.fx, 0.0, k.cx + 0.5),
+                side(-k.fx, 0.0, w - 0.5 - k.cx),
+                side(0.0, k.fy, k.cy + 0.5),
+                side(0.0, -k.fy, h - 0.5 - k.cy),
+            ],
+            near,
+        }
+    }
+
+    fn may_see(&self, centre: &Vector3<f32>, radius: f32) -> bool {
+        centre.z + radius >= self.near && self.sides.iter().all(|n| n.dot(centre) >= -radius)
+    }
+}
+
+/// The z-buffer being drawn into.
+pub(super) struct Target<'a> {
+    inv_z: &'a mut [f32],
+    tri_id: &'a mut [u32],
+    width: usize,
+    height: usize,
+    cull_back_faces: bool,
+}
+
+impl Target<'_> {
+    /// Scan-converts one screen-space triangle (`x_px, y_px, 1/z` per vertex).
+    pub(super) fn raster(&mut self, v: [[f32; 3]; 3], id: u32) {
+        // `!(a <= b)` also rejects NaN.
+        if !v
+            .iter()
+            .all(|p| p[0].abs() <= GUARD_BAND_PX && p[1].abs() <= GUARD_BAND_PX)
+        {
+            return;
+        }
+        let fixed = |c: f32| (f64::from(c) * SUB_SCALE).round() as i64;
+        let mut x = v.map(|p| fixed(p[0]));
+        let mut y = v.map(|p| fixed(p[1]));
+        let area = (x[1] - x[0]) * (y[2] - y[0]) - (y[1] - y[0]) * (x[2] - x[0]);
+        if area == 0 {
+            return;
+        }
+        // With y down, a positive area is clockwise on screen: a counter-clockwise
+        // (outward) triangle seen from behind.
+        if area > 0 && self.cull_back_faces {
+            return;
+        }
+        let area = if area < 0 {
+            x.swap(1, 2);
+            y.swap(1, 2);
+            -area
+        } else {
+            area
+        };
+        let (w, h) = (self.width as i64, self.height as i64);
+        let one = 1i64 << SUB_BITS;
+        let x_min = ((x[0].min(x[1]).min(x[2]) + one - 1) >> SUB_BITS).max(0);
+        let x_max = (x[0].max(x[1]).max(x[2]) >> SUB_BITS).min(w - 1);
+        let y_min = ((y[0].min(y[1]).min(y[2]) + one - 1) >> SUB_BITS).max(0);
+        let y_max = (y[0].max(y[1]).max(y[2]) >> SUB_BITS).min(h - 1);
+        if x_min > x_max || y_min > y_max {
+            return;
+        }
+        // Edge i is opposite vertex i: E_i(p) = A p.x + B p.y + C, positive inside.
+        let mut a = [0i64; 3];
+        let mut b = [0i64; 3];
+        let mut c = [0i64; 3];
+        let mut bias = [0i64; 3];
+        for i in 0..3 {
+            let (s, e) = ((i + 1) % 3, (i + 2) % 3);
+            let dx = x[e] - x[s];
+            let dy = y[e] - y[s];
+            a[i] = -dy;
+            b[i] = dx;
+            c[i] = dy * x[s] - dx * y[s];
+            // Top-left rule (y down, this winding): left edges go up, top edges go right.
+            let top_left = dy < 0 || (dy == 0 && dx > 0);
+            bias[i] = if top_left { 0 } else { 1 };
+        }
+        // 1/z is affine in screen space: fit its plane through the unsnapped vertices
+        // (snapping decides coverage only, so depth stays exact to f32 rounding).
+        let (px, py) = (v.map(|p| f64::from(p[0])), v.map(|p| f64::from(p[1])));
+        let wz = v.map(|p| f64::from(p[2]));
+        let det = (px[1] - px[0]) * (py[2] - py[0]) - (px[2] - px[0]) * (py[1] - py[0]);
+        let (dzdx, dzdy) = if det != 0.0 {
+            (
+                ((wz[1] - wz[0]) * (py[2] - py[0]) - (wz[2] - wz[0]) * (py[1] - py[0])) / det,
+                ((px[1] - px[0]) * (wz[2] - wz[0]) - (px[2] - px[0]) * (wz[1] - wz[0])) / det,
+            )
+        } else {
+            (0.0, 0.0)
+        };
+        let z0 = wz[0] - dzdx * px[0] - dzdy * py[0];
+        let step = a.map(|ai| ai * one);
+        for py in y_min..=y_max {
+            let fy = py * one;
+            let fx = x_min * one;
+            let mut e = [0usize, 1, 2].map(|i| a[i] * fx + b[i] * fy + c[i]);
+            let row = py as usize * self.width;
+            let span = row + x_min as usize..=row + x_max as usize;
+            let zs = &mut self.inv_z[span.clone()];
+            let ids = &mut self.tri_id[span];
+            let z_row = z0 + dzdy * py as f64;
+            for (k, (zp, idp)) in zs.iter_mut().zip(ids.iter_mut()).enumerate() {
+                if e[0] >= bias[0] && e[1] >= bias[1] && e[2] >= bias[2] {
+                    let z = (z_row + dzdx * (x_min + k as i64) as f64) as f32;
+                    if z > *zp {
+                        *zp = z;
+                        *idp = id;
+                    }
+                }
+                e[0] += step[0];
+                e[1] += step[1];
+                e[2] += step[2];
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+pub(super) mod tests_support {
+    use super::Target;
+
+    /// A z-buffer target over caller buffers, without back-face culling.
+    pub(in crate::robot::render) fn target<'a>(
+        inv_z: &'a mut [f32],
+        tri_id: &'a mut [u32],
+        width: usize,
+        height: usize,
+    ) -> Target<'a> {
+        Target {
+            inv_z,
+            tri_id,
+            width,
+            height,
+            cull_back_faces: false,
+        }
+    }
+}
