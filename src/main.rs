@@ -127,6 +127,38 @@ enum Command {
         #[arg(long)]
         threads: Option<usize>,
     },
+    /// Draw the robot as its camera sees it (mask | depth | expected body flow, side by
+    /// side) and print a JSON summary: the first check of a robot set-up.
+    Render {
+        /// URDF file, robot package folder, or .zip / .tar.gz package archive.
+        #[arg(long)]
+        robot: PathBuf,
+        /// JSON object of joint name -> position at time t.
+        #[arg(long)]
+        joints: PathBuf,
+        /// Joint positions at t-1: adds the expected body flow t-1 -> t.
+        #[arg(long)]
+        previous_joints: Option<PathBuf>,
+        /// Camera JSON: {"frame": LINK, "convention": "optical"|"body", "width": W,
+        /// "height": H, and "fx","fy","cx","cy" or "k" (CameraInfo) or "hfov_deg"}.
+        #[arg(long)]
+        camera: PathBuf,
+        /// Output PNG.
+        #[arg(short, long)]
+        out: PathBuf,
+        /// A real camera image to draw the mask over.
+        #[arg(long)]
+        background: Option<PathBuf>,
+        /// Render width (intrinsics scaled; default: the camera's).
+        #[arg(long)]
+        width: Option<u32>,
+        /// Render height (default: keeps the camera's aspect ratio).
+        #[arg(long)]
+        height: Option<u32>,
+        /// The paper's expected flow (TV-L1 on two shaded renders) instead of the exact one.
+        #[arg(long)]
+        tvl1: bool,
+    },
     /// Robot descriptions (URDF + meshes).
     Robot {
         #[command(subcommand)]
@@ -195,6 +227,32 @@ fn run(cli: Cli) -> Result<()> {
                 preset,
             };
             pool(threads)?.install(|| cli::export::run(&settings, opts))?;
+            Ok(())
+        }
+        Command::Render {
+            robot,
+            joints,
+            previous_joints,
+            camera,
+            out,
+            background,
+            width,
+            height,
+            tvl1,
+        } => {
+            let opts = cli::render::RenderOptions {
+                robot,
+                joints,
+                previous_joints,
+                camera,
+                out,
+                background,
+                width,
+                height,
+                tvl1,
+            };
+            let summary = cli::render::run(&opts, &settings.robot, &settings.render)?;
+            println!("{summary}");
             Ok(())
         }
         Command::Robot {

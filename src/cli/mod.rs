@@ -1,4 +1,5 @@
 //! Implementations of the larger CLI sub-commands (binary-only; `main.rs` dispatches).
 
 pub mod export;
+pub mod render;
 pub mod robot;

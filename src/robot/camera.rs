@@ -179,6 +179,96 @@ impl CameraConvention {
     }
 }
 
+/// A camera as users describe it (e.g. `camera.json` of `vamos render`, a profile's
+/// camera): the URDF link it is attached to, that link's axis convention, and the
+/// intrinsics, given either as `fx, fy, cx, cy`, as a `sensor_msgs/CameraInfo` `k`
+/// (row-major 3x3), or as a horizontal field of view `hfov_deg` (square pixels, centred).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CameraSpec {
+    /// The URDF link of the camera.
+    pub frame: String,
+    /// Axis convention of that link.
+    #[serde(default)]
+    pub convention: CameraConvention,
+    /// Image width, pixels.
+    pub width: u32,
+    /// Image height, pixels.
+    pub height: u32,
+    /// Focal length x, pixels.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fx: Option<f64>,
+    /// Focal length y, pixels.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fy: Option<f64>,
+    /// Principal point x, pixels.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cx: Option<f64>,
+    /// Principal point y, pixels.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cy: Option<f64>,
+    /// `CameraInfo.k`, row-major.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub k: Option<[f64; 9]>,
+    /// Horizontal field of view, degrees.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub hfov_deg: Option<f64>,
+}
+
+/// Errors of a [`CameraSpec`].
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum CameraSpecError {
+    /// Not exactly one way of giving the intrinsics.
+    #[error("camera {frame:?}: give the intrinsics exactly one way: fx/fy/cx/cy, k, or hfov_deg")]
+    AmbiguousIntrinsics {
+        /// The camera link.
+        frame: String,
+    },
+    /// The intrinsics are invalid.
+    #[error("camera {frame:?}: {source}")]
+    Intrinsics {
+        /// The camera link.
+        frame: String,
+        /// What is wrong.
+        source: IntrinsicsError,
+    },
+}
+
+impl CameraSpec {
+    /// The intrinsics at the spec's own resolution.
+    pub fn intrinsics(&self) -> Result<Intrinsics, CameraSpecError> {
+        let explicit = [self.fx, self.fy, self.cx, self.cy];
+        let given = [
+            explicit.iter().all(Option::is_some),
+            self.k.is_some(),
+            self.hfov_deg.is_some(),
+        ];
+        let partial = explicit.iter().any(Option::is_some) && !given[0];
+        if partial || given.iter().filter(|&&g| g).count() != 1 {
+            return Err(CameraSpecError::AmbiguousIntrinsics {
+                frame: self.frame.clone(),
+            });
+        }
+        let wrap = |source| CameraSpecError::Intrinsics {
+            frame: self.frame.clone(),
+            source,
+        };
+        match (explicit, self.k, self.hfov_deg) {
+            ([Some(fx), Some(fy), Some(cx), Some(cy)], _, _) => {
+                Intrinsics::new(self.width, self.height, fx, fy, cx, cy).map_err(wrap)
+            }
+            (_, Some(k), _) => Intrinsics::from_k(self.width, self.height, &k).map_err(wrap),
+            (_, _, Some(h)) if h.is_finite() && h > 0.0 && h < 180.0 => {
+                Intrinsics::from_fov(self.width, self.height, h).map_err(wrap)
+            }
+            (_, _, h) => Err(wrap(IntrinsicsError::BadValue {
+                what: "hfov_deg",
+                value: h.unwrap_or(f64::NAN),
+            })),
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -214,6 +304,47 @@ mod tests {
             Intrinsics::new(10, 10, 1.0, -1.0, 0.0, 0.0),
             Err(IntrinsicsError::BadValue { what: "fy", .. })
         ));
+    }
+
+    #[test]
+    fn camera_spec_takes_exactly_one_form_of_intrinsics() {
+        let spec: CameraSpec = serde_json::from_str(
+            r#"{"frame": "cam", "width": 640, "height": 480, "hfov_deg": 90}"#,
+        )
+        .unwrap();
+        let k = spec.intrinsics().unwrap();
+        assert!((k.fx - 320.0).abs() < 1e-9 && k.cx == 319.5);
+        assert_eq!(spec.convention, CameraConvention::Optical);
+        let spec: CameraSpec = serde_json::from_str(
+            r#"{"frame": "cam", "convention": "body", "width": 4, "height": 2,
+                "k": [5, 0, 2, 0, 6, 1, 0, 0, 1]}"#,
+        )
+        .unwrap();
+        assert_eq!(spec.intrinsics().unwrap().fy, 6.0);
+        for bad in [
+            r#"{"frame": "c", "width": 4, "height": 2}"#,
+            r#"{"frame": "c", "width": 4, "height": 2, "fx": 1, "hfov_deg": 60}"#,
+            r#"{"frame": "c", "width": 4, "height": 2, "fx": 1, "fy": 1, "cx": 1}"#,
+        ] {
+            let spec: CameraSpec = serde_json::from_str(bad).unwrap();
+            assert!(matches!(
+                spec.intrinsics(),
+                Err(CameraSpecError::AmbiguousIntrinsics { .. })
+            ));
+        }
+        let spec: CameraSpec =
+            serde_json::from_str(r#"{"frame": "c", "width": 0, "height": 2, "hfov_deg": 60}"#)
+                .unwrap();
+        assert!(matches!(
+            spec.intrinsics(),
+            Err(CameraSpecError::Intrinsics { .. })
+        ));
+        assert!(
+            serde_json::from_str::<CameraSpec>(
+                r#"{"frame": "c", "width": 1, "height": 1, "f": 1}"#
+            )
+            .is_err()
+        );
     }
 
     #[test]

@@ -41,7 +41,7 @@ pub mod mesh;
 pub mod render;
 
 pub use body_motion::{BodyMotion, BodyMotionError, body_motion_error};
-pub use camera::{CameraConvention, Intrinsics, IntrinsicsError};
+pub use camera::{CameraConvention, CameraSpec, CameraSpecError, Intrinsics, IntrinsicsError};
 pub use config::RobotConfig;
 pub use description::{Robot, VisualGeometry, VisualInfo};
 pub use error::RobotError;

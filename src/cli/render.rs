@@ -1,0 +1,252 @@
+//! `vamos render`: draws the robot as the configured camera sees it (body mask, depth and
+//! the expected body flow between two joint states), so users can check a robot set-up
+//! (URDF, camera link and convention, intrinsics) against a real camera image.
+
+use anyhow::{Context, Result, bail};
+use serde_json::{Map, Value, json};
+use std::path::{Path, PathBuf};
+use vamos::robot::render::{
+    RenderConfig, RenderFrame, RenderOutput, RobotView, create_renderer, tvl1_body_flow,
+};
+use vamos::robot::{CameraSpec, Robot, RobotConfig};
+use vamos::vision::GrayImage;
+use vamos::vision::flow::FlowParams;
+use vamos::vision::flowio::flow_to_rgb;
+use vamos::vision::preprocess::{ResizeFilter, resize};
+
+/// Options of `vamos render`.
+pub struct RenderOptions {
+    /// URDF file, package folder or archive.
+    pub robot: PathBuf,
+    /// Joint positions at `t` (JSON object).
+    pub joints: PathBuf,
+    /// Joint positions at `t-1`; with them the expected body flow is drawn.
+    pub previous_joints: Option<PathBuf>,
+    /// Camera description (JSON, [`CameraSpec`]).
+    pub camera: PathBuf,
+    /// Output PNG: mask | depth | flow side by side.
+    pub out: PathBuf,
+    /// A real camera image to draw the mask over (resized to the render).
+    pub background: Option<PathBuf>,
+    /// Render at this width instead of the camera's (intrinsics scaled).
+    pub width: Option<u32>,
+    /// Render at this height instead of the camera's.
+    pub height: Option<u32>,
+    /// Use the paper's expected flow (TV-L1 on two shaded renders) instead of the exact one.
+    pub tvl1: bool,
+}
+
+/// Renders and writes the image; returns the JSON summary to print.
+pub fn run(
+    opts: &RenderOptions,
+    robot_cfg: &RobotConfig,
+    render_cfg: &RenderConfig,
+) -> Result<Value> {
+    let robot = Robot::load(&opts.robot, robot_cfg)
+        .with_context(|| format!("cannot load robot {}", opts.robot.display()))?;
+    let spec: CameraSpec = read_json(&opts.camera, "a camera description")?;
+    let mut k = spec.intrinsics()?;
+    if opts.width.is_some() || opts.height.is_some() {
+        let w = opts.width.unwrap_or(k.width);
+        let h = opts.height.unwrap_or_else(|| {
+            (f64::from(k.height) * f64::from(w) / f64::from(k.width)).round() as u32
+        });
+        k = k.scaled_to(w, h)?;
+    }
+    let mount = robot
+        .camera(&spec.frame, spec.convention)
+        .with_context(|| format!("camera link {:?}", spec.frame))?;
+    let mut mapper = robot.joint_mapper();
+    let mut pose_of = |path: &Path| -> Result<_> {
+        let given: Map<String, Value> = read_json(path, "a JSON object of joint name -> position")?;
+        let mut pairs = Vec::with_capacity(given.len());
+        for (name, v) in &given {
+            let value = v.as_f64().with_context(|| {
+                format!("{}: joint {name:?}: {v} is not a number", path.display())
+            })?;
+            pairs.push((name.as_str(), value));
+        }
+        let q = mapper.map_pairs(pairs)?.positions;
+        let base_from_link = robot.forward(&q)?;
+        let camera_from_base = mount
+            .camera_from_base(&base_from_link)
+            .with_context(|| format!("camera link {:?} has no pose", spec.frame))?;
+        Ok((base_from_link, camera_from_base))
+    };
+    let (links_t, camera_t) = pose_of(&opts.joints)?;
+    let previous = opts
+        .previous_joints
+        .as_deref()
+        .map(&mut pose_of)
+        .transpose()?;
+    let unknown = mapper.unknown_total();
+
+    let mut renderer = create_renderer(render_cfg)?;
+    renderer.prepare(robot.link_meshes())?;
+    let current = RobotView {
+        camera_from_base: camera_t,
+        base_from_link: &links_t,
+    };
+    let prev_view = previous.as_ref().map(|(l, c)| RobotView {
+        camera_from_base: *c,
+        base_from_link: l,
+    });
+    let mut out = RenderOutput::default();
+    let flow = match (prev_view, opts.tvl1) {
+        (Some(p), true) => {
+            let mut scratch = RenderOutput::default();
+            Some(tvl1_body_flow(
+                renderer.as_mut(),
+                &k,
+                p,
+                current,
+                &FlowParams::default(),
+                &mut scratch,
+                &mut out,
+            )?)
+        }
+        (p, _) => {
+            renderer.render(
+                &RenderFrame {
+                    intrinsics: &k,
+                    current,
+                    previous: p,
+                    shade: false,
+                },
+                &mut out,
+            )?;
+            p.map(|_| out.flow.clone())
+        }
+    };
+    if opts.tvl1 && flow.is_none() {
+        bail!("--tvl1 needs --previous-joints");
+    }
+
+    let background = match &opts.background {
+        Some(path) => {
+            let img = GrayImage::load(path)
+                .with_context(|| format!("background image {}", path.display()))?;
+            Some(resize(&img, out.width, out.height, ResizeFilter::Area)?)
+        }
+        None => None,
+    };
+    write_panels(&opts.out, &out, flow.as_ref(), background.as_ref())?;
+
+    let finite_depth: Vec<f32> = out
+        .depth_m
+        .iter()
+        .copied()
+        .filter(|d| d.is_finite())
+        .collect();
+    let median = |v: &[f32]| -> Option<f64> {
+        let mut f: Vec<f32> = v.iter().copied().filter(|x| x.is_finite()).collect();
+        if f.is_empty() {
+            return None;
+        }
+        f.sort_by(f32::total_cmp);
+        Some(f64::from(f[f.len() / 2]))
+    };
+    let mut warnings: Vec<String> = robot.warnings().to_vec();
+    if unknown > 0 {
+        warnings.push(format!(
+            "{unknown} joint names are not in the robot and were ignored"
+        ));
+    }
+    if out.covered_pixels() == 0 {
+        warnings.push(format!(
+            "the robot is not visible from camera {:?}: check the camera link, its \
+             convention (optical: z forward; body: x forward) and the joint positions",
+            spec.frame
+        ));
+    }
+    let t = camera_t.translation.vector;
+    let q = camera_t.rotation.coords;
+    Ok(json!({
+        "output": opts.out,
+        "backend": renderer.name(),
+        "width": out.width,
+        "height": out.height,
+        "triangles": robot.triangle_count(),
+        "covered_px": out.covered_pixels(),
+        "mask_px": out.mask_pixels(),
+        "depth_m": {
+            "min": finite_depth.iter().copied().reduce(f32::min),
+            "max": finite_depth.iter().copied().reduce(f32::max),
+        },
+        "camera_from_base": {"translation": [t.x, t.y, t.z], "rotation_xyzw": [q.x, q.y, q.z, q.w]},
+        "expected_flow_median_px": flow.as_ref().map(|f| [median(&f.u), median(&f.v)]),
+        "expected_flow": if flow.is_none() { "none" } else if opts.tvl1 { "tvl1" } else { "exact" },
+        "warnings": warnings,
+    }))
+}
+
+fn read_json<T: serde::de::DeserializeOwned>(path: &Path, what: &str) -> Result<T> {
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
+    serde_json::from_str(&text).with_context(|| format!("{} must be {what}", path.display()))
+}
+
+/// Three panels side by side: the mask (red, over the background when given), the depth
+/// (near = bright, no robot = black) and the expected flow (colour wheel, no flow = gray).
+fn write_panels(
+    path: &Path,
+    out: &RenderOutput,
+    flow: Option<&vamos::vision::FlowField>,
+    background: Option<&GrayImage>,
+) -> Result<()> {
+    let (w, h) = (out.width, out.height);
+    let mut img = image::RgbImage::new(3 * w as u32, h as u32);
+    let finite: Vec<f32> = out
+        .depth_m
+        .iter()
+        .copied()
+        .filter(|d| d.is_finite())
+        .collect();
+    let near = finite.iter().copied().fold(f32::INFINITY, f32::min);
+    let far = finite.iter().copied().fold(f32::NEG_INFINITY, f32::max);
+    let flow_rgb = flow.map(|f| flow_to_rgb(f, None));
+    for y in 0..h {
+        for x in 0..w {
+            let i = y * w + x;
+            let base = background.map_or(0.0, |b| b.get(x, y));
+            let mask_px = if out.mask[i] {
+                let edge = out.mask[i] && !out.coverage[i];
+                if edge {
+                    [255, 255, 0]
+                } else {
+                    [
+                        (0.5 * base + 127.0) as u8,
+                        (0.5 * base) as u8,
+                        (0.5 * base) as u8,
+                    ]
+                }
+            } else {
+                let b = base as u8;
+                [b, b, b]
+            };
+            let d = out.depth_m[i];
+            let depth_px = if d.is_finite() {
+                let s = if far > near {
+                    (far - d) / (far - near)
+                } else {
+                    1.0
+                };
+                let v = (55.0 + 200.0 * s) as u8;
+                [v, v, v]
+            } else {
+                [0, 0, 0]
+            };
+            let flow_px = match &flow_rgb {
+                Some(rgb) if out.coverage[i] && rgb[3 * i..3 * i + 3] != [0, 0, 0] => {
+                    [rgb[3 * i], rgb[3 * i + 1], rgb[3 * i + 2]]
+                }
+                _ => [64, 64, 64],
+            };
+            for (panel, px) in [mask_px, depth_px, flow_px].into_iter().enumerate() {
+                img.put_pixel((panel * w + x) as u32, y as u32, image::Rgb(px));
+            }
+        }
+    }
+    img.save(path)
+        .with_context(|| format!("cannot write {}", path.display()))
+}
