@@ -132,6 +132,9 @@ def _normalise_argv(argv: list[str]) -> list[str]:
 
 
 def _cmd_fit(args: argparse.Namespace) -> int:
+    from vamos.train.data import load_dataset
+
+    load_dataset(args.dataset)  # fail fast on a bad dataset, before importing torch
     from vamos.train.trainer import fit
 
     cfg = FitConfig(

@@ -145,7 +145,7 @@ def run_epoch(
             count = past.shape[0]
             for key in sums:
                 sums[key] += float(getattr(terms, key).detach()) * count
-            bar.set_postfix(loss=f"{float(terms.total):.4g}")
+            bar.set_postfix(loss=f"{float(terms.total.detach()):.4g}")
     total = len(plan)
     if total == 0:
         nan = float("nan")
@@ -336,7 +336,7 @@ def fit(cfg: FitConfig, resume: bool = False, export: bool = True) -> FitResult:
         rng, generator = _epoch_rngs(cfg.seed, epoch, 1)
         train = run_epoch(model, train_sampler, rng, generator, cfg.batch_size, cfg.beta, cfg.weight_decay,
                           device, optimizer, desc=f"train {epoch + 1}", progress=cfg.progress)
-        val_rng, val_generator = _epoch_rngs(cfg.seed, -1, 2)  # same draws every epoch
+        val_rng, val_generator = _epoch_rngs(cfg.seed, 0, 2)  # same draws every epoch
         val = run_epoch(model, val_sampler, val_rng, val_generator, cfg.batch_size, cfg.beta,
                         cfg.weight_decay, device, None, desc=f"val {epoch + 1}", progress=cfg.progress)
         record = {"epoch": epoch + 1, "train": _losses_record(train), "validation": _losses_record(val),
