@@ -209,7 +209,7 @@ def _cmd_bench_step(args: argparse.Namespace) -> int:
         started = time.perf_counter()
         terms = training_loss(model, past, target, eps, 10.0, 1e-5)
         optimizer.zero_grad(set_to_none=True)
-        terms.total.backward()
+        terms.total.backward()  # type: ignore[no-untyped-call]
         optimizer.step()
         if device.type == "cuda":
             torch.cuda.synchronize()

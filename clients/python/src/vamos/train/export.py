@@ -10,7 +10,7 @@ while the dynamo exporter only down-converts from 18 and fails on ReduceMean her
 from __future__ import annotations
 
 import datetime as _dt
-import io
+import tempfile
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -39,14 +39,14 @@ class ExportError(RuntimeError):
 def _to_onnx(
     module: torch.nn.Module, args: tuple[torch.Tensor, ...], inputs: list[str], outputs: list[str]
 ) -> bytes:
-    buffer = io.BytesIO()
     axes = {name: {0: "N"} for name in inputs + outputs}
-    with warnings.catch_warnings():
+    with warnings.catch_warnings(), tempfile.TemporaryDirectory() as tmp:
         warnings.simplefilter("ignore")
+        target = Path(tmp) / "graph.onnx"
         torch.onnx.export(
             module,
             args,
-            buffer,
+            target,
             input_names=inputs,
             output_names=outputs,
             dynamic_axes=axes,
@@ -54,7 +54,7 @@ def _to_onnx(
             do_constant_folding=True,
             dynamo=False,
         )
-    data = buffer.getvalue()
+        data = target.read_bytes()
     check_graph(data, "export")
     return data
 

@@ -73,7 +73,7 @@ class UNet(nn.Module):
     def forward(self, x: Tensor) -> Tensor:
         """Last decoder map."""
         maps = self.encoder(x)
-        y = maps[-1]
+        y: Tensor = maps[-1]
         for block, skip in zip(self.decoder, reversed(maps[:-1])):
             y = F.interpolate(y, scale_factor=2.0, mode="bilinear", align_corners=True)
             y = block(torch.cat([y, skip], dim=1))
@@ -119,7 +119,8 @@ class Fcomb(nn.Module):
     def forward(self, features: Tensor, z: Tensor) -> Tensor:
         """``features [N, C, S, S]``, ``z [N, L]`` -> flow ``[N, 2, S, S]``."""
         tiled = z[:, :, None, None].repeat(1, 1, self.size, self.size)
-        return self.layers(torch.cat([features, tiled], dim=1))
+        flow: Tensor = self.layers(torch.cat([features, tiled], dim=1))
+        return flow
 
 
 class ProbabilisticUNet(nn.Module):
@@ -154,7 +155,8 @@ class ProbabilisticUNet(nn.Module):
     def predict(self, past: Tensor, eps: Tensor) -> Tensor:
         """Inference: one prediction per row with ``z`` drawn from the prior with noise ``eps``."""
         mu, log_sigma = self.prior(past)
-        return self.fcomb(self.unet(past), mu + torch.exp(log_sigma) * eps)
+        flow: Tensor = self.fcomb(self.unet(past), mu + torch.exp(log_sigma) * eps)
+        return flow
 
 
 class EncoderGraph(nn.Module):
@@ -180,7 +182,8 @@ class HeadGraph(nn.Module):
 
     def forward(self, features: Tensor, z: Tensor) -> Tensor:
         """Predicted flow."""
-        return self.fcomb(features, z)
+        flow: Tensor = self.fcomb(features, z)
+        return flow
 
 
 def count_parameters(module: nn.Module) -> int:
