@@ -62,7 +62,7 @@ def _add_runtime_args(p: argparse.ArgumentParser) -> None:
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser (sub-commands fit, export, export-random, bench-step)."""
-    parser = argparse.ArgumentParser(prog="vamos-train", description=__doc__,
+    parser = argparse.ArgumentParser(prog="vamos-train", description=(__doc__ or "").replace("``", ""),
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="command", required=True)
 
@@ -131,6 +131,11 @@ def _normalise_argv(argv: list[str]) -> list[str]:
     return argv
 
 
+def _print_diffs(diffs: dict[str, float] | None) -> None:
+    if diffs is not None:
+        print("onnxruntime vs torch max abs diff: " + ", ".join(f"{k} {v:.2g}" for k, v in diffs.items()))
+
+
 def _cmd_fit(args: argparse.Namespace) -> int:
     from vamos.train.data import load_dataset
 
@@ -153,15 +158,16 @@ def _cmd_fit(args: argparse.Namespace) -> int:
 def _cmd_export(args: argparse.Namespace) -> int:
     from vamos.train.trainer import export_checkpoint
 
-    manifest = export_checkpoint(args.checkpoint, args.output, name=args.name, verify=not args.no_verify)
+    manifest, diffs = export_checkpoint(args.checkpoint, args.output, name=args.name, verify=not args.no_verify)
     print(f"wrote {args.output} ({manifest['architecture']['parameters_inference']} inference parameters)")
+    _print_diffs(diffs)
     return 0
 
 
 def _cmd_export_random(args: argparse.Namespace) -> int:
     import torch
 
-    from vamos.train.export import BundleInfo, export_bundle
+    from vamos.train.export import BundleInfo, export_bundle, verify_bundle
     from vamos.train.model import ProbabilisticUNet
 
     config = _model_config(args, input_size=args.size)
@@ -179,8 +185,9 @@ def _cmd_export_random(args: argparse.Namespace) -> int:
             "dataset": f"untrained: random initialisation (torch.manual_seed({args.seed}))",
         },
     )
-    manifest = export_bundle(model, args.output, info, verify=not args.no_verify)
+    manifest = export_bundle(model, args.output, info, verify=False)
     print(f"wrote {args.output} ({json.dumps(manifest['architecture'])})")
+    _print_diffs(None if args.no_verify else verify_bundle(args.output, model))
     return 0
 
 
