@@ -61,3 +61,16 @@ def test_run_folder_contents(tiny_dataset: Path, tmp_path: Path) -> None:
 def test_resume_without_checkpoint_is_an_error(tiny_dataset: Path, tmp_path: Path) -> None:
     with pytest.raises(CheckpointError, match="no checkpoint"):
         fit(tiny_fit_config(tiny_dataset, tmp_path / "none", epochs=1), resume=True)
+
+
+def test_channels_last_trains_like_contiguous(tiny_dataset: Path, tmp_path: Path) -> None:
+    """NHWC activations only change the memory layout: same weights to float rounding."""
+    fit(tiny_fit_config(tiny_dataset, tmp_path / "nchw", epochs=1), export=False)
+    cfg = tiny_fit_config(tiny_dataset, tmp_path / "nhwc", epochs=1)
+    cfg.channels_last = True
+    fit(cfg, export=False)
+    a = load_checkpoint(tmp_path / "nchw" / "checkpoints" / "last.pt")["model_state"]
+    b = load_checkpoint(tmp_path / "nhwc" / "checkpoints" / "last.pt")["model_state"]
+    for key, value in a.items():
+        assert b[key].is_contiguous()
+        assert torch.allclose(value, b[key], atol=1e-5), key

@@ -119,6 +119,7 @@ def run_epoch(
     optimizer: torch.optim.Optimizer | None,
     desc: str = "",
     progress: bool = False,
+    channels_last: bool = False,
 ) -> EpochLosses:
     """One pass over the sampler's plan; trains if ``optimizer`` is given, else evaluates.
 
@@ -136,6 +137,9 @@ def run_epoch(
             past_np, target_np = sampler.gather(plan, start, start + batch_size)
             past = torch.from_numpy(past_np).to(device)
             target = torch.from_numpy(target_np).to(device)
+            if channels_last:
+                past = past.contiguous(memory_format=torch.channels_last)
+                target = target.contiguous(memory_format=torch.channels_last)
             eps = torch.randn(past.shape[0], model.config.latent_dim, generator=generator).to(device)
             terms = training_loss(model, past, target, eps, beta, weight_decay)
             if optimizer is not None:
@@ -307,6 +311,8 @@ def fit(cfg: FitConfig, resume: bool = False, export: bool = True) -> FitResult:
     seed_everything(cfg.seed)
     model = ProbabilisticUNet(cfg.model)
     model.to(device)
+    if cfg.channels_last:
+        model.to(memory_format=torch.channels_last)
     optimizer = torch.optim.Adam(model.parameters(), lr=cfg.learning_rate)
     history: list[dict[str, Any]] = []
     start_epoch = 0
@@ -341,10 +347,12 @@ def fit(cfg: FitConfig, resume: bool = False, export: bool = True) -> FitResult:
         started = time.perf_counter()
         rng, generator = _epoch_rngs(cfg.seed, epoch, 1)
         train = run_epoch(model, train_sampler, rng, generator, cfg.batch_size, cfg.beta, cfg.weight_decay,
-                          device, optimizer, desc=f"train {epoch + 1}", progress=cfg.progress)
+                          device, optimizer, desc=f"train {epoch + 1}", progress=cfg.progress,
+                          channels_last=cfg.channels_last)
         val_rng, val_generator = _epoch_rngs(cfg.seed, 0, 2)  # same draws every epoch
         val = run_epoch(model, val_sampler, val_rng, val_generator, cfg.batch_size, cfg.beta,
-                        cfg.weight_decay, device, None, desc=f"val {epoch + 1}", progress=cfg.progress)
+                        cfg.weight_decay, device, None, desc=f"val {epoch + 1}", progress=cfg.progress,
+                        channels_last=cfg.channels_last)
         record = {"epoch": epoch + 1, "train": _losses_record(train), "validation": _losses_record(val),
                   "seconds": round(time.perf_counter() - started, 3)}
         history.append(record)
@@ -358,7 +366,7 @@ def fit(cfg: FitConfig, resume: bool = False, export: bool = True) -> FitResult:
             "version": CHECKPOINT_VERSION,
             "epoch": epoch + 1,
             "fit": _fit_dict(cfg),
-            "model_state": {k: v.detach().cpu() for k, v in model.state_dict().items()},
+            "model_state": {k: v.detach().cpu().contiguous() for k, v in model.state_dict().items()},
             "optimizer_state": optimizer.state_dict(),
             "rng": _rng_states(),
             "history": history,
