@@ -58,3 +58,18 @@ def test_bad_dataset_is_a_clean_error(tmp_path: Path) -> None:
     out = run_cli("fit", str(tmp_path / "nowhere"), "-o", str(tmp_path / "run"), "--no-progress")
     assert out.returncode == 2
     assert "cannot read manifest.json" in out.stderr and "Traceback" not in out.stderr
+
+
+def test_argv_shortcuts() -> None:
+    from vamos.train.cli import _normalise_argv, _model_config, build_parser
+
+    parser = build_parser()
+    args = parser.parse_args(_normalise_argv(["--export-only", "ckpt.pt", "-o", "m.vamos"]))
+    assert (args.command, args.checkpoint, args.output) == ("export", "ckpt.pt", "m.vamos")
+    args = parser.parse_args(_normalise_argv(["data", "-o", "run", "--width", "0.5", "--latent", "4"]))
+    assert (args.command, args.dataset, args.output, args.epochs, args.batch_size) == ("fit", "data", "run", 50, 128)
+    assert (args.lr, args.beta, args.a, args.b, args.m, args.seed) == (1e-4, 10.0, 5, 4, 10, 0)
+    config = _model_config(args)
+    assert config.filters == (16, 32, 64, 96) and config.latent_dim == 4
+    args = parser.parse_args(["export-random", "-o", "x.vamos", "--filters", "8,16,32,48"])
+    assert _model_config(args).filters == (8, 16, 32, 48)
