@@ -65,7 +65,7 @@ def test_sampler_draws_uniform_offsets_within_episodes(tmp_path: Path) -> None:
     for _ in range(400):
         plan = sampler.plan(rng)
         # Every valid target exactly once per epoch.
-        pairs = sorted(zip(plan.episode.tolist(), plan.target.tolist()))
+        pairs = sorted(zip(plan.episode.tolist(), plan.target.tolist(), strict=True))
         expected = sorted((e, t) for e, ep in enumerate(ds.episodes) for t in range(a + b, ep.length))
         assert pairs == expected
         past, target = sampler.gather(plan, 0, len(plan))
@@ -107,7 +107,8 @@ def test_split_by_episode() -> None:
     assert len(split_episodes(names, 0.01, seed=1)[1]) == 1
     assert split_episodes(names, 0.0, seed=1) == (names, [])
     # Explicit lists.
-    assert split_episodes(names, 0.5, 0, val_names=["ep3", "ep1"]) == ([n for n in names if n not in ("ep1", "ep3")], ["ep1", "ep3"])
+    rest = [n for n in names if n not in ("ep1", "ep3")]
+    assert split_episodes(names, 0.5, 0, val_names=["ep3", "ep1"]) == (rest, ["ep1", "ep3"])
     with pytest.raises(DatasetError, match="unknown"):
         split_episodes(names, 0.5, 0, val_names=["nope"])
     with pytest.raises(DatasetError, match="both"):

@@ -18,7 +18,6 @@ import json
 import sys
 import time
 from collections.abc import Sequence
-from pathlib import Path
 
 from vamos.train.config import PAPER_FILTERS, ConfigError, FitConfig, ModelConfig, parse_filters
 

@@ -74,7 +74,7 @@ class UNet(nn.Module):
         """Last decoder map."""
         maps = self.encoder(x)
         y: Tensor = maps[-1]
-        for block, skip in zip(self.decoder, reversed(maps[:-1])):
+        for block, skip in zip(self.decoder, reversed(maps[:-1]), strict=True):
             y = F.interpolate(y, scale_factor=2.0, mode="bilinear", align_corners=True)
             y = block(torch.cat([y, skip], dim=1))
         return y

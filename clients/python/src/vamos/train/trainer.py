@@ -32,7 +32,7 @@ import torch
 from tqdm import tqdm
 
 from vamos.train.config import ConfigError, FitConfig, ModelConfig
-from vamos.train.data import FlowDataset, PairSampler, load_dataset, split_episodes
+from vamos.train.data import PairSampler, load_dataset, split_episodes
 from vamos.train.export import BundleInfo, export_bundle, verify_bundle
 from vamos.train.losses import training_loss
 from vamos.train.model import ProbabilisticUNet, parameter_counts
@@ -84,7 +84,8 @@ def _restore_rng_states(states: dict[str, Any]) -> None:
     python = states["python"]
     random.setstate((python[0], tuple(python[1]), python[2]))
     n = states["numpy"]
-    np.random.set_state((n["kind"], np.array(n["keys"], dtype=np.uint32), n["pos"], n["has_gauss"], n["cached_gaussian"]))
+    keys = np.array(n["keys"], dtype=np.uint32)
+    np.random.set_state((n["kind"], keys, n["pos"], n["has_gauss"], n["cached_gaussian"]))
     torch.set_rng_state(states["torch"])
     if states["cuda"] and torch.cuda.is_available():
         torch.cuda.set_rng_state_all(states["cuda"])
