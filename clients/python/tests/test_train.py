@@ -65,7 +65,9 @@ def test_resume_without_checkpoint_is_an_error(tiny_dataset: Path, tmp_path: Pat
 
 def test_channels_last_trains_like_contiguous(tiny_dataset: Path, tmp_path: Path) -> None:
     """NHWC activations only change the memory layout: same weights to float rounding."""
-    fit(tiny_fit_config(tiny_dataset, tmp_path / "nchw", epochs=1), export=False)
+    nchw = tiny_fit_config(tiny_dataset, tmp_path / "nchw", epochs=1)
+    nchw.channels_last = False
+    fit(nchw, export=False)
     cfg = tiny_fit_config(tiny_dataset, tmp_path / "nhwc", epochs=1)
     cfg.channels_last = True
     fit(cfg, export=False)

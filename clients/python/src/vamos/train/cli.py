@@ -87,7 +87,8 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--keep-every", type=int, default=0, help="keep a checkpoint copy every K epochs")
     g.add_argument("--resume", action="store_true", help="continue from RUN_DIR/checkpoints/last.pt")
     g.add_argument("--no-progress", action="store_true", help="no progress bars")
-    g.add_argument("--channels-last", action="store_true", help="NHWC activations (faster on CPU)")
+    g.add_argument("--channels-last", action=argparse.BooleanOptionalAction, default=None,
+                   help="NHWC activations (default: on for CPU, off for CUDA)")
     _add_runtime_args(fit)
 
     export = sub.add_parser("export", help="export a checkpoint to a model bundle")
@@ -119,7 +120,8 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--batch-size", type=int, default=128)
     bench.add_argument("--steps", type=int, default=3)
     bench.add_argument("--warmup", type=int, default=1)
-    bench.add_argument("--channels-last", action="store_true", help="NHWC activations")
+    bench.add_argument("--channels-last", action=argparse.BooleanOptionalAction, default=None,
+                       help="NHWC activations (default: on for CPU, off for CUDA)")
     _add_runtime_args(bench)
     return parser
 
@@ -210,7 +212,8 @@ def _cmd_bench_step(args: argparse.Namespace) -> int:
     past = (torch.rand(shape) - 0.5).to(device)
     target = (torch.rand(shape) - 0.5).to(device)
     eps = torch.randn(args.batch_size, config.latent_dim).to(device)
-    if args.channels_last:
+    channels_last = args.channels_last if args.channels_last is not None else device.type == "cpu"
+    if channels_last:
         model.to(memory_format=torch.channels_last)
         past = past.contiguous(memory_format=torch.channels_last)
         target = target.contiguous(memory_format=torch.channels_last)
@@ -230,7 +233,7 @@ def _cmd_bench_step(args: argparse.Namespace) -> int:
     counts = parameter_counts(model)
     print(json.dumps({
         "filters": list(config.filters), "batch_size": args.batch_size, "device": str(device),
-        "threads": torch.get_num_threads(), "channels_last": args.channels_last, "parameters": counts,
+        "threads": torch.get_num_threads(), "channels_last": channels_last, "parameters": counts,
         "step_seconds_min": min(times), "step_seconds_mean": sum(times) / len(times), "steps": len(times),
     }))
     return 0

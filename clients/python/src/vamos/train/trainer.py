@@ -272,7 +272,8 @@ def fit(cfg: FitConfig, resume: bool = False, export: bool = True) -> FitResult:
     """Train per ``cfg``, checkpoint every epoch, then export ``run_dir/model.vamos``.
 
     With ``resume``, ``run_dir/checkpoints/last.pt`` supplies the configuration (except
-    ``epochs``, ``device``, ``threads``, ``progress``, ``keep_every``, ``dataset_dir``),
+    ``epochs``, ``device``, ``threads``, ``channels_last``, ``progress``, ``keep_every``,
+    ``dataset_dir``),
     weights, optimiser and RNG states, and training continues to ``cfg.epochs``.
     """
     run_dir = Path(cfg.run_dir)
@@ -283,13 +284,15 @@ def fit(cfg: FitConfig, resume: bool = False, export: bool = True) -> FitResult:
             raise CheckpointError(last_path, "no checkpoint to resume from")
         ckpt = load_checkpoint(last_path)
         saved = _fit_from_dict(ckpt["fit"])
-        for key in ("epochs", "device", "threads", "progress", "keep_every", "dataset_dir", "run_dir"):
+        for key in ("epochs", "device", "threads", "progress", "keep_every", "dataset_dir", "run_dir",
+                "channels_last"):
             setattr(saved, key, getattr(cfg, key))
         cfg = saved
     cfg.validate()
     if cfg.threads is not None:
         torch.set_num_threads(cfg.threads)
     device = resolve_device(cfg.device)
+    channels_last = cfg.channels_last if cfg.channels_last is not None else device.type == "cpu"
 
     dataset = load_dataset(cfg.dataset_dir)
     if dataset.input_size != cfg.model.input_size:
@@ -312,7 +315,7 @@ def fit(cfg: FitConfig, resume: bool = False, export: bool = True) -> FitResult:
     seed_everything(cfg.seed)
     model = ProbabilisticUNet(cfg.model)
     model.to(device)
-    if cfg.channels_last:
+    if channels_last:
         model.to(memory_format=torch.channels_last)
     optimizer = torch.optim.Adam(model.parameters(), lr=cfg.learning_rate)
     history: list[dict[str, Any]] = []
@@ -349,11 +352,11 @@ def fit(cfg: FitConfig, resume: bool = False, export: bool = True) -> FitResult:
         rng, generator = _epoch_rngs(cfg.seed, epoch, 1)
         train = run_epoch(model, train_sampler, rng, generator, cfg.batch_size, cfg.beta, cfg.weight_decay,
                           device, optimizer, desc=f"train {epoch + 1}", progress=cfg.progress,
-                          channels_last=cfg.channels_last)
+                          channels_last=channels_last)
         val_rng, val_generator = _epoch_rngs(cfg.seed, 0, 2)  # same draws every epoch
         val = run_epoch(model, val_sampler, val_rng, val_generator, cfg.batch_size, cfg.beta,
                         cfg.weight_decay, device, None, desc=f"val {epoch + 1}", progress=cfg.progress,
-                        channels_last=cfg.channels_last)
+                        channels_last=channels_last)
         record = {"epoch": epoch + 1, "train": _losses_record(train), "validation": _losses_record(val),
                   "seconds": round(time.perf_counter() - started, 3)}
         history.append(record)
