@@ -53,9 +53,10 @@ pub fn run(
         });
         k = k.scaled_to(w, h)?;
     }
-    let mount = robot
+    let mut mount = robot
         .camera(&spec.frame, spec.convention)
         .with_context(|| format!("camera link {:?}", spec.frame))?;
+    mount.link_from_optical = spec.frame_from_camera() * mount.link_from_optical;
     let mut mapper = robot.joint_mapper();
     let mut pose_of = |path: &Path| -> Result<_> {
         let given: Map<String, Value> = read_json(path, "a JSON object of joint name -> position")?;
@@ -138,8 +139,14 @@ pub fn run(
         .copied()
         .filter(|d| d.is_finite())
         .collect();
+    // Over the body mask, as e_b takes it (TV-L1's field also covers the background).
     let median = |v: &[f32]| -> Option<f64> {
-        let mut f: Vec<f32> = v.iter().copied().filter(|x| x.is_finite()).collect();
+        let mut f: Vec<f32> = v
+            .iter()
+            .zip(&out.mask)
+            .filter(|&(x, &m)| m && x.is_finite())
+            .map(|(&x, _)| x)
+            .collect();
         if f.is_empty() {
             return None;
         }

@@ -213,6 +213,14 @@ pub struct CameraSpec {
     /// Horizontal field of view, degrees.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub hfov_deg: Option<f64>,
+    /// Camera position in `frame`, metres, for a camera that is not itself a URDF link
+    /// (as a URDF `<origin xyz>`; default 0).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub offset_xyz: Option<[f64; 3]>,
+    /// Camera orientation in `frame`, roll-pitch-yaw radians (as a URDF `<origin rpy>`;
+    /// default 0). `convention` applies to the offset frame.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub offset_rpy: Option<[f64; 3]>,
 }
 
 /// Errors of a [`CameraSpec`].
@@ -235,6 +243,16 @@ pub enum CameraSpecError {
 }
 
 impl CameraSpec {
+    /// `frame_from_camera`: the offset of the camera in its link (identity by default).
+    pub fn frame_from_camera(&self) -> Isometry3<f64> {
+        let [x, y, z] = self.offset_xyz.unwrap_or([0.0; 3]);
+        let [r, p, yaw] = self.offset_rpy.unwrap_or([0.0; 3]);
+        Isometry3::from_parts(
+            Translation3::new(x, y, z),
+            UnitQuaternion::from_euler_angles(r, p, yaw),
+        )
+    }
+
     /// The intrinsics at the spec's own resolution.
     pub fn intrinsics(&self) -> Result<Intrinsics, CameraSpecError> {
         let explicit = [self.fx, self.fy, self.cx, self.cy];

@@ -10,4 +10,5 @@ mod export_dataset;
 mod flow_accuracy;
 mod flow_golden;
 mod registration_accuracy;
+mod render_cli;
 mod robot_fk;
