@@ -6,6 +6,7 @@
 //! file and is not a key. Unknown keys, in the file or the environment, are errors: a
 //! typo must not silently fall back to a default.
 
+use crate::model::ModelConfig;
 use crate::telemetry::LogConfig;
 use crate::vision::flow::FlowParams;
 use crate::vision::preprocess::NetworkInputParams;
@@ -54,6 +55,8 @@ pub struct Settings {
     pub log: LogConfig,
     /// Vision kernels.
     pub vision: VisionConfig,
+    /// The flow predictor (ONNX Runtime).
+    pub model: ModelConfig,
 }
 
 impl Settings {

@@ -9,10 +9,13 @@
 //!   the network-input preprocessing. Synchronous, no I/O beyond image files.
 //! - [`robot`]: URDF robots, kinematics, expected camera motion, rendering and the
 //!   body-motion error. Synchronous.
+//! - [`model`]: the ONNX flow predictor: model bundles, ONNX Runtime sessions and the
+//!   per-session prediction error `e_o`. Synchronous.
 //! - [`config`]: service settings composed of each module's `*Config`.
 //! - [`telemetry`]: `tracing` set-up (human or JSON logs).
 
 pub mod config;
+pub mod model;
 pub mod robot;
 pub mod telemetry;
 pub mod vision;

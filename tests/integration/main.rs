@@ -7,4 +7,5 @@ mod architecture;
 mod cli;
 mod flow_accuracy;
 mod flow_golden;
+mod model;
 mod registration_accuracy;
