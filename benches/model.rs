@@ -38,8 +38,10 @@ fn bench_model(c: &mut Criterion) {
             return;
         }
     };
-    let params =
-        PredictorParams::from_manifest(model.manifest(), env_usize("VAMOS_BENCH_SAMPLES").unwrap_or(0));
+    let params = PredictorParams::from_manifest(
+        model.manifest(),
+        env_usize("VAMOS_BENCH_SAMPLES").unwrap_or(0),
+    );
     let d = model.dims();
     let offsets = params.b + 1;
     let rows = offsets * params.samples;
@@ -70,8 +72,12 @@ fn bench_model(c: &mut Criterion) {
         return;
     };
     for batch in [1, rows] {
-        let features: Vec<f32> = (0..batch).flat_map(|_| enc.features.iter().copied()).collect();
-        let z: Vec<f32> = (0..batch).flat_map(|_| enc.prior_mu.iter().copied()).collect();
+        let features: Vec<f32> = (0..batch)
+            .flat_map(|_| enc.features.iter().copied())
+            .collect();
+        let z: Vec<f32> = (0..batch)
+            .flat_map(|_| enc.prior_mu.iter().copied())
+            .collect();
         let mut out = Vec::new();
         group.bench_function(BenchmarkId::new("head", batch), |b| {
             b.iter(|| model.predict_into(&features, &z, batch, &mut out));

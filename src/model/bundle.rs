@@ -199,7 +199,9 @@ impl Manifest {
                 m.input.channels
             )));
         }
-        if m.input.size == 0 || m.architecture.latent_dim == 0 || m.architecture.feature_channels == 0
+        if m.input.size == 0
+            || m.architecture.latent_dim == 0
+            || m.architecture.feature_channels == 0
         {
             return Err(bad(
                 "input.size, latent_dim and feature_channels must be positive".into(),
@@ -383,7 +385,13 @@ mod tests {
     fn bad_bundles_give_typed_errors() {
         let e = Bundle::read(&fixture("future_version.vamos")).unwrap_err();
         assert!(
-            matches!(e, ModelError::FutureFormatVersion { found: 99, supported: 1 }),
+            matches!(
+                e,
+                ModelError::FutureFormatVersion {
+                    found: 99,
+                    supported: 1
+                }
+            ),
             "{e}"
         );
         let e = Bundle::read(&fixture("checksum.vamos")).unwrap_err();
@@ -445,7 +453,11 @@ mod tests {
             "{e}"
         );
         // The same bundle with a normal manifest reads (deflate written by Rust, too).
-        let bytes = zip_of(&[(MANIFEST, &manifest), (ENCODER, &b.encoder), (HEAD, &b.head)]);
+        let bytes = zip_of(&[
+            (MANIFEST, &manifest),
+            (ENCODER, &b.encoder),
+            (HEAD, &b.head),
+        ]);
         assert!(Bundle::from_bytes(&bytes).is_ok());
     }
 }

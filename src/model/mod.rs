@@ -56,7 +56,9 @@ pub enum ModelError {
         member: String,
     },
     /// The bundle holds a member the contract does not know.
-    #[error("the model bundle has an unexpected member {member} (allowed: manifest.json, encoder.onnx, head.onnx)")]
+    #[error(
+        "the model bundle has an unexpected member {member} (allowed: manifest.json, encoder.onnx, head.onnx)"
+    )]
     UnexpectedMember {
         /// The member name.
         member: String,
@@ -78,7 +80,9 @@ pub enum ModelError {
         reason: String,
     },
     /// The manifest's `format_version` is newer than this server understands.
-    #[error("model bundle format_version {found} is newer than this vamos supports ({supported}); upgrade vamos")]
+    #[error(
+        "model bundle format_version {found} is newer than this vamos supports ({supported}); upgrade vamos"
+    )]
     FutureFormatVersion {
         /// The bundle's version.
         found: u64,

@@ -174,10 +174,12 @@ fn check_opset(member: &str, bytes: &[u8], manifest_opset: u64) -> Result<(), Mo
         member: member.into(),
         reason,
     })?;
-    let found = header.default_opset().ok_or_else(|| ModelError::InvalidOnnx {
-        member: member.into(),
-        reason: "no opset import for the default ONNX domain".into(),
-    })?;
+    let found = header
+        .default_opset()
+        .ok_or_else(|| ModelError::InvalidOnnx {
+            member: member.into(),
+            reason: "no opset import for the default ONNX domain".into(),
+        })?;
     if found != manifest_opset {
         return Err(ModelError::Opset {
             member: member.into(),
@@ -397,7 +399,12 @@ impl FlowModel {
     }
 
     /// Runs the head on `batch` (features, z) rows; returns `[batch, 2, S, S]`.
-    pub fn predict(&self, features: &[f32], z: &[f32], batch: usize) -> Result<Vec<f32>, ModelError> {
+    pub fn predict(
+        &self,
+        features: &[f32],
+        z: &[f32],
+        batch: usize,
+    ) -> Result<Vec<f32>, ModelError> {
         let mut out = Vec::new();
         self.predict_into(features, z, batch, &mut out)?;
         Ok(out)

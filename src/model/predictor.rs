@@ -198,7 +198,12 @@ fn best_row(
     best
 }
 
-fn error_map(dims: ModelDims, prediction: &[f32], target: &[f32], mask: Option<&[bool]>) -> Vec<f32> {
+fn error_map(
+    dims: ModelDims,
+    prediction: &[f32],
+    target: &[f32],
+    mask: Option<&[bool]>,
+) -> Vec<f32> {
     let px = dims.size * dims.size;
     (0..px)
         .map(|i| {
@@ -214,7 +219,11 @@ fn error_map(dims: ModelDims, prediction: &[f32], target: &[f32], mask: Option<&
 
 impl Predictor {
     /// A predictor for one robot session, its generator seeded with `seed`.
-    pub fn new(model: Arc<FlowModel>, params: PredictorParams, seed: u64) -> Result<Self, ModelError> {
+    pub fn new(
+        model: Arc<FlowModel>,
+        params: PredictorParams,
+        seed: u64,
+    ) -> Result<Self, ModelError> {
         params.validate()?;
         Ok(Self {
             model,
@@ -268,7 +277,9 @@ impl Predictor {
         } else if valid_px == 0 {
             Prediction::NoValidPixels { frame: t }
         } else {
-            let offsets: Vec<usize> = (p.a..=p.a + p.b).filter(|&n| n <= self.ring.len()).collect();
+            let offsets: Vec<usize> = (p.a..=p.a + p.b)
+                .filter(|&n| n <= self.ring.len())
+                .collect();
             let rows = offsets.len() * p.samples;
             self.feature_batch.clear();
             self.z_batch.clear();
@@ -279,8 +290,12 @@ impl Predictor {
                 }
                 draw(&mut rng, &c.mu, &c.log_sigma, p.samples, &mut self.z_batch);
             }
-            self.model
-                .predict_into(&self.feature_batch, &self.z_batch, rows, &mut self.predictions)?;
+            self.model.predict_into(
+                &self.feature_batch,
+                &self.z_batch,
+                rows,
+                &mut self.predictions,
+            )?;
             let (row, e_o) = best_row(dims, &self.predictions, rows, input, mask, valid_px);
             let flow_len = dims.flow_len();
             let best = &self.predictions[row * flow_len..(row + 1) * flow_len];

@@ -36,19 +36,25 @@ const MAX_LIBRARY_BYTES: u64 = 512 << 20;
 #[derive(Debug, thiserror::Error)]
 pub enum RuntimeError {
     /// `ORT_DYLIB_PATH` names a file that does not exist.
-    #[error("ORT_DYLIB_PATH={path} does not exist; point it at libonnxruntime.so (ONNX Runtime >= 1.{ORT_MIN_MINOR}) or unset it")]
+    #[error(
+        "ORT_DYLIB_PATH={path} does not exist; point it at libonnxruntime.so (ONNX Runtime >= 1.{ORT_MIN_MINOR}) or unset it"
+    )]
     EnvPathMissing {
         /// The variable's value.
         path: String,
     },
     /// No library was found and provisioning is disabled.
-    #[error("ONNX Runtime {ORT_VERSION} not found (looked in: {searched}); set ORT_DYLIB_PATH to libonnxruntime.so, `pip install onnxruntime=={ORT_VERSION}`, or enable [model] ort_provision")]
+    #[error(
+        "ONNX Runtime {ORT_VERSION} not found (looked in: {searched}); set ORT_DYLIB_PATH to libonnxruntime.so, `pip install onnxruntime=={ORT_VERSION}`, or enable [model] ort_provision"
+    )]
     NotFound {
         /// The places searched.
         searched: String,
     },
     /// Downloading or unpacking the wheel failed.
-    #[error("could not provision ONNX Runtime {ORT_VERSION} into {cache_dir}: {reason}. Install it yourself (`pip install onnxruntime=={ORT_VERSION}`) or set ORT_DYLIB_PATH to libonnxruntime.so")]
+    #[error(
+        "could not provision ONNX Runtime {ORT_VERSION} into {cache_dir}: {reason}. Install it yourself (`pip install onnxruntime=={ORT_VERSION}`) or set ORT_DYLIB_PATH to libonnxruntime.so"
+    )]
     Provision {
         /// The cache folder.
         cache_dir: String,
@@ -258,9 +264,11 @@ pub fn provision(cache_dir: &Path) -> Result<PathBuf, RuntimeError> {
         .ok_or_else(|| fail("cache path has no parent".into()))?
         .to_path_buf();
     let root = cache_dir.join("onnxruntime");
-    std::fs::create_dir_all(&root).map_err(|e| fail(format!("cannot create {}: {e}", root.display())))?;
+    std::fs::create_dir_all(&root)
+        .map_err(|e| fail(format!("cannot create {}: {e}", root.display())))?;
     let tmp = root.join(format!(".tmp-{}-{}", std::process::id(), unique()));
-    std::fs::create_dir_all(&tmp).map_err(|e| fail(format!("cannot create {}: {e}", tmp.display())))?;
+    std::fs::create_dir_all(&tmp)
+        .map_err(|e| fail(format!("cannot create {}: {e}", tmp.display())))?;
     let result = provision_into(&tmp, &version_dir, &target);
     let _ = std::fs::remove_dir_all(&tmp);
     result.map_err(fail)
@@ -283,7 +291,13 @@ fn provision_into(tmp: &Path, version_dir: &Path, target: &Path) -> Result<PathB
     let out = Command::new(&python)
         .args(["-m", "pip", "download"])
         .arg(format!("onnxruntime=={ORT_VERSION}"))
-        .args(["--no-deps", "--only-binary=:all:", "--disable-pip-version-check", "-q", "-d"])
+        .args([
+            "--no-deps",
+            "--only-binary=:all:",
+            "--disable-pip-version-check",
+            "-q",
+            "-d",
+        ])
         .arg(&wheel_dir)
         .output()
         .map_err(|e| {
@@ -327,7 +341,8 @@ fn provision_into(tmp: &Path, version_dir: &Path, target: &Path) -> Result<PathB
         .take(MAX_LIBRARY_BYTES + 1)
         .read_to_end(&mut bytes)
         .map_err(|e| format!("cannot unpack {member}: {e}"))?;
-    std::fs::write(&staged, &bytes).map_err(|e| format!("cannot write {}: {e}", staged.display()))?;
+    std::fs::write(&staged, &bytes)
+        .map_err(|e| format!("cannot write {}: {e}", staged.display()))?;
     // The whole version folder appears at once; if another process won the race, use its.
     match std::fs::rename(&staged_dir, version_dir) {
         Ok(()) => {}
@@ -473,7 +488,10 @@ mod tests {
         touch(&py.join("libonnxruntime_providers_shared.so"));
         assert_eq!(
             resolve(&paths, || Some(py.clone())).unwrap(),
-            Some((py.join("libonnxruntime.so.1.31.1"), RuntimeSource::PythonPackage))
+            Some((
+                py.join("libonnxruntime.so.1.31.1"),
+                RuntimeSource::PythonPackage
+            ))
         );
         // The cache beats Python, and Python is then not even asked.
         let cached = cached_library(&cache);
@@ -486,7 +504,10 @@ mod tests {
         touch(&exe.join("lib/libonnxruntime.so"));
         assert_eq!(
             resolve(&paths, no_python).unwrap(),
-            Some((exe.join("lib/libonnxruntime.so"), RuntimeSource::BesideBinary))
+            Some((
+                exe.join("lib/libonnxruntime.so"),
+                RuntimeSource::BesideBinary
+            ))
         );
         // ORT_DYLIB_PATH beats everything, and a missing one is an error, not a fallback.
         paths.env_path = Some(env_lib.clone());

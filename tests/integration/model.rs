@@ -39,7 +39,10 @@ fn valid_model() -> Arc<FlowModel> {
 
 fn max_abs_diff(a: &[f32], b: &[f32]) -> f32 {
     assert_eq!(a.len(), b.len());
-    a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0, f32::max)
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f32::max)
 }
 
 /// Rust ort and Python onnxruntime run the same library on the same graph with the same
@@ -88,7 +91,13 @@ fn predictor_matches_the_python_reference() {
     for (t, expected) in p["e_o"].as_array().unwrap().iter().enumerate() {
         let out = pred.push(&frames[t * fl..(t + 1) * fl], None).unwrap();
         match (out, expected.is_null()) {
-            (Prediction::WarmingUp { frames_seen, frames_needed }, true) => {
+            (
+                Prediction::WarmingUp {
+                    frames_seen,
+                    frames_needed,
+                },
+                true,
+            ) => {
                 assert_eq!(frames_seen, t as u64);
                 assert_eq!(frames_needed, 2);
             }
@@ -96,7 +105,11 @@ fn predictor_matches_the_python_reference() {
                 let e = expected["e_o"].as_f64().unwrap();
                 assert!((s.e_o - e).abs() <= 1e-6 * e, "frame {t}: {} vs {e}", s.e_o);
                 assert_eq!(s.n as u64, expected["n"].as_u64().unwrap(), "frame {t}");
-                assert_eq!(s.sample as u64, expected["sample"].as_u64().unwrap(), "frame {t}");
+                assert_eq!(
+                    s.sample as u64,
+                    expected["sample"].as_u64().unwrap(),
+                    "frame {t}"
+                );
                 assert_eq!(s.frame, t as u64);
                 assert_eq!(s.valid_px, 64 * 64);
                 let mean = s.error_map.iter().map(|v| f64::from(*v)).sum::<f64>() / 4096.0;
@@ -196,7 +209,10 @@ fn masks_and_bad_input() {
         "{e}"
     );
     let e = pred.push(&frames[3], Some(&[true; 10])).unwrap_err();
-    assert!(matches!(e, ModelError::InputShape { what: "mask", .. }), "{e}");
+    assert!(
+        matches!(e, ModelError::InputShape { what: "mask", .. }),
+        "{e}"
+    );
     assert_eq!(pred.frames_seen(), 3);
     // The next good frame scores exactly as in a predictor that never saw the bad input.
     let a = pred.push(&frames[3], None).unwrap();
@@ -225,12 +241,28 @@ fn bad_bundles_are_refused_with_typed_errors() {
     );
     let e = load("c_mismatch.vamos");
     assert!(
-        matches!(e, ModelError::DimensionMismatch { encoder: 4, head: 5, manifest: 4, .. }),
+        matches!(
+            e,
+            ModelError::DimensionMismatch {
+                encoder: 4,
+                head: 5,
+                manifest: 4,
+                ..
+            }
+        ),
         "{e}"
     );
     let e = load("latent_manifest.vamos");
     assert!(
-        matches!(e, ModelError::DimensionMismatch { encoder: 3, head: 3, manifest: 6, .. }),
+        matches!(
+            e,
+            ModelError::DimensionMismatch {
+                encoder: 3,
+                head: 3,
+                manifest: 6,
+                ..
+            }
+        ),
         "{e}"
     );
     let e = load("corrupt_onnx.vamos");
@@ -239,11 +271,17 @@ fn bad_bundles_are_refused_with_typed_errors() {
         "{e}"
     );
     let e = load("nonfinite.vamos");
-    assert!(matches!(&e, ModelError::SmokeTest { reason } if reason.contains("head")), "{e}");
+    assert!(
+        matches!(&e, ModelError::SmokeTest { reason } if reason.contains("head")),
+        "{e}"
+    );
     let e = load("opset_mismatch.vamos");
     assert!(matches!(e, ModelError::Opset { found: 17, .. }), "{e}");
     let e = load("future_version.vamos");
-    assert!(matches!(e, ModelError::FutureFormatVersion { found: 99, .. }), "{e}");
+    assert!(
+        matches!(e, ModelError::FutureFormatVersion { found: 99, .. }),
+        "{e}"
+    );
     let e = load("checksum.vamos");
     assert!(matches!(e, ModelError::ChecksumMismatch { .. }), "{e}");
     let e = load("missing_member.vamos");
@@ -279,7 +317,11 @@ fn cli_inspect_reports_valid_and_invalid_bundles() {
             .unwrap()
     };
     let out = run("valid.vamos");
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(v["valid"], true);
     assert_eq!(v["dims"]["channels"], 4);
@@ -289,7 +331,10 @@ fn cli_inspect_reports_valid_and_invalid_bundles() {
     assert!(!out.status.success());
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(v["valid"], false);
-    assert!(v["error"].as_str().unwrap().contains("feature_channels"), "{v}");
+    assert!(
+        v["error"].as_str().unwrap().contains("feature_channels"),
+        "{v}"
+    );
     assert!(!String::from_utf8_lossy(&out.stderr).contains("panicked"));
 }
 
@@ -317,7 +362,10 @@ fn provisions_onnxruntime_into_an_empty_cache() {
     let out = run();
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{stderr}");
-    assert!(stderr.contains("downloading the onnxruntime wheel"), "{stderr}");
+    assert!(
+        stderr.contains("downloading the onnxruntime wheel"),
+        "{stderr}"
+    );
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(v["source"], "provisioned");
     let lib = cache
@@ -365,5 +413,8 @@ fn missing_runtime_gives_an_actionable_error() {
         .unwrap();
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success());
-    assert!(stderr.contains("nope.so") && stderr.contains("does not exist"), "{stderr}");
+    assert!(
+        stderr.contains("nope.so") && stderr.contains("does not exist"),
+        "{stderr}"
+    );
 }
