@@ -68,8 +68,12 @@ fn main() -> Result<()> {
     let enc = model.encode(&frames[0], 1)?;
     let mut buf = Vec::new();
     for batch in [1, rows] {
-        let features: Vec<f32> = (0..batch).flat_map(|_| enc.features.iter().copied()).collect();
-        let z: Vec<f32> = (0..batch).flat_map(|_| enc.prior_mu.iter().copied()).collect();
+        let features: Vec<f32> = (0..batch)
+            .flat_map(|_| enc.features.iter().copied())
+            .collect();
+        let z: Vec<f32> = (0..batch)
+            .flat_map(|_| enc.prior_mu.iter().copied())
+            .collect();
         out[format!("head_{batch}_ms")] = best_ms(repeat, || {
             model.predict_into(&features, &z, batch, &mut buf)?;
             Ok(())

@@ -22,7 +22,7 @@ pub mod runtime;
 
 pub use bundle::{Bundle, FlowVariant, Manifest};
 pub use network::{EncoderOutput, FlowModel, LoadOptions, ModelDims, ModelSlot};
-pub use predictor::{FlowScore, Prediction, Predictor, PredictorParams};
+pub use predictor::{BatchItem, FlowScore, Prediction, Predictor, PredictorParams, push_batch};
 pub use runtime::RuntimeError;
 
 use serde::{Deserialize, Serialize};

@@ -264,25 +264,45 @@ impl Predictor {
     /// A bad input is an error and leaves the state untouched; so does a failure of either
     /// network call (the frame is then not counted).
     pub fn push(&mut self, input: &[f32], mask: Option<&[bool]>) -> Result<Prediction, ModelError> {
+        let prepared = self.prepare(input, mask)?;
+        if prepared.rows > 0 {
+            self.model.predict_into(
+                &self.feature_batch,
+                &self.z_batch,
+                prepared.rows,
+                &mut self.predictions,
+            )?;
+        }
+        let enc = self.model.encode(input, 1)?;
+        let predictions = std::mem::take(&mut self.predictions);
+        let out = self.finish(
+            prepared,
+            input,
+            mask,
+            &predictions,
+            enc.features,
+            enc.prior_mu,
+            enc.prior_log_sigma,
+        );
+        self.predictions = predictions;
+        Ok(out)
+    }
+
+    /// Validates the input and assembles this frame's head rows in `feature_batch` and
+    /// `z_batch`, drawing from a copy of the generator. Changes no state.
+    fn prepare(&mut self, input: &[f32], mask: Option<&[bool]>) -> Result<Prepared, ModelError> {
         let dims = self.model.dims();
         let valid_px = check_input(dims, input, mask)?;
         let t = self.frames;
         let p = self.params;
         let mut rng = self.rng.clone();
-        let outcome = if (t as usize) < p.a {
-            Prediction::WarmingUp {
-                frames_seen: t,
-                frames_needed: p.a,
-            }
-        } else if valid_px == 0 {
-            Prediction::NoValidPixels { frame: t }
-        } else {
-            let offsets: Vec<usize> = (p.a..=p.a + p.b)
+        self.feature_batch.clear();
+        self.z_batch.clear();
+        let mut offsets = Vec::new();
+        if (t as usize) >= p.a && valid_px > 0 {
+            offsets = (p.a..=p.a + p.b)
                 .filter(|&n| n <= self.ring.len())
                 .collect();
-            let rows = offsets.len() * p.samples;
-            self.feature_batch.clear();
-            self.z_batch.clear();
             for &n in &offsets {
                 let c = &self.ring[self.ring.len() - n];
                 for _ in 0..p.samples {
@@ -290,38 +310,183 @@ impl Predictor {
                 }
                 draw(&mut rng, &c.mu, &c.log_sigma, p.samples, &mut self.z_batch);
             }
-            self.model.predict_into(
-                &self.feature_batch,
-                &self.z_batch,
-                rows,
-                &mut self.predictions,
-            )?;
-            let (row, e_o) = best_row(dims, &self.predictions, rows, input, mask, valid_px);
+        }
+        Ok(Prepared {
+            rows: offsets.len() * p.samples,
+            offsets,
+            rng_after: rng,
+            valid_px,
+        })
+    }
+
+    /// Scores the head's `predictions` for the prepared frame and commits the frame's
+    /// encoder output and the generator state. Cannot fail.
+    #[allow(clippy::too_many_arguments)]
+    fn finish(
+        &mut self,
+        prepared: Prepared,
+        input: &[f32],
+        mask: Option<&[bool]>,
+        predictions: &[f32],
+        features: Vec<f32>,
+        mu: Vec<f32>,
+        log_sigma: Vec<f32>,
+    ) -> Prediction {
+        let dims = self.model.dims();
+        let t = self.frames;
+        let p = self.params;
+        let outcome = if (t as usize) < p.a {
+            Prediction::WarmingUp {
+                frames_seen: t,
+                frames_needed: p.a,
+            }
+        } else if prepared.valid_px == 0 || prepared.rows == 0 {
+            Prediction::NoValidPixels { frame: t }
+        } else {
+            let (row, e_o) = best_row(
+                dims,
+                predictions,
+                prepared.rows,
+                input,
+                mask,
+                prepared.valid_px,
+            );
             let flow_len = dims.flow_len();
-            let best = &self.predictions[row * flow_len..(row + 1) * flow_len];
+            let best = &predictions[row * flow_len..(row + 1) * flow_len];
             Prediction::Scored(FlowScore {
                 frame: t,
                 e_o,
-                n: offsets[row / p.samples],
+                n: prepared.offsets[row / p.samples],
                 sample: row % p.samples,
                 error_map: error_map(dims, best, input, mask),
-                valid_px,
+                valid_px: prepared.valid_px,
             })
         };
-        let enc = self.model.encode(input, 1)?;
-        // Commit: nothing above changed the state.
         self.ring.push_back(Cached {
-            features: enc.features,
-            mu: enc.prior_mu,
-            log_sigma: enc.prior_log_sigma,
+            features,
+            mu,
+            log_sigma,
         });
         while self.ring.len() > p.a + p.b {
             self.ring.pop_front();
         }
-        self.rng = rng;
+        self.rng = prepared.rng_after;
         self.frames += 1;
-        Ok(outcome)
+        outcome
     }
+}
+
+/// One session's frame in a [`push_batch`] call.
+#[derive(Debug)]
+pub struct BatchItem<'a> {
+    /// The session's predictor.
+    pub predictor: &'a mut Predictor,
+    /// `O_t`, `[2, S, S]`.
+    pub input: &'a [f32],
+    /// Valid pixels, `[S, S]`, or `None` for all.
+    pub mask: Option<&'a [bool]>,
+}
+
+#[derive(Debug)]
+struct Prepared {
+    offsets: Vec<usize>,
+    rows: usize,
+    rng_after: NormalRng,
+    valid_px: usize,
+}
+
+/// [`Predictor::push`] for several sessions at once: one encoder call on all new frames
+/// and one head call on all sessions' rows, for predictors that share one model. Results
+/// are equal to pushing each item alone. An item with bad input gets its error and is left
+/// out; a failed network call fails every remaining item (states unchanged).
+pub fn push_batch(items: &mut [BatchItem<'_>]) -> Vec<Result<Prediction, ModelError>> {
+    let mut results: Vec<Option<Result<Prediction, ModelError>>> =
+        (0..items.len()).map(|_| None).collect();
+    let Some(model) = items.first().map(|i| i.predictor.model.clone()) else {
+        return Vec::new();
+    };
+    let dims = model.dims();
+    let mut prepared = Vec::new();
+    let (mut features, mut z, mut inputs) = (Vec::new(), Vec::new(), Vec::new());
+    let mut rows = 0;
+    for (k, item) in items.iter_mut().enumerate() {
+        if !Arc::ptr_eq(&item.predictor.model, &model) {
+            results[k] = Some(Err(ModelError::InvalidParams {
+                field: "predictor",
+                reason: "every predictor of a batch must use the same model".into(),
+            }));
+            continue;
+        }
+        match item.predictor.prepare(item.input, item.mask) {
+            Ok(p) => {
+                features.extend_from_slice(&item.predictor.feature_batch);
+                z.extend_from_slice(&item.predictor.z_batch);
+                inputs.extend_from_slice(item.input);
+                rows += p.rows;
+                prepared.push((k, p));
+            }
+            Err(e) => results[k] = Some(Err(e)),
+        }
+    }
+    let run = || -> Result<(Vec<f32>, super::network::EncoderOutput), ModelError> {
+        let mut predictions = Vec::new();
+        if rows > 0 {
+            model.predict_into(&features, &z, rows, &mut predictions)?;
+        }
+        let enc = model.encode(&inputs, prepared.len())?;
+        Ok((predictions, enc))
+    };
+    if prepared.is_empty() {
+        return results
+            .into_iter()
+            .map(|r| {
+                r.unwrap_or(Err(ModelError::InvalidParams {
+                    field: "batch",
+                    reason: "no result".into(),
+                }))
+            })
+            .collect();
+    }
+    match run() {
+        Ok((predictions, enc)) => {
+            let (fl, fe, l) = (dims.flow_len(), dims.features_len(), dims.latent);
+            let mut row0 = 0;
+            for (j, (k, p)) in prepared.into_iter().enumerate() {
+                let item = &mut items[k];
+                let rows_k = p.rows;
+                let pred = &predictions[row0 * fl..(row0 + rows_k) * fl];
+                row0 += rows_k;
+                let out = item.predictor.finish(
+                    p,
+                    item.input,
+                    item.mask,
+                    pred,
+                    enc.features[j * fe..(j + 1) * fe].to_vec(),
+                    enc.prior_mu[j * l..(j + 1) * l].to_vec(),
+                    enc.prior_log_sigma[j * l..(j + 1) * l].to_vec(),
+                );
+                results[k] = Some(Ok(out));
+            }
+        }
+        Err(e) => {
+            let msg = e.to_string();
+            for (k, _) in prepared {
+                results[k] = Some(Err(ModelError::Ort {
+                    context: "batched inference",
+                    reason: msg.clone(),
+                }));
+            }
+        }
+    }
+    results
+        .into_iter()
+        .map(|r| {
+            r.unwrap_or(Err(ModelError::InvalidParams {
+                field: "batch",
+                reason: "no result".into(),
+            }))
+        })
+        .collect()
 }
 
 /// The straightforward computation, for reference and benchmarks: for each offset the

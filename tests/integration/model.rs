@@ -418,3 +418,72 @@ fn missing_runtime_gives_an_actionable_error() {
         "{stderr}"
     );
 }
+
+/// One batched call for several sessions gives exactly what each session alone gives;
+/// a bad item gets its own error and changes nothing.
+#[test]
+fn batched_sessions_equal_single_sessions() {
+    use vamos::model::{BatchItem, push_batch};
+    let model = valid_model();
+    let params = PredictorParams::from_manifest(model.manifest(), 0);
+    let fl = model.dims().flow_len();
+    let frames = test_frames(12, fl);
+    let mask: Vec<bool> = (0..64 * 64).map(|i| i / 64 >= 10).collect();
+    let mut batched: Vec<Predictor> = (0..3)
+        .map(|s| Predictor::new(model.clone(), params, s).unwrap())
+        .collect();
+    let mut single: Vec<Predictor> = (0..3)
+        .map(|s| Predictor::new(model.clone(), params, s).unwrap())
+        .collect();
+    let mut nan = frames[0].clone();
+    nan[5] = f32::NAN;
+    let mut scored = 0;
+    for t in 0..4 {
+        // Session s sees frame (t + 3 s); session 1 uses a mask; session 2 gets a NaN
+        // frame at t = 2 (rejected, not counted).
+        let input = |s: usize| -> &[f32] {
+            if s == 2 && t == 2 {
+                &nan
+            } else {
+                &frames[t + 3 * s]
+            }
+        };
+        let masks = [None, Some(mask.as_slice()), None];
+        let expected: Vec<_> = single
+            .iter_mut()
+            .enumerate()
+            .map(|(s, p)| p.push(input(s), masks[s]))
+            .collect();
+        let mut items: Vec<BatchItem> = batched
+            .iter_mut()
+            .enumerate()
+            .map(|(s, p)| BatchItem {
+                predictor: p,
+                input: input(s),
+                mask: masks[s],
+            })
+            .collect();
+        let got = push_batch(&mut items);
+        for (s, (g, e)) in got.into_iter().zip(expected).enumerate() {
+            match (g, e) {
+                (Ok(g), Ok(e)) => {
+                    if let (Prediction::Scored(a), Prediction::Scored(b)) = (&g, &e) {
+                        assert!((a.e_o - b.e_o).abs() <= 1e-6 * b.e_o, "t {t} s {s}");
+                        assert_eq!((a.n, a.sample, a.frame), (b.n, b.sample, b.frame));
+                        scored += 1;
+                    } else {
+                        assert_eq!(g, e, "t {t} s {s}");
+                    }
+                }
+                (Err(ModelError::NonFiniteInput { index: 5, .. }), Err(_)) => {
+                    assert_eq!((s, t), (2, 2));
+                }
+                (g, e) => panic!("t {t} s {s}: {g:?} vs {e:?}"),
+            }
+        }
+        for (b, s) in batched.iter().zip(&single) {
+            assert_eq!(b.frames_seen(), s.frames_seen());
+        }
+    }
+    assert!(scored >= 4, "{scored}");
+}
