@@ -12,7 +12,7 @@ use std::sync::Arc;
 use std::time::Instant;
 use vamos::model::predictor::naive_score;
 use vamos::model::rng::NormalRng;
-use vamos::model::{FlowModel, LoadOptions, Predictor, PredictorParams};
+use vamos::model::{BatchItem, FlowModel, LoadOptions, Predictor, PredictorParams, push_batch};
 
 fn best_ms(repeat: usize, mut f: impl FnMut() -> Result<()>) -> Result<f64> {
     f()?;
@@ -97,6 +97,38 @@ fn main() -> Result<()> {
     let mut rng = NormalRng::new(1);
     out["frame_naive_ms"] = best_ms(repeat, || {
         naive_score(&model, &past, current, None, p.samples, &mut rng)?;
+        Ok(())
+    })?
+    .into();
+    // Four sessions in steady state: one push each vs one push_batch for all.
+    let sessions = 4;
+    let mut preds: Vec<Predictor> = (0..sessions)
+        .map(|s| Predictor::new(model.clone(), p, s as u64))
+        .collect::<Result<_, _>>()?;
+    for pr in &mut preds {
+        for f in &frames[..p.a + p.b] {
+            pr.push(f, None)?;
+        }
+    }
+    out["sessions_4_single_ms"] = best_ms(repeat, || {
+        for pr in &mut preds {
+            pr.push(current, None)?;
+        }
+        Ok(())
+    })?
+    .into();
+    out["sessions_4_batched_ms"] = best_ms(repeat, || {
+        let mut items: Vec<BatchItem> = preds
+            .iter_mut()
+            .map(|pr| BatchItem {
+                predictor: pr,
+                input: current,
+                mask: None,
+            })
+            .collect();
+        for r in push_batch(&mut items) {
+            r?;
+        }
         Ok(())
     })?
     .into();
