@@ -270,6 +270,7 @@ impl Bundle {
         let head = read_member(&mut zip, HEAD, MAX_ONNX_BYTES, label)?;
         for (name, data) in [(ENCODER, &encoder), (HEAD, &head)] {
             let actual = sha256_hex(data);
+            // Invariant: Manifest::parse checked that `members` holds exactly both names.
             let expected = &manifest.members[name].sha256;
             if &actual != expected {
                 return Err(ModelError::ChecksumMismatch {
