@@ -214,6 +214,35 @@ impl Manifest {
     }
 }
 
+impl Manifest {
+    /// Checks that the serving pipeline's network-input settings are the ones the model
+    /// was trained with (docs/model-bundle.md: a mismatch is refused).
+    pub fn check_network_input(
+        &self,
+        params: &crate::vision::preprocess::NetworkInputParams,
+    ) -> Result<(), ModelError> {
+        let i = &self.input;
+        let same = params.size_px == i.size as usize
+            && params.reference_width_px == i.reference_width_px as usize
+            && (params.clip_px - i.clip_px).abs() <= 1e-6 * i.clip_px.abs().max(1.0);
+        if same {
+            return Ok(());
+        }
+        Err(ModelError::Manifest {
+            reason: format!(
+                "the model was trained on inputs of size {} with clip {} px at {} px wide, \
+                 the settings ([vision.network_input]) say size {}, clip {} px at {} px",
+                i.size,
+                i.clip_px,
+                i.reference_width_px,
+                params.size_px,
+                params.clip_px,
+                params.reference_width_px
+            ),
+        })
+    }
+}
+
 /// A read and checked bundle: the manifest and the raw ONNX bytes.
 #[derive(Clone, Debug)]
 pub struct Bundle {
@@ -371,6 +400,22 @@ mod tests {
         assert!(b.encoder.len() > 100 && b.head.len() > 100);
         let raw = std::fs::read(fixture("valid.vamos")).unwrap();
         assert_eq!(b.sha256, sha256_hex(&raw));
+    }
+
+    #[test]
+    fn network_input_settings_must_match() {
+        use crate::vision::preprocess::NetworkInputParams;
+        let b = Bundle::read(&fixture("valid.vamos")).unwrap();
+        let mut p = NetworkInputParams::default();
+        assert!(b.manifest.check_network_input(&p).is_ok());
+        p.clip_px = 10.0;
+        let e = b.manifest.check_network_input(&p).unwrap_err();
+        assert!(e.to_string().contains("clip 10 px"), "{e}");
+        p = NetworkInputParams {
+            size_px: 32,
+            ..NetworkInputParams::default()
+        };
+        assert!(b.manifest.check_network_input(&p).is_err());
     }
 
     #[test]
