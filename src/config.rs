@@ -3,9 +3,11 @@
 //!
 //! Environment variables name a key path with `__` between levels, e.g.
 //! `VAMOS_LOG__FORMAT=json` or `VAMOS_VISION__FLOW__WARPS=3`. `VAMOS_CONFIG` names the
-//! file and is not a key. Unknown keys, in the file or the environment, are errors: a
+//! file; it and the few other variables of [`is_reserved_env`] are not keys.
+//! Unknown keys, in the file or the environment, are errors: a
 //! typo must not silently fall back to a default.
 
+use crate::model::ModelConfig;
 use crate::pipeline::PipelineConfig;
 use crate::robot::RobotConfig;
 use crate::robot::render::RenderConfig;
@@ -20,6 +22,15 @@ use std::path::Path;
 
 /// The environment variable that names the settings file.
 pub const CONFIG_ENV: &str = "VAMOS_CONFIG";
+
+/// `VAMOS_*` variables that are not settings keys: the settings file, the cache folder and
+/// Python interpreter of the ONNX Runtime look-up (`model::runtime`), test and bench knobs
+/// (`VAMOS_SKIP_*`, `VAMOS_BENCH_*`).
+pub fn is_reserved_env(name: &str) -> bool {
+    matches!(name, CONFIG_ENV | "VAMOS_CACHE_DIR" | "VAMOS_PYTHON")
+        || name.starts_with("VAMOS_SKIP_")
+        || name.starts_with("VAMOS_BENCH_")
+}
 
 /// Errors of loading settings.
 #[derive(Debug, thiserror::Error)]
@@ -63,6 +74,8 @@ pub struct Settings {
     pub robot: RobotConfig,
     /// Rendering of the robot body (mask, depth, expected body flow).
     pub render: RenderConfig,
+    /// The flow predictor (ONNX Runtime).
+    pub model: ModelConfig,
 }
 
 impl Settings {
@@ -93,7 +106,7 @@ impl Settings {
             let Some(rest) = key.strip_prefix("VAMOS_") else {
                 continue;
             };
-            if key == CONFIG_ENV || rest.is_empty() {
+            if is_reserved_env(&key) || rest.is_empty() {
                 continue;
             }
             let path: Vec<String> = rest.split("__").map(|s| s.to_ascii_lowercase()).collect();
@@ -167,6 +180,8 @@ mod tests {
             env(&[
                 ("VAMOS_VISION__THREADS", "1"),
                 ("VAMOS_CONFIG", "ignored"),
+                ("VAMOS_CACHE_DIR", "/tmp/ignored"),
+                ("VAMOS_BENCH_MODEL", "ignored"),
                 ("OTHER", "x"),
             ]),
         )

@@ -12,11 +12,14 @@
 //! - [`episode`]: recorded executions, read frame by frame (image folders; MCAP later).
 //! - [`pipeline`]: frame in, scores out (so far: the visual front end that turns images
 //!   into flow, registration and the predictor's input).
+//! - [`model`]: the ONNX flow predictor: model bundles, ONNX Runtime sessions and the
+//!   per-session prediction error `e_o`. Synchronous.
 //! - [`config`]: service settings composed of each module's `*Config`.
 //! - [`telemetry`]: `tracing` set-up (human or JSON logs).
 
 pub mod config;
 pub mod episode;
+pub mod model;
 pub mod pipeline;
 pub mod robot;
 pub mod telemetry;

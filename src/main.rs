@@ -164,6 +164,11 @@ enum Command {
         #[command(subcommand)]
         command: RobotCommand,
     },
+    /// Flow-predictor model bundles and the ONNX Runtime library.
+    Model {
+        #[command(subcommand)]
+        command: ModelCommand,
+    },
 }
 
 #[derive(Subcommand, Debug)]
@@ -179,6 +184,18 @@ enum RobotCommand {
         #[arg(long)]
         joints: Option<PathBuf>,
     },
+}
+
+#[derive(Subcommand, Debug)]
+enum ModelCommand {
+    /// Read and validate a model bundle (.vamos); print its summary as JSON (exit code 1
+    /// when invalid).
+    Inspect {
+        /// The bundle.
+        bundle: PathBuf,
+    },
+    /// Find (or download into the cache) and load ONNX Runtime; print where from as JSON.
+    Runtime,
 }
 
 fn main() -> std::process::ExitCode {
@@ -204,6 +221,16 @@ fn run(cli: Cli) -> Result<()> {
     telemetry::init(&settings.log)?;
     tracing::debug!(settings = ?settings, "effective settings");
     match cli.command {
+        Command::Model { command } => match command {
+            ModelCommand::Inspect { bundle } => {
+                if cli::model::inspect(&bundle, &settings.model)? {
+                    Ok(())
+                } else {
+                    bail!("{} is not a valid model bundle", bundle.display())
+                }
+            }
+            ModelCommand::Runtime => cli::model::runtime(&settings.model),
+        },
         Command::Config => {
             print!("{}", toml::to_string_pretty(&settings)?);
             Ok(())

@@ -9,6 +9,7 @@ mod cli;
 mod export_dataset;
 mod flow_accuracy;
 mod flow_golden;
+mod model;
 mod registration_accuracy;
 mod render_cli;
 mod robot_fk;

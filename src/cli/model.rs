@@ -1,0 +1,66 @@
+//! `vamos model ...`: inspect a bundle, locate (or provision) ONNX Runtime.
+
+use anyhow::Result;
+use serde_json::json;
+use std::path::Path;
+use std::time::Instant;
+use vamos::model::bundle::Bundle;
+use vamos::model::runtime;
+use vamos::model::{FlowModel, ModelConfig};
+
+/// Prints the manifest summary and the validation result of a bundle as one JSON object.
+/// Returns whether the bundle is valid (the caller maps `false` to a failing exit code).
+pub fn inspect(path: &Path, config: &ModelConfig) -> Result<bool> {
+    let mut out = json!({ "path": path.display().to_string() });
+    let bundle = match Bundle::read(path) {
+        Ok(b) => b,
+        Err(e) => {
+            out["valid"] = json!(false);
+            out["error"] = json!(e.to_string());
+            println!("{}", serde_json::to_string_pretty(&out)?);
+            return Ok(false);
+        }
+    };
+    let m = &bundle.manifest;
+    out["sha256"] = json!(bundle.sha256);
+    out["manifest"] = json!({
+        "name": m.name, "created": m.created, "format_version": m.format_version,
+        "opset": m.opset, "flow_variant": m.flow_variant, "temporal": m.temporal,
+        "input": m.input, "processing": m.processing, "architecture": m.architecture,
+    });
+    out["members"] = json!({
+        "encoder.onnx": {"bytes": bundle.encoder.len()},
+        "head.onnx": {"bytes": bundle.head.len()},
+    });
+    let start = Instant::now();
+    let valid = match FlowModel::from_bundle(bundle, &config.load_options()) {
+        Ok(model) => {
+            out["valid"] = json!(true);
+            out["dims"] = json!(model.dims());
+            out["load_ms"] = json!(start.elapsed().as_secs_f64() * 1e3);
+            true
+        }
+        Err(e) => {
+            out["valid"] = json!(false);
+            out["error"] = json!(e.to_string());
+            false
+        }
+    };
+    println!("{}", serde_json::to_string_pretty(&out)?);
+    Ok(valid)
+}
+
+/// Finds (or provisions) and loads ONNX Runtime; prints where it came from as JSON.
+pub fn runtime(config: &ModelConfig) -> Result<()> {
+    let rt = runtime::ensure(config.runtime_options())?;
+    println!(
+        "{}",
+        json!({
+            "path": rt.path.display().to_string(),
+            "source": rt.source,
+            "setup_secs": rt.setup_secs,
+            "version": runtime::ORT_VERSION,
+        })
+    );
+    Ok(())
+}

@@ -1,0 +1,501 @@
+//! The loaded flow predictor network: one ONNX Runtime session per graph (encoder, head),
+//! validated against the contract and shared by every robot session.
+//!
+//! `ort`'s `Session::run` takes `&mut self`, so each session sits behind a `Mutex`: robot
+//! sessions that call the same graph at the same moment take turns (each call uses the
+//! configured intra-op threads).
+
+use super::bundle::{Bundle, ENCODER, HEAD, Manifest};
+use super::onnx_proto;
+use super::runtime::{self, RuntimeOptions};
+use super::{ModelError, rng::NormalRng};
+use ort::session::Session;
+use ort::session::builder::GraphOptimizationLevel;
+use ort::value::{TensorElementType, TensorRef, ValueType};
+use std::path::Path;
+use std::sync::{Arc, Mutex, RwLock};
+
+/// Opsets accepted (ONNX Runtime 1.31 runs them; the contract asks for 17).
+pub const SUPPORTED_OPSETS: std::ops::RangeInclusive<u64> = 13..=21;
+
+/// Options of loading a model.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct LoadOptions {
+    /// Intra-op threads per session (0 = ONNX Runtime's default, one per core).
+    pub intra_threads: usize,
+    /// Where the ONNX Runtime library may come from.
+    pub runtime: RuntimeOptions,
+}
+
+impl Default for LoadOptions {
+    fn default() -> Self {
+        Self {
+            intra_threads: 1,
+            runtime: RuntimeOptions::default(),
+        }
+    }
+}
+
+/// The fixed dimensions of a validated model.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+pub struct ModelDims {
+    /// Side of the square input and output, pixels (64).
+    pub size: usize,
+    /// Feature channels C of the encoder output.
+    pub channels: usize,
+    /// Latent dimension L.
+    pub latent: usize,
+}
+
+impl ModelDims {
+    /// Values of one flow `[2, size, size]`.
+    pub fn flow_len(&self) -> usize {
+        2 * self.size * self.size
+    }
+
+    /// Values of one feature map `[C, size, size]`.
+    pub fn features_len(&self) -> usize {
+        self.channels * self.size * self.size
+    }
+}
+
+/// The encoder's outputs for a batch of `batch` flows (C order).
+#[derive(Clone, Debug, PartialEq)]
+pub struct EncoderOutput {
+    /// Rows in the batch.
+    pub batch: usize,
+    /// `[batch, C, S, S]`.
+    pub features: Vec<f32>,
+    /// `[batch, L]`.
+    pub prior_mu: Vec<f32>,
+    /// `[batch, L]`.
+    pub prior_log_sigma: Vec<f32>,
+}
+
+/// A loaded, validated model: manifest and the two sessions.
+pub struct FlowModel {
+    manifest: Manifest,
+    sha256: String,
+    dims: ModelDims,
+    encoder: Mutex<Session>,
+    head: Mutex<Session>,
+}
+
+impl std::fmt::Debug for FlowModel {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("FlowModel")
+            .field("name", &self.manifest.name)
+            .field("sha256", &self.sha256)
+            .field("dims", &self.dims)
+            .finish_non_exhaustive()
+    }
+}
+
+fn ort_err<E: std::fmt::Display>(context: &'static str) -> impl FnOnce(E) -> ModelError {
+    move |e| ModelError::Ort {
+        context,
+        reason: e.to_string(),
+    }
+}
+
+/// A tensor outlet's element type and shape (-1 = dynamic).
+fn tensor_shape(dtype: &ValueType) -> Option<(TensorElementType, Vec<i64>)> {
+    match dtype {
+        ValueType::Tensor { ty, shape, .. } => Some((*ty, shape.to_vec())),
+        _ => None,
+    }
+}
+
+/// Checks a graph's inputs or outputs: exactly `expected` names, float32, rank, dynamic
+/// first axis, and the given fixed dims (`None` = any fixed positive size). Returns the
+/// shapes in the order of `expected`.
+fn check_outlets(
+    member: &str,
+    kind: &str,
+    outlets: &[ort::value::Outlet],
+    expected: &[(&str, &[Option<i64>])],
+) -> Result<Vec<Vec<i64>>, ModelError> {
+    let sig = |reason: String| ModelError::Signature {
+        member: member.into(),
+        reason,
+    };
+    let mut names: Vec<&str> = outlets.iter().map(|o| o.name()).collect();
+    names.sort_unstable();
+    let mut want: Vec<&str> = expected.iter().map(|(n, _)| *n).collect();
+    want.sort_unstable();
+    if names != want {
+        return Err(sig(format!("{kind} are {names:?}, expected {want:?}")));
+    }
+    let mut shapes = Vec::new();
+    for (name, dims) in expected {
+        let outlet = outlets
+            .iter()
+            .find(|o| o.name() == *name)
+            .ok_or_else(|| sig(format!("no {kind} {name}")))?;
+        let (ty, shape) = tensor_shape(outlet.dtype())
+            .ok_or_else(|| sig(format!("{kind} {name} is not a tensor")))?;
+        if ty != TensorElementType::Float32 {
+            return Err(sig(format!("{kind} {name} is {ty:?}, expected float32")));
+        }
+        if shape.len() != dims.len() + 1 {
+            return Err(sig(format!(
+                "{kind} {name} has shape {shape:?}, expected rank {} ([N, ...])",
+                dims.len() + 1
+            )));
+        }
+        if shape[0] >= 0 {
+            return Err(sig(format!(
+                "{kind} {name} has a fixed batch axis ({}); the contract makes N dynamic",
+                shape[0]
+            )));
+        }
+        for (i, want) in dims.iter().enumerate() {
+            let got = shape[i + 1];
+            let ok = match want {
+                Some(w) => got == *w,
+                None => got > 0,
+            };
+            if !ok {
+                return Err(sig(format!(
+                    "{kind} {name} has shape {shape:?}, expected [N{}]",
+                    dims.iter()
+                        .map(|d| d.map_or(", fixed".to_string(), |v| format!(", {v}")))
+                        .collect::<String>()
+                )));
+            }
+        }
+        shapes.push(shape);
+    }
+    Ok(shapes)
+}
+
+fn check_opset(member: &str, bytes: &[u8], manifest_opset: u64) -> Result<(), ModelError> {
+    let header = onnx_proto::read_header(bytes).map_err(|reason| ModelError::InvalidOnnx {
+        member: member.into(),
+        reason,
+    })?;
+    let found = header
+        .default_opset()
+        .ok_or_else(|| ModelError::InvalidOnnx {
+            member: member.into(),
+            reason: "no opset import for the default ONNX domain".into(),
+        })?;
+    if found != manifest_opset {
+        return Err(ModelError::Opset {
+            member: member.into(),
+            found,
+            reason: format!("the manifest says {manifest_opset}"),
+        });
+    }
+    if !SUPPORTED_OPSETS.contains(&found) {
+        return Err(ModelError::Opset {
+            member: member.into(),
+            found,
+            reason: format!(
+                "supported: {}..={}",
+                SUPPORTED_OPSETS.start(),
+                SUPPORTED_OPSETS.end()
+            ),
+        });
+    }
+    Ok(())
+}
+
+fn session(member: &str, bytes: &[u8], options: &LoadOptions) -> Result<Session, ModelError> {
+    let rt = runtime::ensure(options.runtime)?;
+    let builder = Session::builder(&rt.environment)
+        .map_err(ort_err("creating a session builder"))?
+        .with_optimization_level(GraphOptimizationLevel::All)
+        .map_err(ort_err("setting the optimisation level"))?
+        .with_intra_threads(options.intra_threads)
+        .map_err(ort_err("setting intra-op threads"))?;
+    let mut builder = builder;
+    builder
+        .commit_from_memory(bytes)
+        .map_err(|e| ModelError::InvalidOnnx {
+            member: member.into(),
+            reason: e.to_string(),
+        })
+}
+
+impl FlowModel {
+    /// Reads, checks and loads a bundle file.
+    pub fn load(path: &Path, options: &LoadOptions) -> Result<Self, ModelError> {
+        Self::from_bundle(Bundle::read(path)?, options)
+    }
+
+    /// Loads and validates a read bundle: opsets, graph signatures against the contract,
+    /// C and L agreement of encoder, head and manifest, and a smoke inference.
+    pub fn from_bundle(bundle: Bundle, options: &LoadOptions) -> Result<Self, ModelError> {
+        let m = &bundle.manifest;
+        check_opset(ENCODER, &bundle.encoder, m.opset)?;
+        check_opset(HEAD, &bundle.head, m.opset)?;
+        let size = i64::from(m.input.size);
+        let encoder = session(ENCODER, &bundle.encoder, options)?;
+        let head = session(HEAD, &bundle.head, options)?;
+
+        check_outlets(
+            ENCODER,
+            "inputs",
+            encoder.inputs(),
+            &[("flow", &[Some(2), Some(size), Some(size)])],
+        )?;
+        let enc_out = check_outlets(
+            ENCODER,
+            "outputs",
+            encoder.outputs(),
+            &[
+                ("features", &[None, Some(size), Some(size)]),
+                ("prior_mu", &[None]),
+                ("prior_log_sigma", &[None]),
+            ],
+        )?;
+        let head_in = check_outlets(
+            HEAD,
+            "inputs",
+            head.inputs(),
+            &[
+                ("features", &[None, Some(size), Some(size)]),
+                ("z", &[None]),
+            ],
+        )?;
+        check_outlets(
+            HEAD,
+            "outputs",
+            head.outputs(),
+            &[("flow", &[Some(2), Some(size), Some(size)])],
+        )?;
+        let (enc_c, enc_l, enc_ls) = (enc_out[0][1], enc_out[1][1], enc_out[2][1]);
+        let (head_c, head_l) = (head_in[0][1], head_in[1][1]);
+        if enc_l != enc_ls {
+            return Err(ModelError::Signature {
+                member: ENCODER.into(),
+                reason: format!("prior_mu has L = {enc_l} but prior_log_sigma {enc_ls}"),
+            });
+        }
+        let man_c = i64::from(m.architecture.feature_channels);
+        let man_l = i64::from(m.architecture.latent_dim);
+        if enc_c != head_c || enc_c != man_c {
+            return Err(ModelError::DimensionMismatch {
+                what: "feature_channels (C)",
+                encoder: enc_c,
+                head: head_c,
+                manifest: man_c,
+            });
+        }
+        if enc_l != head_l || enc_l != man_l {
+            return Err(ModelError::DimensionMismatch {
+                what: "latent_dim (L)",
+                encoder: enc_l,
+                head: head_l,
+                manifest: man_l,
+            });
+        }
+        let dims = ModelDims {
+            size: m.input.size as usize,
+            channels: enc_c as usize,
+            latent: enc_l as usize,
+        };
+        let model = Self {
+            manifest: bundle.manifest,
+            sha256: bundle.sha256,
+            dims,
+            encoder: Mutex::new(encoder),
+            head: Mutex::new(head),
+        };
+        model.smoke_test()?;
+        Ok(model)
+    }
+
+    /// Runs both graphs on a random batch of two and checks shapes and finiteness.
+    fn smoke_test(&self) -> Result<(), ModelError> {
+        let smoke = |reason: String| ModelError::SmokeTest { reason };
+        let mut rng = NormalRng::new(0x5eed);
+        let n = 2;
+        let flow: Vec<f32> = (0..n * self.dims.flow_len())
+            .map(|_| (rng.normal() * 0.15).clamp(-0.5, 0.5) as f32)
+            .collect();
+        let enc = self
+            .encode(&flow, n)
+            .map_err(|e| smoke(format!("encoder: {e}")))?;
+        for (name, v) in [
+            ("features", &enc.features),
+            ("prior_mu", &enc.prior_mu),
+            ("prior_log_sigma", &enc.prior_log_sigma),
+        ] {
+            if let Some(i) = v.iter().position(|x| !x.is_finite()) {
+                return Err(smoke(format!("encoder output {name}[{i}] is {}", v[i])));
+            }
+        }
+        let z: Vec<f32> = enc
+            .prior_mu
+            .iter()
+            .zip(&enc.prior_log_sigma)
+            .map(|(m, s)| m + s.exp() * rng.normal() as f32)
+            .collect();
+        let pred = self
+            .predict(&enc.features, &z, n)
+            .map_err(|e| smoke(format!("head: {e}")))?;
+        if let Some(i) = pred.iter().position(|x| !x.is_finite()) {
+            return Err(smoke(format!("head output flow[{i}] is {}", pred[i])));
+        }
+        Ok(())
+    }
+
+    /// The manifest.
+    pub fn manifest(&self) -> &Manifest {
+        &self.manifest
+    }
+
+    /// SHA-256 (hex) of the bundle file.
+    pub fn sha256(&self) -> &str {
+        &self.sha256
+    }
+
+    /// The fixed dimensions.
+    pub fn dims(&self) -> ModelDims {
+        self.dims
+    }
+
+    /// Runs the encoder on `batch` flows `[batch, 2, S, S]`.
+    pub fn encode(&self, flow: &[f32], batch: usize) -> Result<EncoderOutput, ModelError> {
+        let d = self.dims;
+        let expected = batch * d.flow_len();
+        if batch == 0 || flow.len() != expected {
+            return Err(ModelError::InputShape {
+                what: "encoder flow",
+                expected,
+                actual: flow.len(),
+            });
+        }
+        let input = TensorRef::from_array_view(([batch, 2, d.size, d.size], flow))
+            .map_err(ort_err("wrapping the encoder input"))?;
+        let mut session = self.encoder.lock().unwrap_or_else(|p| p.into_inner());
+        let outputs = session
+            .run(ort::inputs!["flow" => input])
+            .map_err(ort_err("running the encoder"))?;
+        let take = |name: &'static str, len: usize| -> Result<Vec<f32>, ModelError> {
+            let value = outputs.get(name).ok_or(ModelError::Ort {
+                context: "reading encoder outputs",
+                reason: format!("no output {name}"),
+            })?;
+            let (_, data) = value
+                .try_extract_tensor::<f32>()
+                .map_err(ort_err("reading encoder outputs"))?;
+            if data.len() != len {
+                return Err(ModelError::Ort {
+                    context: "reading encoder outputs",
+                    reason: format!("{name} has {} values, expected {len}", data.len()),
+                });
+            }
+            Ok(data.to_vec())
+        };
+        Ok(EncoderOutput {
+            batch,
+            features: take("features", batch * d.features_len())?,
+            prior_mu: take("prior_mu", batch * d.latent)?,
+            prior_log_sigma: take("prior_log_sigma", batch * d.latent)?,
+        })
+    }
+
+    /// Runs the head on `batch` (features, z) rows; returns `[batch, 2, S, S]`.
+    pub fn predict(
+        &self,
+        features: &[f32],
+        z: &[f32],
+        batch: usize,
+    ) -> Result<Vec<f32>, ModelError> {
+        let mut out = Vec::new();
+        self.predict_into(features, z, batch, &mut out)?;
+        Ok(out)
+    }
+
+    /// As [`FlowModel::predict`], writing into `out` (resized; its allocation is reused).
+    pub fn predict_into(
+        &self,
+        features: &[f32],
+        z: &[f32],
+        batch: usize,
+        out: &mut Vec<f32>,
+    ) -> Result<(), ModelError> {
+        let d = self.dims;
+        if batch == 0 || features.len() != batch * d.features_len() {
+            return Err(ModelError::InputShape {
+                what: "head features",
+                expected: batch * d.features_len(),
+                actual: features.len(),
+            });
+        }
+        if z.len() != batch * d.latent {
+            return Err(ModelError::InputShape {
+                what: "head z",
+                expected: batch * d.latent,
+                actual: z.len(),
+            });
+        }
+        let f = TensorRef::from_array_view(([batch, d.channels, d.size, d.size], features))
+            .map_err(ort_err("wrapping the head features"))?;
+        let zt = TensorRef::from_array_view(([batch, d.latent], z))
+            .map_err(ort_err("wrapping the head z"))?;
+        let mut session = self.head.lock().unwrap_or_else(|p| p.into_inner());
+        let outputs = session
+            .run(ort::inputs!["features" => f, "z" => zt])
+            .map_err(ort_err("running the head"))?;
+        let value = outputs.get("flow").ok_or(ModelError::Ort {
+            context: "reading the head output",
+            reason: "no output flow".into(),
+        })?;
+        let (_, data) = value
+            .try_extract_tensor::<f32>()
+            .map_err(ort_err("reading the head output"))?;
+        if data.len() != batch * d.flow_len() {
+            return Err(ModelError::Ort {
+                context: "reading the head output",
+                reason: format!(
+                    "flow has {} values, expected {}",
+                    data.len(),
+                    batch * d.flow_len()
+                ),
+            });
+        }
+        out.clear();
+        out.extend_from_slice(data);
+        Ok(())
+    }
+}
+
+/// Holds the current model; a new one replaces it atomically, and only once it has
+/// loaded and validated, so a bad bundle never displaces a working model. Readers get an
+/// `Arc` and keep using the model they hold while a swap happens.
+#[derive(Debug, Default)]
+pub struct ModelSlot {
+    current: RwLock<Option<Arc<FlowModel>>>,
+}
+
+impl ModelSlot {
+    /// An empty slot.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// The current model, if any.
+    pub fn get(&self) -> Option<Arc<FlowModel>> {
+        self.current
+            .read()
+            .unwrap_or_else(|p| p.into_inner())
+            .clone()
+    }
+
+    /// Installs an already validated model; returns the previous one.
+    pub fn replace(&self, model: Arc<FlowModel>) -> Option<Arc<FlowModel>> {
+        let mut guard = self.current.write().unwrap_or_else(|p| p.into_inner());
+        guard.replace(model)
+    }
+
+    /// Loads and validates `path`, then installs it. On any error the current model stays.
+    pub fn load(&self, path: &Path, options: &LoadOptions) -> Result<Arc<FlowModel>, ModelError> {
+        let model = Arc::new(FlowModel::load(path, options)?);
+        self.replace(model.clone());
+        Ok(model)
+    }
+}

@@ -1,0 +1,536 @@
+//! The per-robot-session flow predictor: `e_o` of each processed frame.
+//!
+//! For frame `t` the pipeline hands the network input `O_t` (`[2, S, S]`,
+//! `vision::preprocess::network_input`). The encoder runs once per frame, on `O_t`, and
+//! its outputs (features, prior mean and log sigma) are kept for the last `A + B` frames.
+//! For every `n` in `A..=A+B` whose frame `t - n` exists, `M` latent samples
+//! `z = mu + exp(log_sigma) * eps` are drawn and the head runs once on the whole batch of
+//! `(B + 1) * M` rows. `e_o` is the smallest mean squared error between a prediction and
+//! `O_t` over the valid pixels (both channels).
+//!
+//! Random numbers: [`NormalRng`]; for frame `t` the normals are drawn in the order
+//! n ascending, then sample, then latent index. Frames with no valid pixel and warming-up
+//! frames draw none.
+
+use super::network::{FlowModel, ModelDims};
+use super::rng::NormalRng;
+use super::{ModelError, bundle::Manifest};
+use std::collections::VecDeque;
+use std::sync::Arc;
+
+/// Temporal parameters of a predictor.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+pub struct PredictorParams {
+    /// Smallest past offset A (processed frames).
+    pub a: usize,
+    /// Offsets span `A..=A+B`.
+    pub b: usize,
+    /// Prior samples M per offset.
+    pub samples: usize,
+}
+
+impl PredictorParams {
+    /// The bundle's parameters; `samples_override > 0` replaces its `m`.
+    pub fn from_manifest(manifest: &Manifest, samples_override: usize) -> Self {
+        Self {
+            a: manifest.temporal.a as usize,
+            b: manifest.temporal.b as usize,
+            samples: if samples_override > 0 {
+                samples_override
+            } else {
+                manifest.temporal.m as usize
+            },
+        }
+    }
+
+    fn validate(&self) -> Result<(), ModelError> {
+        if self.a == 0 {
+            return Err(ModelError::InvalidParams {
+                field: "a",
+                reason: "the past offset must be at least 1".into(),
+            });
+        }
+        if self.samples == 0 {
+            return Err(ModelError::InvalidParams {
+                field: "samples",
+                reason: "at least one prior sample is needed".into(),
+            });
+        }
+        Ok(())
+    }
+}
+
+/// The score of one frame.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FlowScore {
+    /// Index of the frame in this predictor's stream (0 = the first pushed).
+    pub frame: u64,
+    /// The smallest mean squared prediction error over offsets and samples (valid pixels,
+    /// both channels; normalised units of the network input).
+    pub e_o: f64,
+    /// The offset n of the best prediction.
+    pub n: usize,
+    /// The sample index (0..M) of the best prediction.
+    pub sample: usize,
+    /// `[S, S]` per-pixel squared error of the best prediction, the mean over the two
+    /// channels (so its mean over the valid pixels is `e_o`); 0 at masked pixels.
+    pub error_map: Vec<f32>,
+    /// Valid pixels the error was taken over.
+    pub valid_px: usize,
+}
+
+/// The outcome of one frame.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Prediction {
+    /// Fewer than A past frames exist: no score (not a fake one).
+    WarmingUp {
+        /// Frames seen before this one.
+        frames_seen: u64,
+        /// Frames needed before the first score (A).
+        frames_needed: usize,
+    },
+    /// The mask left no valid pixel: no score. The frame is still cached for later ones.
+    NoValidPixels {
+        /// Index of the frame.
+        frame: u64,
+    },
+    /// A score.
+    Scored(FlowScore),
+}
+
+#[derive(Clone, Debug)]
+struct Cached {
+    features: Vec<f32>,
+    mu: Vec<f32>,
+    log_sigma: Vec<f32>,
+}
+
+/// Per-session predictor state: the encoder cache, the generator and reusable buffers.
+#[derive(Debug)]
+pub struct Predictor {
+    model: Arc<FlowModel>,
+    params: PredictorParams,
+    rng: NormalRng,
+    /// Encoder outputs of the last `A + B` frames, oldest first.
+    ring: VecDeque<Cached>,
+    frames: u64,
+    feature_batch: Vec<f32>,
+    z_batch: Vec<f32>,
+    predictions: Vec<f32>,
+}
+
+/// Checks the input flow and mask; returns the number of valid pixels.
+fn check_input(dims: ModelDims, input: &[f32], mask: Option<&[bool]>) -> Result<usize, ModelError> {
+    if input.len() != dims.flow_len() {
+        return Err(ModelError::InputShape {
+            what: "flow input",
+            expected: dims.flow_len(),
+            actual: input.len(),
+        });
+    }
+    if let Some(index) = input.iter().position(|v| !v.is_finite()) {
+        return Err(ModelError::NonFiniteInput {
+            what: "flow input",
+            index,
+        });
+    }
+    let px = dims.size * dims.size;
+    match mask {
+        Some(m) if m.len() != px => Err(ModelError::InputShape {
+            what: "mask",
+            expected: px,
+            actual: m.len(),
+        }),
+        Some(m) => Ok(m.iter().filter(|v| **v).count()),
+        None => Ok(px),
+    }
+}
+
+/// Draws `z` for `samples` rows from one prior into `z_out` (appended).
+fn draw(rng: &mut NormalRng, mu: &[f32], log_sigma: &[f32], samples: usize, z_out: &mut Vec<f32>) {
+    for _ in 0..samples {
+        for (m, s) in mu.iter().zip(log_sigma) {
+            z_out.push(m + s.exp() * rng.normal() as f32);
+        }
+    }
+}
+
+/// The best row of `predictions` (`rows` flows) against `target`: (row, mse).
+fn best_row(
+    dims: ModelDims,
+    predictions: &[f32],
+    rows: usize,
+    target: &[f32],
+    mask: Option<&[bool]>,
+    valid_px: usize,
+) -> (usize, f64) {
+    let px = dims.size * dims.size;
+    let flow_len = dims.flow_len();
+    let mut best = (0, f64::INFINITY);
+    for r in 0..rows {
+        let p = &predictions[r * flow_len..(r + 1) * flow_len];
+        let mut sum = 0.0f64;
+        for c in 0..2 {
+            let (pc, tc) = (&p[c * px..(c + 1) * px], &target[c * px..(c + 1) * px]);
+            match mask {
+                None => {
+                    for (a, b) in pc.iter().zip(tc) {
+                        let d = f64::from(*a) - f64::from(*b);
+                        sum += d * d;
+                    }
+                }
+                Some(m) => {
+                    for ((a, b), ok) in pc.iter().zip(tc).zip(m) {
+                        if *ok {
+                            let d = f64::from(*a) - f64::from(*b);
+                            sum += d * d;
+                        }
+                    }
+                }
+            }
+        }
+        let mse = sum / (2 * valid_px) as f64;
+        // A NaN prediction never wins; ties keep the first row.
+        if mse < best.1 {
+            best = (r, mse);
+        }
+    }
+    best
+}
+
+fn error_map(
+    dims: ModelDims,
+    prediction: &[f32],
+    target: &[f32],
+    mask: Option<&[bool]>,
+) -> Vec<f32> {
+    let px = dims.size * dims.size;
+    (0..px)
+        .map(|i| {
+            if mask.is_some_and(|m| !m[i]) {
+                return 0.0;
+            }
+            let du = prediction[i] - target[i];
+            let dv = prediction[px + i] - target[px + i];
+            0.5 * (du * du + dv * dv)
+        })
+        .collect()
+}
+
+impl Predictor {
+    /// A predictor for one robot session, its generator seeded with `seed`.
+    pub fn new(
+        model: Arc<FlowModel>,
+        params: PredictorParams,
+        seed: u64,
+    ) -> Result<Self, ModelError> {
+        params.validate()?;
+        Ok(Self {
+            model,
+            params,
+            rng: NormalRng::new(seed),
+            ring: VecDeque::with_capacity(params.a + params.b + 1),
+            frames: 0,
+            feature_batch: Vec::new(),
+            z_batch: Vec::new(),
+            predictions: Vec::new(),
+        })
+    }
+
+    /// The model this predictor uses.
+    pub fn model(&self) -> &Arc<FlowModel> {
+        &self.model
+    }
+
+    /// The temporal parameters.
+    pub fn params(&self) -> PredictorParams {
+        self.params
+    }
+
+    /// Frames pushed so far.
+    pub fn frames_seen(&self) -> u64 {
+        self.frames
+    }
+
+    /// Forgets the past frames (a new episode); the generator continues its stream.
+    pub fn reset(&mut self) {
+        self.ring.clear();
+        self.frames = 0;
+    }
+
+    /// Scores frame `t` (the next one) and caches its encoder output for later frames.
+    ///
+    /// `input` is `O_t`, `[2, S, S]`; `mask` marks valid pixels (`true` = use), `[S, S]`.
+    /// A bad input is an error and leaves the state untouched; so does a failure of either
+    /// network call (the frame is then not counted).
+    pub fn push(&mut self, input: &[f32], mask: Option<&[bool]>) -> Result<Prediction, ModelError> {
+        let prepared = self.prepare(input, mask)?;
+        if prepared.rows > 0 {
+            self.model.predict_into(
+                &self.feature_batch,
+                &self.z_batch,
+                prepared.rows,
+                &mut self.predictions,
+            )?;
+        }
+        let enc = self.model.encode(input, 1)?;
+        let predictions = std::mem::take(&mut self.predictions);
+        let out = self.finish(
+            prepared,
+            input,
+            mask,
+            &predictions,
+            enc.features,
+            enc.prior_mu,
+            enc.prior_log_sigma,
+        );
+        self.predictions = predictions;
+        Ok(out)
+    }
+
+    /// Validates the input and assembles this frame's head rows in `feature_batch` and
+    /// `z_batch`, drawing from a copy of the generator. Changes no state.
+    fn prepare(&mut self, input: &[f32], mask: Option<&[bool]>) -> Result<Prepared, ModelError> {
+        let dims = self.model.dims();
+        let valid_px = check_input(dims, input, mask)?;
+        let t = self.frames;
+        let p = self.params;
+        let mut rng = self.rng.clone();
+        self.feature_batch.clear();
+        self.z_batch.clear();
+        let mut offsets = Vec::new();
+        if (t as usize) >= p.a && valid_px > 0 {
+            offsets = (p.a..=p.a + p.b)
+                .filter(|&n| n <= self.ring.len())
+                .collect();
+            for &n in &offsets {
+                let c = &self.ring[self.ring.len() - n];
+                for _ in 0..p.samples {
+                    self.feature_batch.extend_from_slice(&c.features);
+                }
+                draw(&mut rng, &c.mu, &c.log_sigma, p.samples, &mut self.z_batch);
+            }
+        }
+        Ok(Prepared {
+            rows: offsets.len() * p.samples,
+            offsets,
+            rng_after: rng,
+            valid_px,
+        })
+    }
+
+    /// Scores the head's `predictions` for the prepared frame and commits the frame's
+    /// encoder output and the generator state. Cannot fail.
+    #[allow(clippy::too_many_arguments)]
+    fn finish(
+        &mut self,
+        prepared: Prepared,
+        input: &[f32],
+        mask: Option<&[bool]>,
+        predictions: &[f32],
+        features: Vec<f32>,
+        mu: Vec<f32>,
+        log_sigma: Vec<f32>,
+    ) -> Prediction {
+        let dims = self.model.dims();
+        let t = self.frames;
+        let p = self.params;
+        let outcome = if (t as usize) < p.a {
+            Prediction::WarmingUp {
+                frames_seen: t,
+                frames_needed: p.a,
+            }
+        } else if prepared.valid_px == 0 || prepared.rows == 0 {
+            Prediction::NoValidPixels { frame: t }
+        } else {
+            let (row, e_o) = best_row(
+                dims,
+                predictions,
+                prepared.rows,
+                input,
+                mask,
+                prepared.valid_px,
+            );
+            let flow_len = dims.flow_len();
+            let best = &predictions[row * flow_len..(row + 1) * flow_len];
+            Prediction::Scored(FlowScore {
+                frame: t,
+                e_o,
+                n: prepared.offsets[row / p.samples],
+                sample: row % p.samples,
+                error_map: error_map(dims, best, input, mask),
+                valid_px: prepared.valid_px,
+            })
+        };
+        self.ring.push_back(Cached {
+            features,
+            mu,
+            log_sigma,
+        });
+        while self.ring.len() > p.a + p.b {
+            self.ring.pop_front();
+        }
+        self.rng = prepared.rng_after;
+        self.frames += 1;
+        outcome
+    }
+}
+
+/// One session's frame in a [`push_batch`] call.
+#[derive(Debug)]
+pub struct BatchItem<'a> {
+    /// The session's predictor.
+    pub predictor: &'a mut Predictor,
+    /// `O_t`, `[2, S, S]`.
+    pub input: &'a [f32],
+    /// Valid pixels, `[S, S]`, or `None` for all.
+    pub mask: Option<&'a [bool]>,
+}
+
+#[derive(Debug)]
+struct Prepared {
+    offsets: Vec<usize>,
+    rows: usize,
+    rng_after: NormalRng,
+    valid_px: usize,
+}
+
+/// [`Predictor::push`] for several sessions at once: one encoder call on all new frames
+/// and one head call on all sessions' rows, for predictors that share one model. Results
+/// are equal to pushing each item alone. An item with bad input gets its error and is left
+/// out; a failed network call fails every remaining item (states unchanged).
+pub fn push_batch(items: &mut [BatchItem<'_>]) -> Vec<Result<Prediction, ModelError>> {
+    let mut results: Vec<Option<Result<Prediction, ModelError>>> =
+        (0..items.len()).map(|_| None).collect();
+    let Some(model) = items.first().map(|i| i.predictor.model.clone()) else {
+        return Vec::new();
+    };
+    let dims = model.dims();
+    let mut prepared = Vec::new();
+    let (mut features, mut z, mut inputs) = (Vec::new(), Vec::new(), Vec::new());
+    let mut rows = 0;
+    for (k, item) in items.iter_mut().enumerate() {
+        if !Arc::ptr_eq(&item.predictor.model, &model) {
+            results[k] = Some(Err(ModelError::InvalidParams {
+                field: "predictor",
+                reason: "every predictor of a batch must use the same model".into(),
+            }));
+            continue;
+        }
+        match item.predictor.prepare(item.input, item.mask) {
+            Ok(p) => {
+                features.extend_from_slice(&item.predictor.feature_batch);
+                z.extend_from_slice(&item.predictor.z_batch);
+                inputs.extend_from_slice(item.input);
+                rows += p.rows;
+                prepared.push((k, p));
+            }
+            Err(e) => results[k] = Some(Err(e)),
+        }
+    }
+    let run = || -> Result<(Vec<f32>, super::network::EncoderOutput), ModelError> {
+        let mut predictions = Vec::new();
+        if rows > 0 {
+            model.predict_into(&features, &z, rows, &mut predictions)?;
+        }
+        let enc = model.encode(&inputs, prepared.len())?;
+        Ok((predictions, enc))
+    };
+    if prepared.is_empty() {
+        return results
+            .into_iter()
+            .map(|r| {
+                r.unwrap_or(Err(ModelError::InvalidParams {
+                    field: "batch",
+                    reason: "no result".into(),
+                }))
+            })
+            .collect();
+    }
+    match run() {
+        Ok((predictions, enc)) => {
+            let (fl, fe, l) = (dims.flow_len(), dims.features_len(), dims.latent);
+            let mut row0 = 0;
+            for (j, (k, p)) in prepared.into_iter().enumerate() {
+                let item = &mut items[k];
+                let rows_k = p.rows;
+                let pred = &predictions[row0 * fl..(row0 + rows_k) * fl];
+                row0 += rows_k;
+                let out = item.predictor.finish(
+                    p,
+                    item.input,
+                    item.mask,
+                    pred,
+                    enc.features[j * fe..(j + 1) * fe].to_vec(),
+                    enc.prior_mu[j * l..(j + 1) * l].to_vec(),
+                    enc.prior_log_sigma[j * l..(j + 1) * l].to_vec(),
+                );
+                results[k] = Some(Ok(out));
+            }
+        }
+        Err(e) => {
+            let msg = e.to_string();
+            for (k, _) in prepared {
+                results[k] = Some(Err(ModelError::Ort {
+                    context: "batched inference",
+                    reason: msg.clone(),
+                }));
+            }
+        }
+    }
+    results
+        .into_iter()
+        .map(|r| {
+            r.unwrap_or(Err(ModelError::InvalidParams {
+                field: "batch",
+                reason: "no result".into(),
+            }))
+        })
+        .collect()
+}
+
+/// The straightforward computation, for reference and benchmarks: for each offset the
+/// encoder runs again on the past frame and the head on that offset's `M` samples.
+///
+/// `past` holds `(n, O_{t-n})` in ascending `n`; draws from `rng` in the same order as
+/// [`Predictor::push`], so with the same stream both give the same `e_o`. Returns `None`
+/// when `past` is empty or no pixel is valid.
+pub fn naive_score(
+    model: &FlowModel,
+    past: &[(usize, &[f32])],
+    current: &[f32],
+    mask: Option<&[bool]>,
+    samples: usize,
+    rng: &mut NormalRng,
+) -> Result<Option<FlowScore>, ModelError> {
+    let dims = model.dims();
+    let valid_px = check_input(dims, current, mask)?;
+    if past.is_empty() || valid_px == 0 || samples == 0 {
+        return Ok(None);
+    }
+    let mut best: Option<(f64, usize, usize, Vec<f32>)> = None;
+    for &(n, flow) in past {
+        check_input(dims, flow, None)?;
+        let enc = model.encode(flow, 1)?;
+        let mut features = Vec::with_capacity(samples * enc.features.len());
+        for _ in 0..samples {
+            features.extend_from_slice(&enc.features);
+        }
+        let mut z = Vec::with_capacity(samples * dims.latent);
+        draw(rng, &enc.prior_mu, &enc.prior_log_sigma, samples, &mut z);
+        let pred = model.predict(&features, &z, samples)?;
+        let (row, mse) = best_row(dims, &pred, samples, current, mask, valid_px);
+        if best.as_ref().is_none_or(|b| mse < b.0) {
+            let fl = dims.flow_len();
+            best = Some((mse, n, row, pred[row * fl..(row + 1) * fl].to_vec()));
+        }
+    }
+    Ok(best.map(|(e_o, n, sample, pred)| FlowScore {
+        frame: 0,
+        e_o,
+        n,
+        sample,
+        error_map: error_map(dims, &pred, current, mask),
+        valid_px,
+    }))
+}
