@@ -104,10 +104,8 @@ fn paper_variant_and_set_up_mistakes() {
     );
     let v: Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(v["expected_flow"], "tvl1");
-    assert!(
-        v["expected_flow_median_px"][0].as_f64().unwrap() < -1.0,
-        "{v}"
-    );
+    let u = v["expected_flow_median_px"][0].as_f64().unwrap();
+    assert!((-4.5..-0.5).contains(&u), "{v}");
 
     // Camera looking away from the robot: a warning that says what to check.
     let away = FRONT_CAMERA.replace("3.141592653589793", "0.0");
