@@ -258,8 +258,14 @@ pub fn write_npy_f32(path: &Path, shape: &[usize], data: &[f32]) -> Result<(), D
 /// format 1.0 or 2.0). Returns the shape and the values.
 pub fn read_npy_f32(path: &Path) -> Result<(Vec<usize>, Vec<f32>), DatasetError> {
     let bytes = std::fs::read(path).map_err(io_err(path))?;
+    parse_npy_f32(&bytes, &path.display().to_string())
+}
+
+/// Parses the bytes of a `.npy` (as [`read_npy_f32`]; `name` labels errors), e.g. a member
+/// of an `.npz`.
+pub fn parse_npy_f32(bytes: &[u8], name: &str) -> Result<(Vec<usize>, Vec<f32>), DatasetError> {
     let bad = |reason: &str| DatasetError::BadNpy {
-        path: path.display().to_string(),
+        path: name.to_string(),
         reason: reason.into(),
     };
     if bytes.len() < 10 || &bytes[..6] != b"\x93NUMPY" {

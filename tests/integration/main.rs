@@ -10,6 +10,7 @@ mod export_dataset;
 mod flow_accuracy;
 mod flow_golden;
 mod model;
+mod model_trained;
 mod registration_accuracy;
 mod render_cli;
 mod robot_fk;
