@@ -18,8 +18,8 @@ use super::error::RobotError;
 use super::geometry::{LinkMesh, TriMesh};
 use super::joints::JointMapper;
 use super::kinematics::{
-    CameraMount, Joint, JointKind, JointLimits, JointPositions, Kinematics, LimitViolation,
-    Mimic, isometry_from_xyz_rpy,
+    CameraMount, Joint, JointKind, JointLimits, JointPositions, Kinematics, LimitViolation, Mimic,
+    isometry_from_xyz_rpy,
 };
 use super::mesh;
 use nalgebra::{Isometry3, Unit, Vector3};
@@ -199,8 +199,8 @@ impl Robot {
             .cloned()
             .collect();
         let urdf = pick_urdf(&root, &urdfs, label)?;
-        let xml = String::from_utf8_lossy(files.get(&urdf).map_or(&[][..], Vec::as_slice))
-            .into_owned();
+        let xml =
+            String::from_utf8_lossy(files.get(&urdf).map_or(&[][..], Vec::as_slice)).into_owned();
         let urdf_dir = urdf.parent().map(Path::to_path_buf).unwrap_or_default();
         let store = Store::Memory {
             label: label.to_string(),
@@ -284,7 +284,10 @@ impl Robot {
 
     /// Total visual triangles.
     pub fn triangle_count(&self) -> usize {
-        self.link_meshes.iter().map(|m| m.mesh.triangle_count()).sum()
+        self.link_meshes
+            .iter()
+            .map(|m| m.mesh.triangle_count())
+            .sum()
     }
 
     /// What was left out while loading (missing or unreadable meshes, limits), by name.
@@ -481,7 +484,9 @@ fn unpack_archive(
             if f.is_dir() || f.is_symlink() {
                 continue;
             }
-            let name = f.name().map_or_else(|_| format!("entry {i}"), |n| n.to_string());
+            let name = f
+                .name()
+                .map_or_else(|_| format!("entry {i}"), |n| n.to_string());
             let path = f.enclosed_name();
             add(&name, path, &mut f)?;
         }
@@ -493,7 +498,10 @@ fn unpack_archive(
             if !e.header().entry_type().is_file() {
                 continue; // folders, links, pax headers
             }
-            let path = e.path().map_err(|e| archive_err(e.to_string()))?.into_owned();
+            let path = e
+                .path()
+                .map_err(|e| archive_err(e.to_string()))?
+                .into_owned();
             let name = path.display().to_string();
             add(&name, Some(path), &mut e)?;
         }
@@ -587,7 +595,11 @@ impl Store {
                     };
                     let mut dir = root.to_path_buf();
                     let comps: Vec<_> = rel.components().collect();
-                    for c in comps.iter().take(comps.len().saturating_sub(1)).take(max_depth) {
+                    for c in comps
+                        .iter()
+                        .take(comps.len().saturating_sub(1))
+                        .take(max_depth)
+                    {
                         dir.push(c.as_os_str());
                         if c.as_os_str() == name {
                             set.insert(dir.clone());
@@ -615,7 +627,9 @@ impl Resolver<'_> {
     fn resolve(&self, uri: &str) -> Result<PathBuf, String> {
         let in_memory = matches!(self.store, Store::Memory { .. });
         if let Some(rest) = uri.strip_prefix("package://") {
-            let (name, rel) = rest.split_once('/').ok_or("no path after the package name")?;
+            let (name, rel) = rest
+                .split_once('/')
+                .ok_or("no path after the package name")?;
             let rel = normalize_relative(Path::new(rel)).ok_or("path leaves the package")?;
             let mut candidates = Vec::new();
             for dir in self.urdf_dir.ancestors() {
@@ -632,7 +646,9 @@ impl Resolver<'_> {
             return candidates
                 .into_iter()
                 .find(|c| self.store.is_file(c))
-                .ok_or_else(|| format!("no folder named {name:?} in or above the package holds it"));
+                .ok_or_else(|| {
+                    format!("no folder named {name:?} in or above the package holds it")
+                });
         }
         let plain = uri.strip_prefix("file://").unwrap_or(uri);
         let path = Path::new(plain);
@@ -977,7 +993,9 @@ mod tests {
         assert_eq!(e, RobotError::DuplicateLink { name: "a".into() });
         let two = link("a") + &link("b") + &link("c");
         let e = load(&urdf(
-            &(two.clone() + &joint("j", "fixed", "a", "b", "") + &joint("j", "fixed", "a", "c", "")),
+            &(two.clone()
+                + &joint("j", "fixed", "a", "b", "")
+                + &joint("j", "fixed", "a", "c", "")),
         ))
         .unwrap_err();
         assert_eq!(e, RobotError::DuplicateJoint { name: "j".into() });
@@ -1015,7 +1033,10 @@ mod tests {
                 + &joint("j2", "fixed", "c", "b", "")),
         ))
         .unwrap_err();
-        assert!(matches!(e, RobotError::TwoParents { .. } | RobotError::KinematicCycle { .. }));
+        assert!(matches!(
+            e,
+            RobotError::TwoParents { .. } | RobotError::KinematicCycle { .. }
+        ));
         let e = load(&urdf(&(two + &joint("j1", "fixed", "a", "b", "")))).unwrap_err();
         assert!(matches!(e, RobotError::MultipleRoots { .. }), "{e}");
     }
@@ -1052,7 +1073,10 @@ mod tests {
         let poses = r.forward(&q).unwrap();
         assert!((poses[3].rotation.scaled_axis().z - (-0.1)).abs() < 1e-12);
         assert_eq!(r.joints()[0].limits.unwrap().upper, 1.0);
-        assert!(r.joints()[2].limits.is_none(), "continuous joints have no limits");
+        assert!(
+            r.joints()[2].limits.is_none(),
+            "continuous joints have no limits"
+        );
     }
 
     fn write(dir: &Path, rel: &str, text: &str) {
@@ -1097,8 +1121,7 @@ mod tests {
                 + &joint("j6", "fixed", "a", "g", "")),
         );
         write(ws, "src/my_robot/urdf/r.urdf", &xml);
-        let r = Robot::from_package_dir(&ws.join("src/my_robot"), &RobotConfig::default())
-            .unwrap();
+        let r = Robot::from_package_dir(&ws.join("src/my_robot"), &RobotConfig::default()).unwrap();
         let resolved: Vec<Option<String>> = (0..7)
             .map(|l| match &r.visuals(l)[0].geometry {
                 VisualGeometry::Mesh { resolved, .. } => resolved.clone(),
@@ -1116,7 +1139,11 @@ mod tests {
         assert_eq!(resolved[6], None);
         // The missing mesh is a warning naming it; the rest loaded, scaled and placed.
         assert_eq!(r.warnings().len(), 1);
-        assert!(r.warnings()[0].contains("package://nowhere/g.stl"), "{:?}", r.warnings());
+        assert!(
+            r.warnings()[0].contains("package://nowhere/g.stl"),
+            "{:?}",
+            r.warnings()
+        );
         assert_eq!(r.link_meshes().len(), 6);
         let m = &r.link_meshes()[0].mesh;
         assert!(m.positions.contains(&nalgebra::Point3::new(2.0, 0.0, 1.0)));
@@ -1150,9 +1177,14 @@ mod tests {
             max_robot_triangles: 10,
             ..RobotConfig::default()
         };
-        let xml = urdf("<link name=\"a\"><visual><geometry><box size=\"1 1 1\"/></geometry></visual></link>");
+        let xml = urdf(
+            "<link name=\"a\"><visual><geometry><box size=\"1 1 1\"/></geometry></visual></link>",
+        );
         let e = Robot::from_urdf_str(&xml, None, &cfg).unwrap_err();
-        assert!(matches!(e, RobotError::TooManyTriangles { triangles: 12, .. }), "{e}");
+        assert!(
+            matches!(e, RobotError::TooManyTriangles { triangles: 12, .. }),
+            "{e}"
+        );
     }
 
     #[test]
@@ -1169,7 +1201,10 @@ mod tests {
         // The cylinder's axis (z) was turned onto x: it spans x in 1 +- 0.2.
         let max_x = m.positions.iter().map(|p| p.x).fold(f32::MIN, f32::max);
         let min_x = m.positions.iter().map(|p| p.x).fold(f32::MAX, f32::min);
-        assert!((max_x - 1.2).abs() < 1e-5 && (min_x + 0.05).abs() < 1e-5, "{min_x} {max_x}");
+        assert!(
+            (max_x - 1.2).abs() < 1e-5 && (min_x + 0.05).abs() < 1e-5,
+            "{min_x} {max_x}"
+        );
     }
 
     #[test]
@@ -1189,8 +1224,8 @@ mod tests {
         );
         assert_eq!(normalize_relative(Path::new("../x")), None);
         assert_eq!(normalize_relative(Path::new("/etc/passwd")), None);
-        let e = Robot::from_archive_bytes(b"plain text", "x.zip", &RobotConfig::default())
-            .unwrap_err();
+        let e =
+            Robot::from_archive_bytes(b"plain text", "x.zip", &RobotConfig::default()).unwrap_err();
         assert!(matches!(e, RobotError::Archive { .. }), "{e}");
     }
 }

@@ -66,7 +66,12 @@ impl JointMapper {
                 got: positions.len(),
             });
         }
-        self.map_pairs(names.iter().map(AsRef::as_ref).zip(positions.iter().copied()))
+        self.map_pairs(
+            names
+                .iter()
+                .map(AsRef::as_ref)
+                .zip(positions.iter().copied()),
+        )
     }
 
     /// Maps `(name, position)` pairs.
@@ -167,7 +172,10 @@ mod tests {
         let k = robot();
         let mut m = JointMapper::new(&k);
         let r = m
-            .map(&["zzz", "b", "m", "fixed", "other"], &[1.0, 0.25, 7.0, 3.0, 2.0])
+            .map(
+                &["zzz", "b", "m", "fixed", "other"],
+                &[1.0, 0.25, 7.0, 3.0, 2.0],
+            )
             .unwrap();
         assert_eq!(r.positions.as_slice(), &[0.0, 0.0, 0.25, 0.0]);
         assert_eq!(r.unknown, 2);

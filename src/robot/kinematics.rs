@@ -197,10 +197,12 @@ impl Kinematics {
         }
         for joint in &joints {
             if let Some(m) = joint.mimic {
-                let target = joints.get(m.joint).ok_or_else(|| RobotError::InvalidJoint {
-                    joint: joint.name.clone(),
-                    what: "mimic",
-                })?;
+                let target = joints
+                    .get(m.joint)
+                    .ok_or_else(|| RobotError::InvalidJoint {
+                        joint: joint.name.clone(),
+                        what: "mimic",
+                    })?;
                 if target.mimic.is_some() {
                     return Err(RobotError::InvalidJoint {
                         joint: joint.name.clone(),
@@ -334,9 +336,10 @@ impl Kinematics {
                 JointKind::Prismatic => {
                     base_from_joint * Translation3::from(s.axis.into_inner() * value)
                 }
-                JointKind::Fixed | JointKind::Floating | JointKind::Planar | JointKind::Spherical => {
-                    base_from_joint
-                }
+                JointKind::Fixed
+                | JointKind::Floating
+                | JointKind::Planar
+                | JointKind::Spherical => base_from_joint,
             };
         }
         Ok(())
@@ -438,7 +441,9 @@ mod tests {
         let ry = nalgebra::Rotation3::from_axis_angle(&Vector3::y_axis(), p);
         let rz = nalgebra::Rotation3::from_axis_angle(&Vector3::z_axis(), y);
         let expect = rz * ry * rx;
-        let got = isometry_from_xyz_rpy([0.0; 3], [r, p, y]).rotation.to_rotation_matrix();
+        let got = isometry_from_xyz_rpy([0.0; 3], [r, p, y])
+            .rotation
+            .to_rotation_matrix();
         assert!((expect.matrix() - got.matrix()).norm() < 1e-12);
     }
 
@@ -447,8 +452,8 @@ mod tests {
         // l0 -j0(rev z, +1 z)-> l1 -j1(fixed, +1 z then x offset)-> l2
         let mut j1 = joint("j1", JointKind::Fixed, 1, 2);
         j1.parent_from_joint = Isometry3::translation(1.0, 0.0, 0.0);
-        let k = Kinematics::new(names(3), vec![joint("j0", JointKind::Revolute, 0, 1), j1])
-            .unwrap();
+        let k =
+            Kinematics::new(names(3), vec![joint("j0", JointKind::Revolute, 0, 1), j1]).unwrap();
         let q = k.positions(vec![FRAC_PI_2, 0.0]).unwrap();
         let poses = k.forward(&q).unwrap();
         assert_eq!(poses[0], Isometry3::identity());
@@ -477,7 +482,10 @@ mod tests {
             .unwrap();
         assert!(a[1].rotation.angle_to(&b[1].rotation) < 1e-9);
         assert!((a[1].rotation.angle() - 0.4).abs() < 1e-12);
-        assert!(k.out_of_limits(&k.positions(vec![100.0]).unwrap()).is_empty());
+        assert!(
+            k.out_of_limits(&k.positions(vec![100.0]).unwrap())
+                .is_empty()
+        );
     }
 
     #[test]
@@ -502,7 +510,10 @@ mod tests {
         assert_eq!(v.len(), 1);
         assert_eq!(v[0].joint, "m");
         assert!((v[0].position + 0.7).abs() < 1e-12);
-        assert!(k.out_of_limits(&k.positions(vec![0.1, 0.0]).unwrap()).is_empty());
+        assert!(
+            k.out_of_limits(&k.positions(vec![0.1, 0.0]).unwrap())
+                .is_empty()
+        );
     }
 
     #[test]
@@ -515,7 +526,10 @@ mod tests {
             ],
         )
         .unwrap_err();
-        assert!(matches!(e, RobotError::TwoParents { ref link, .. } if link == "l1"), "{e}");
+        assert!(
+            matches!(e, RobotError::TwoParents { ref link, .. } if link == "l1"),
+            "{e}"
+        );
         let e = Kinematics::new(names(3), vec![joint("a", JointKind::Fixed, 0, 1)]).unwrap_err();
         assert_eq!(
             e,
@@ -572,13 +586,19 @@ mod tests {
         let cam = k.camera("camera_link", CameraConvention::Body).unwrap();
         let camera_from_base = cam.camera_from_base(&poses).unwrap();
         let ahead = camera_from_base * Point3::new(0.0, 3.0, 1.0);
-        assert!((ahead - Point3::new(0.0, 0.0, 3.0)).norm() < 1e-12, "{ahead}");
+        assert!(
+            (ahead - Point3::new(0.0, 0.0, 3.0)).norm() < 1e-12,
+            "{ahead}"
+        );
         // Base +z (up) is image up: optical -y. Looking along +y with z up, base +x is the
         // camera's right (+x optical).
         let up = camera_from_base * Point3::new(0.0, 3.0, 2.0);
         assert!((up - Point3::new(0.0, -1.0, 3.0)).norm() < 1e-12, "{up}");
         let right = camera_from_base * Point3::new(1.0, 3.0, 1.0);
-        assert!((right - Point3::new(1.0, 0.0, 3.0)).norm() < 1e-12, "{right}");
+        assert!(
+            (right - Point3::new(1.0, 0.0, 3.0)).norm() < 1e-12,
+            "{right}"
+        );
         // In the optical convention camera_from_base is link_from_base: a point 2 m along
         // base +y from the link is on the link's x axis.
         let cam = k.camera("camera_link", CameraConvention::Optical).unwrap();

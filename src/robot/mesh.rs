@@ -264,7 +264,11 @@ mod tests {
         let m = sphere_mesh(0.3, 12);
         assert_eq!(m.positions.len(), 2 + 11 * 24);
         assert_eq!(m.triangle_count(), 2 * 24 * 11);
-        assert!(m.positions.iter().all(|p| (p.coords.norm() - 0.3).abs() < 1e-6));
+        assert!(
+            m.positions
+                .iter()
+                .all(|p| (p.coords.norm() - 0.3).abs() < 1e-6)
+        );
         let v = volume(&m);
         let ball = 4.0 / 3.0 * std::f64::consts::PI * 0.027;
         assert!(v > 0.95 * ball && v < ball, "{v} vs {ball}");
@@ -318,16 +322,27 @@ endsolid s
             ..RobotConfig::default()
         };
         let e = mesh_from_bytes(&[0u8; 11], Path::new("x.stl"), [1.0; 3], &cfg).unwrap_err();
-        assert!(matches!(e, RobotError::MeshFileTooLarge { bytes: 11, .. }), "{e}");
+        assert!(
+            matches!(e, RobotError::MeshFileTooLarge { bytes: 11, .. }),
+            "{e}"
+        );
         let obj = b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nf 1 3 2\n";
         let cfg = RobotConfig {
             max_mesh_triangles: 1,
             ..RobotConfig::default()
         };
         let e = mesh_from_bytes(obj, Path::new("t.obj"), [1.0; 3], &cfg).unwrap_err();
-        assert!(matches!(e, RobotError::TooManyTriangles { triangles: 2, .. }), "{e}");
-        let e = mesh_from_bytes(b"hello", Path::new("t.xyz"), [1.0; 3], &RobotConfig::default())
-            .unwrap_err();
+        assert!(
+            matches!(e, RobotError::TooManyTriangles { triangles: 2, .. }),
+            "{e}"
+        );
+        let e = mesh_from_bytes(
+            b"hello",
+            Path::new("t.xyz"),
+            [1.0; 3],
+            &RobotConfig::default(),
+        )
+        .unwrap_err();
         assert!(matches!(e, RobotError::MeshUnreadable { .. }), "{e}");
     }
 }

@@ -45,7 +45,11 @@ fn compare(robot: &Robot, name: &str) -> (f64, f64) {
     for c in configs {
         let joints = c["joints"].as_object().unwrap();
         let mapped = mapper
-            .map_pairs(joints.iter().map(|(k, v)| (k.as_str(), v.as_f64().unwrap())))
+            .map_pairs(
+                joints
+                    .iter()
+                    .map(|(k, v)| (k.as_str(), v.as_f64().unwrap())),
+            )
             .unwrap();
         assert_eq!(mapped.unknown, 0);
         assert!(mapped.missing.is_empty(), "{:?}", mapped.missing);
@@ -70,7 +74,10 @@ fn compare(robot: &Robot, name: &str) -> (f64, f64) {
         flagged += usize::from(!want.is_empty());
     }
     assert!(flagged >= 4, "{flagged} configurations outside limits");
-    eprintln!("{name}: worst {worst_t:e} m, {worst_r:e} rad over {} configurations", configs.len());
+    eprintln!(
+        "{name}: worst {worst_t:e} m, {worst_r:e} rad over {} configurations",
+        configs.len()
+    );
     (worst_t, worst_r)
 }
 
@@ -84,7 +91,10 @@ fn panda_matches_pybullet() {
     assert_eq!(robot.name(), "panda");
     assert_eq!(robot.links()[robot.root()], "panda_link0");
     assert!(robot.warnings().is_empty(), "{:?}", robot.warnings());
-    let finger2 = &robot.joints()[robot.kinematics().joint_index("panda_finger_joint2").unwrap()];
+    let finger2 = &robot.joints()[robot
+        .kinematics()
+        .joint_index("panda_finger_joint2")
+        .unwrap()];
     assert_eq!(finger2.kind, JointKind::Prismatic);
     assert!(finger2.mimic.is_some());
     let (t, r) = compare(&robot, "franka_panda");
@@ -93,7 +103,11 @@ fn panda_matches_pybullet() {
     // vertices than the 3 per triangle the OBJ loader returns).
     assert_eq!(robot.link_meshes().len(), 11);
     let tris = robot.triangle_count();
-    let verts: usize = robot.link_meshes().iter().map(|m| m.mesh.positions.len()).sum();
+    let verts: usize = robot
+        .link_meshes()
+        .iter()
+        .map(|m| m.mesh.positions.len())
+        .sum();
     assert!(tris > 100_000, "{tris}");
     assert!(verts < tris, "{verts} vertices for {tris} triangles");
     assert!(robot.link_meshes().iter().all(|m| m.mesh.is_valid()));
@@ -110,10 +124,17 @@ fn kuka_matches_pybullet() {
 
 fn poses(robot: &Robot) -> Vec<Isometry3<f64>> {
     let reference = reference("franka_panda");
-    let joints = reference["configs"][3]["joints"].as_object().unwrap().clone();
+    let joints = reference["configs"][3]["joints"]
+        .as_object()
+        .unwrap()
+        .clone();
     let mut mapper = robot.joint_mapper();
     let q = mapper
-        .map_pairs(joints.iter().map(|(k, v)| (k.as_str(), v.as_f64().unwrap())))
+        .map_pairs(
+            joints
+                .iter()
+                .map(|(k, v)| (k.as_str(), v.as_f64().unwrap())),
+        )
         .unwrap()
         .positions;
     robot.forward(&q).unwrap()
@@ -167,7 +188,10 @@ fn panda_from_folder_tar_gz_and_zip_gives_the_same_poses() {
     let dir = tempfile::tempdir().unwrap();
     let (tgz, zip) = archives(dir.path());
     let cfg = RobotConfig::default();
-    same_robot(&file, &Robot::load(&fixtures().join("franka_panda"), &cfg).unwrap());
+    same_robot(
+        &file,
+        &Robot::load(&fixtures().join("franka_panda"), &cfg).unwrap(),
+    );
     let from_tgz = Robot::load(&tgz, &cfg).unwrap();
     same_robot(&file, &from_tgz);
     same_robot(&file, &Robot::load(&zip, &cfg).unwrap());
@@ -184,7 +208,10 @@ fn panda_from_folder_tar_gz_and_zip_gives_the_same_poses() {
         ..RobotConfig::default()
     };
     let e = Robot::load(&zip, &small).unwrap_err();
-    assert!(matches!(e, RobotError::ArchiveTooLarge { what: "bytes", .. }), "{e}");
+    assert!(
+        matches!(e, RobotError::ArchiveTooLarge { what: "bytes", .. }),
+        "{e}"
+    );
 }
 
 #[test]
@@ -200,7 +227,11 @@ fn urdf_string_with_relative_meshes_resolves_against_the_given_root() {
     let bare = Robot::from_urdf_str(&xml, None, &cfg).unwrap();
     assert_eq!(bare.triangle_count(), 0);
     assert_eq!(bare.warnings().len(), 8);
-    assert!(bare.warnings()[0].contains("meshes/link_0.obj"), "{:?}", bare.warnings());
+    assert!(
+        bare.warnings()[0].contains("meshes/link_0.obj"),
+        "{:?}",
+        bare.warnings()
+    );
 }
 
 #[test]
@@ -242,23 +273,32 @@ fn cli_robot_inspect_prints_one_json_object_with_poses() {
         .env_remove("VAMOS_CONFIG")
         .output()
         .unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let v: Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(v["robot"], "lbr_iiwa");
     assert_eq!(v["root"], "lbr_iiwa_link_0");
     assert_eq!(v["joints"].as_array().unwrap().len(), 7);
     assert_eq!(v["joints"][0]["type"], "revolute");
     assert_eq!(v["links"].as_array().unwrap().len(), 8);
-    assert!(v["links"][1]["visuals"][0]["resolved"]
-        .as_str()
-        .unwrap()
-        .ends_with("meshes/link_1.obj"));
+    assert!(
+        v["links"][1]["visuals"][0]["resolved"]
+            .as_str()
+            .unwrap()
+            .ends_with("meshes/link_1.obj")
+    );
     assert_eq!(v["warnings"].as_array().unwrap().len(), 0);
     assert_eq!(v["unknown_joints"], 1);
     for (link, want) in config["poses"].as_object().unwrap() {
         let got = pose_of(&v["poses"][link]);
         let want = pose_of(want);
-        assert!((got.translation.vector - want.translation.vector).norm() < TOL, "{link}");
+        assert!(
+            (got.translation.vector - want.translation.vector).norm() < TOL,
+            "{link}"
+        );
         assert!(got.rotation.angle_to(&want.rotation) < TOL, "{link}");
     }
     let names: Vec<&str> = v["out_of_limits"]
@@ -279,6 +319,9 @@ fn cli_robot_inspect_prints_one_json_object_with_poses() {
         .output()
         .unwrap();
     let err = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success() && err.contains("malformed URDF"), "{err}");
+    assert!(
+        !out.status.success() && err.contains("malformed URDF"),
+        "{err}"
+    );
     assert!(!err.contains("panicked"), "{err}");
 }
