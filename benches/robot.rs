@@ -1,6 +1,9 @@
 //! Robot description benches: forward kinematics per joint state (panda, kuka), joint-name
 //! mapping, and loading the panda package (URDF + 18 OBJ meshes, ~9 MB).
 
+// criterion_group! generates undocumented items.
+#![allow(missing_docs)]
+
 use criterion::{Criterion, criterion_group, criterion_main};
 use std::hint::black_box;
 use std::path::{Path, PathBuf};

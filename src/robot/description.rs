@@ -182,14 +182,15 @@ impl Robot {
         cfg: &RobotConfig,
     ) -> Result<Self, RobotError> {
         let files = unpack_archive(bytes, label, cfg)?;
-        let mut tops = files
+        // The first component of every entry that sits in a folder.
+        let tops: HashSet<PathBuf> = files
             .keys()
-            .filter_map(|p| (p.components().count() > 1).then(|| p.components().next()))
-            .flatten()
+            .filter(|p| p.components().count() > 1)
+            .filter_map(|p| p.components().next())
             .map(|c| PathBuf::from(c.as_os_str()))
-            .collect::<HashSet<_>>();
+            .collect();
         let single_top = files.keys().all(|p| p.components().count() > 1) && tops.len() == 1;
-        let root = match (single_top, tops.drain().next()) {
+        let root = match (single_top, tops.into_iter().next()) {
             (true, Some(top)) => top,
             _ => PathBuf::new(),
         };
