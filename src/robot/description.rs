@@ -124,7 +124,7 @@ impl Robot {
 
     /// URDF text (e.g. ROS `/robot_description`); relative and `package://` mesh paths are
     /// resolved against `mesh_root` (as if the URDF were a file in it). Without a root,
-    /// only absolute and `file://` meshes load.
+    /// only absolute and `file://` meshes load (the others are reported as warnings).
     pub fn from_urdf_str(
         xml: &str,
         mesh_root: Option<&Path>,
@@ -523,7 +523,8 @@ enum Store {
         label: String,
         files: HashMap<PathBuf, Vec<u8>>,
     },
-    /// No files (a URDF string without a mesh root).
+    /// A URDF string without a mesh root: only absolute paths (`file://`) on the file
+    /// system.
     Nothing,
 }
 
@@ -532,7 +533,7 @@ impl Store {
         match self {
             Self::Dir => p.is_file(),
             Self::Memory { files, .. } => files.contains_key(p),
-            Self::Nothing => false,
+            Self::Nothing => p.is_absolute() && p.is_file(),
         }
     }
 
@@ -572,6 +573,7 @@ impl Store {
                 }
                 Ok(data.clone())
             }
+            Self::Nothing if p.is_absolute() => Self::Dir.read(p, cap),
             Self::Nothing => Err(RobotError::MeshUnreadable {
                 path: p.display().to_string(),
                 message: "no mesh root given".into(),
@@ -1148,6 +1150,23 @@ mod tests {
         assert_eq!(r.link_meshes().len(), 6);
         let m = &r.link_meshes()[0].mesh;
         assert!(m.positions.contains(&nalgebra::Point3::new(2.0, 0.0, 1.0)));
+    }
+
+    #[test]
+    fn a_string_without_root_loads_only_absolute_meshes() {
+        let tmp = tempfile::tempdir().unwrap();
+        write(tmp.path(), "a.stl", STL);
+        let abs = tmp.path().join("a.stl").display().to_string();
+        let xml = urdf(
+            &(mesh_link("a", &format!("file://{abs}"))
+                + &mesh_link("b", "a.stl")
+                + &joint("j", "fixed", "a", "b", "")),
+        );
+        let r = load(&xml).unwrap();
+        assert_eq!(r.visuals(0)[0].triangles, 1);
+        assert_eq!(r.visuals(1)[0].triangles, 0);
+        assert_eq!(r.warnings().len(), 1);
+        assert!(r.warnings()[0].contains("\"a.stl\""), "{:?}", r.warnings());
     }
 
     #[test]

@@ -339,8 +339,8 @@ endsolid s
   <scene><instance_visual_scene url="#s"/></scene>
 </COLLADA>
 "##;
-        let m = mesh_from_bytes(dae, Path::new("t.dae"), [1.0; 3], &RobotConfig::default())
-            .unwrap();
+        let m =
+            mesh_from_bytes(dae, Path::new("t.dae"), [1.0; 3], &RobotConfig::default()).unwrap();
         assert_eq!(m.triangle_count(), 1);
         assert_eq!(m.positions.len(), 3);
         let far = m.positions.iter().map(|p| p.x).fold(f32::MIN, f32::max);
