@@ -46,6 +46,7 @@ pub fn inspect(robot: &Path, joints: Option<&Path>, cfg: &RobotConfig) -> Result
         "joints": joint_list,
         "links": link_list,
         "triangles": r.triangle_count(),
+        "vertices": r.link_meshes().iter().map(|m| m.mesh.positions.len()).sum::<usize>(),
         "warnings": r.warnings(),
     });
     if let Some(path) = joints {
