@@ -13,6 +13,6 @@ pub mod camera;
 pub mod geometry;
 pub mod render;
 
+pub use body_motion::{BodyMotion, BodyMotionError, body_motion_error};
 pub use camera::{CameraConvention, Intrinsics, IntrinsicsError};
 pub use geometry::{LinkMesh, TriMesh};
-pub use body_motion::{BodyMotion, BodyMotionError, body_motion_error};

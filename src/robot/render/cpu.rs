@@ -14,9 +14,7 @@
 //! Single-threaded by design (see the parent module); buffers are kept between frames.
 
 use super::mask::grow_mask;
-use super::{
-    FlowGrid, NO_LINK, RenderConfig, RenderError, RenderFrame, RenderOutput, RobotView,
-};
+use super::{FlowGrid, NO_LINK, RenderConfig, RenderError, RenderFrame, RenderOutput, RobotView};
 use crate::robot::camera::Intrinsics;
 use crate::robot::geometry::LinkMesh;
 use crate::vision::image::{FlowField, GrayImage};
@@ -68,7 +66,10 @@ pub struct CpuRenderer {
     screen: Vec<[f32; 3]>,
     inv_z: Vec<f32>,
     tri_id: Vec<u32>,
-    other_from_shown: Vec<Option<Isometry3<f64>>>,
+    /// Per group: rotation and translation of `other_from_shown` (matrix form: cheaper
+    /// per pixel than the quaternion).
+    other_from_shown: Vec<Option<(Matrix3<f64>, Vector3<f64>)>>,
+    mask_scratch: Vec<u8>,
 }
 
 impl CpuRenderer {
@@ -90,6 +91,7 @@ impl CpuRenderer {
             inv_z: Vec::new(),
             tri_id: Vec::new(),
             other_from_shown: Vec::new(),
+            mask_scratch: Vec::new(),
         })
     }
 
@@ -221,9 +223,18 @@ impl super::BodyRenderer for CpuRenderer {
         for group in &self.groups {
             let shown_from_link = shown.camera_from_base * shown.base_from_link[group.link];
             self.other_from_shown.push(other.map(|o| {
-                o.camera_from_base * o.base_from_link[group.link] * shown_from_link.inverse()
+                let m: Isometry3<f64> =
+                    o.camera_from_base * o.base_from_link[group.link] * shown_from_link.inverse();
+                (
+                    m.rotation.to_rotation_matrix().into_inner(),
+                    m.translation.vector,
+                )
             }));
-            let rot: Matrix3<f32> = shown_from_link.rotation.to_rotation_matrix().matrix().cast();
+            let rot: Matrix3<f32> = shown_from_link
+                .rotation
+                .to_rotation_matrix()
+                .matrix()
+                .cast();
             let tr: Vector3<f32> = shown_from_link.translation.vector.cast();
             if !frustum.may_see(&(rot * group.centre + tr), group.radius) {
                 continue;
@@ -268,7 +279,7 @@ impl super::BodyRenderer for CpuRenderer {
 
 impl CpuRenderer {
     /// Second pass: depth, link, flow, gray and mask from the z-buffer.
-    fn resolve(&self, k: &Intrinsics, shade: bool, with_flow: bool, out: &mut RenderOutput) {
+    fn resolve(&mut self, k: &Intrinsics, shade: bool, with_flow: bool, out: &mut RenderOutput) {
         let (w, h) = (k.width as usize, k.height as usize);
         let n = w * h;
         out.width = w;
@@ -285,7 +296,11 @@ impl CpuRenderer {
         out.flow.u.fill(f32::NAN);
         out.flow.v.fill(f32::NAN);
         let mut gray = if shade {
-            let mut data = out.gray.take().map(GrayImage::into_data).unwrap_or_default();
+            let mut data = out
+                .gray
+                .take()
+                .map(GrayImage::into_data)
+                .unwrap_or_default();
             data.clear();
             data.resize(n, GRAY_BACKGROUND);
             Some(data)
@@ -309,8 +324,8 @@ impl CpuRenderer {
                 out.link[i] = self.groups[g].link as u32;
                 let ray_x = (x as f64 - k.cx) / k.fx;
                 let p = Point3::new(ray_x * z, ray_y * z, z);
-                if with_flow && let Some(m) = &self.other_from_shown[g] {
-                    let q = m * p;
+                if with_flow && let Some((rot, tr)) = &self.other_from_shown[g] {
+                    let q = rot * p.coords + tr;
                     if q.z > 0.0 {
                         let qx = k.fx * q.x / q.z + k.cx;
                         let qy = k.fy * q.y / q.z + k.cy;
@@ -324,13 +339,18 @@ impl CpuRenderer {
                     }
                 }
                 if let Some(data) = gray.as_mut() {
-                    let [a, b, c] = self.triangles[id as usize].map(|v| self.camera_xyz[v as usize]);
+                    let [a, b, c] =
+                        self.triangles[id as usize].map(|v| self.camera_xyz[v as usize]);
                     let e1 = Vector3::new(b[0] - a[0], b[1] - a[1], b[2] - a[2]);
                     let e2 = Vector3::new(c[0] - a[0], c[1] - a[1], c[2] - a[2]);
                     let normal = e1.cross(&e2);
                     // Headlight along the optical axis: constant over a flat face.
                     let len = normal.norm();
-                    let cos = if len > 0.0 { (normal.z / len).abs() } else { 0.0 };
+                    let cos = if len > 0.0 {
+                        (normal.z / len).abs()
+                    } else {
+                        0.0
+                    };
                     data[i] = GRAY_DARK + (GRAY_BRIGHT - GRAY_DARK) * cos.min(1.0);
                 }
             }
@@ -339,7 +359,14 @@ impl CpuRenderer {
             // Invariant: `data` has exactly w * h values.
             out.gray = GrayImage::new(w, h, data).ok();
         }
-        grow_mask(&out.coverage, w, h, self.margin_px, &mut out.mask);
+        grow_mask(
+            &out.coverage,
+            w,
+            h,
+            self.margin_px,
+            &mut self.mask_scratch,
+            &mut out.mask,
+        );
     }
 }
 
@@ -458,10 +485,26 @@ pub(super) struct Target<'a> {
 impl Target<'_> {
     /// Scan-converts one screen-space triangle (`x_px, y_px, 1/z` per vertex).
     pub(super) fn raster(&mut self, v: [[f32; 3]; 3], id: u32) {
-        // `!(a <= b)` also rejects NaN.
-        if !v
-            .iter()
-            .all(|p| p[0].abs() <= GUARD_BAND_PX && p[1].abs() <= GUARD_BAND_PX)
+        // Most triangles of a dense mesh cover no pixel centre: reject them on a
+        // conservative float bounding box (padded by the snapping step) before any
+        // fixed-point set-up. NaN compares false and is rejected too.
+        let pad = 1.0 / SUB_SCALE as f32;
+        let x_lo = v[0][0].min(v[1][0]).min(v[2][0]) - pad;
+        let x_hi = v[0][0].max(v[1][0]).max(v[2][0]) + pad;
+        let y_lo = v[0][1].min(v[1][1]).min(v[2][1]) - pad;
+        let y_hi = v[0][1].max(v[1][1]).max(v[2][1]) + pad;
+        let (wf, hf) = ((self.width - 1) as f32, (self.height - 1) as f32);
+        if !(x_lo.ceil() <= x_hi.floor().min(wf)
+            && y_lo.ceil() <= y_hi.floor().min(hf)
+            && x_hi >= 0.0
+            && y_hi >= 0.0)
+        {
+            return;
+        }
+        if !(x_lo >= -GUARD_BAND_PX
+            && x_hi <= GUARD_BAND_PX
+            && y_lo >= -GUARD_BAND_PX
+            && y_hi <= GUARD_BAND_PX)
         {
             return;
         }

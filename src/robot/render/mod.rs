@@ -125,7 +125,9 @@ pub enum RenderError {
         max: usize,
     },
     /// A prepared mesh belongs to a link for which no pose was given.
-    #[error("a mesh is attached to link {link} but the {which} view has poses for {link_count} links")]
+    #[error(
+        "a mesh is attached to link {link} but the {which} view has poses for {link_count} links"
+    )]
     LinkOutOfRange {
         /// The link index of the mesh.
         link: usize,
@@ -265,11 +267,7 @@ impl RobotView<'_> {
                 pose: "camera_from_base".into(),
             });
         }
-        if let Some(i) = self
-            .base_from_link
-            .iter()
-            .position(|p| !pose_is_finite(p))
-        {
+        if let Some(i) = self.base_from_link.iter().position(|p| !pose_is_finite(p)) {
             return Err(RenderError::NonFinitePose {
                 which,
                 pose: format!("base_from_link[{i}]"),
@@ -354,8 +352,11 @@ pub trait BodyRenderer: Send {
     fn prepare(&mut self, meshes: &[LinkMesh]) -> Result<(), RenderError>;
 
     /// Renders one frame into `out` (resized as needed; its buffers are reused).
-    fn render(&mut self, frame: &RenderFrame<'_>, out: &mut RenderOutput)
-    -> Result<(), RenderError>;
+    fn render(
+        &mut self,
+        frame: &RenderFrame<'_>,
+        out: &mut RenderOutput,
+    ) -> Result<(), RenderError>;
 
     /// Short name of the back-end, for logs.
     fn name(&self) -> &'static str;

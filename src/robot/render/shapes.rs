@@ -81,7 +81,12 @@ pub fn uv_sphere(radius_m: f32, rings: u32, segments: u32) -> TriMesh {
     }
     for r in 1..rings - 1 {
         for s in 0..segments {
-            let (a, b, c, d) = (ring(r, s), ring(r, s + 1), ring(r + 1, s), ring(r + 1, s + 1));
+            let (a, b, c, d) = (
+                ring(r, s),
+                ring(r, s + 1),
+                ring(r + 1, s),
+                ring(r + 1, s + 1),
+            );
             triangles.push([a, c, d]);
             triangles.push([a, d, b]);
         }
@@ -159,7 +164,10 @@ impl SyntheticArm {
             .map(|i| {
                 let len = lengths_m[i].max(0.12) as f32;
                 let mut mesh = cylinder(radii[i], len, s, s / 2);
-                mesh.append_transformed(&uv_sphere(radii[i] * 1.15, s / 2, s), &Isometry3::identity());
+                mesh.append_transformed(
+                    &uv_sphere(radii[i] * 1.15, s / 2, s),
+                    &Isometry3::identity(),
+                );
                 LinkMesh { link: i, mesh }
             })
             .collect();
@@ -191,7 +199,8 @@ impl SyntheticArm {
                 Vector3::y_axis()
             };
             let offset = Translation3::new(0.0, 0.0, self.lengths_m[j].max(0.12));
-            pose = pose * Isometry3::from_parts(offset, UnitQuaternion::from_axis_angle(&axis, angle));
+            pose =
+                pose * Isometry3::from_parts(offset, UnitQuaternion::from_axis_angle(&axis, angle));
             poses.push(pose);
         }
         poses

@@ -75,7 +75,11 @@ fn box_renders_to_the_expected_rectangle_and_depth() {
     assert_eq!(b, (97, 222, 88, 151));
     assert_eq!(n, 126 * 64, "the rectangle is full");
     let centre = 120 * 320 + 160;
-    assert!((out.depth_m[centre] - 0.95).abs() < 1e-6, "{}", out.depth_m[centre]);
+    assert!(
+        (out.depth_m[centre] - 0.95).abs() < 1e-6,
+        "{}",
+        out.depth_m[centre]
+    );
     assert!(out.depth_m[0].is_infinite() && out.depth_m[0] > 0.0);
     assert_eq!(out.link[centre], 0);
     assert_eq!(out.link[0], NO_LINK);
@@ -190,8 +194,14 @@ fn camera_moving_forward_gives_the_exact_radial_flow_on_both_grids() {
             let (u, v) = out.flow.get(x, y);
             let eu = (x as f64 - 159.5) * scale;
             let ev = (y as f64 - 119.5) * scale;
-            assert!((f64::from(u) - eu).abs() < 1e-3, "{grid:?} ({x},{y}) u {u} vs {eu}");
-            assert!((f64::from(v) - ev).abs() < 1e-3, "{grid:?} ({x},{y}) v {v} vs {ev}");
+            assert!(
+                (f64::from(u) - eu).abs() < 1e-3,
+                "{grid:?} ({x},{y}) u {u} vs {eu}"
+            );
+            assert!(
+                (f64::from(v) - ev).abs() < 1e-3,
+                "{grid:?} ({x},{y}) v {v} vs {ev}"
+            );
             assert!((f64::from(out.depth_m[i]) - z).abs() < 1e-5);
         }
         // The silhouette is the one of the drawn frame: wider at t (closer).
@@ -211,9 +221,7 @@ fn link_motion_gives_the_exact_flow_against_ray_casting() {
         RenderConfig::default(),
         &[box_mesh(1, half.map(|h| h as f32))],
     );
-    let rot = |ax: f64, ay: f64| {
-        UnitQuaternion::from_euler_angles(ax, ay, 0.0)
-    };
+    let rot = |ax: f64, ay: f64| UnitQuaternion::from_euler_angles(ax, ay, 0.0);
     let prev_links = [
         Isometry3::identity(),
         Isometry3::from_parts(Translation3::new(0.02, -0.01, 1.0), rot(0.3, 0.5)),
@@ -251,7 +259,11 @@ fn link_motion_gives_the_exact_flow_against_ray_casting() {
             .max((f64::from(v) - (y as f64 - p_prev.y)).abs());
         max_err = max_err.max(err);
         let dz = (f64::from(out.depth_m[y * 320 + x]) - depth).abs();
-        assert!(dz < 2e-5, "({x},{y}) depth {} vs {depth}", out.depth_m[y * 320 + x]);
+        assert!(
+            dz < 2e-5,
+            "({x},{y}) depth {} vs {depth}",
+            out.depth_m[y * 320 + x]
+        );
     }
     assert!(max_err < 1e-3, "max flow error {max_err} px");
     // The motion is not trivial: several pixels of flow.
@@ -297,25 +309,44 @@ fn back_face_culling_keeps_closed_convex_meshes_whole() {
         camera_from_base: Isometry3::identity(),
         base_from_link: &links,
     };
-    let plain = render(&mut renderer(RenderConfig::default(), &meshes), &k, view, None);
+    let plain = render(
+        &mut renderer(RenderConfig::default(), &meshes),
+        &k,
+        view,
+        None,
+    );
     let culled_config = RenderConfig {
         cull_back_faces: true,
         ..RenderConfig::default()
     };
-    let culled = render(&mut renderer(culled_config.clone(), &meshes), &k, view, None);
+    let culled = render(
+        &mut renderer(culled_config.clone(), &meshes),
+        &k,
+        view,
+        None,
+    );
     assert_eq!(plain.coverage, culled.coverage);
     assert_eq!(plain.depth_m, culled.depth_m);
     // Turned inside out (all triangles reversed), the near faces become back faces: with
     // culling only the far faces are drawn (same silhouette, larger depth); without, the
     // depth is unchanged.
     let mut inside_out = meshes[0].clone();
-    inside_out.mesh.triangles.iter_mut().for_each(|t| t.swap(1, 2));
+    inside_out
+        .mesh
+        .triangles
+        .iter_mut()
+        .for_each(|t| t.swap(1, 2));
     let inside_out = [inside_out];
     let far = render(&mut renderer(culled_config, &inside_out), &k, view, None);
     assert_eq!(far.coverage, plain.coverage);
     let centre = 120 * 320 + 160;
     assert!(far.depth_m[centre] > plain.depth_m[centre] + 0.05);
-    let unculled = render(&mut renderer(RenderConfig::default(), &inside_out), &k, view, None);
+    let unculled = render(
+        &mut renderer(RenderConfig::default(), &inside_out),
+        &k,
+        view,
+        None,
+    );
     assert_eq!(unculled.depth_m, plain.depth_m);
 }
 
@@ -325,7 +356,12 @@ fn top_left_rule_draws_a_shared_edge_once() {
     // centres lie on the shared edge): each centre belongs to exactly one triangle, and
     // the square covers 10 x 10 centres (left and top edges in, right and bottom out).
     let (w, h) = (32usize, 32usize);
-    let quad = [[10.0f32, 10.0, 1.0], [20.0, 10.0, 1.0], [20.0, 20.0, 1.0], [10.0, 20.0, 1.0]];
+    let quad = [
+        [10.0f32, 10.0, 1.0],
+        [20.0, 10.0, 1.0],
+        [20.0, 20.0, 1.0],
+        [10.0, 20.0, 1.0],
+    ];
     let mut counts = vec![0u32; w * h];
     for tri in [[quad[0], quad[1], quad[2]], [quad[0], quad[2], quad[3]]] {
         let mut inv_z = vec![0.0f32; w * h];
@@ -352,17 +388,28 @@ fn bad_input_is_a_typed_error() {
     bad.mesh.triangles.push([0, 1, 8]);
     assert!(matches!(
         r.prepare(&[good.clone(), bad]),
-        Err(RenderError::IndexOutOfRange { mesh: 1, triangle: 12, index: 8, vertex_count: 8, .. })
+        Err(RenderError::IndexOutOfRange {
+            mesh: 1,
+            triangle: 12,
+            index: 8,
+            vertex_count: 8,
+            ..
+        })
     ));
     // NaN vertex.
     let mut bad = good.clone();
     bad.mesh.positions[3].y = f32::NAN;
     assert!(matches!(
         r.prepare(&[bad]),
-        Err(RenderError::NonFiniteVertex { mesh: 0, vertex: 3, .. })
+        Err(RenderError::NonFiniteVertex {
+            mesh: 0,
+            vertex: 3,
+            ..
+        })
     ));
     // A link without a pose.
-    r.prepare(&[good.clone(), box_mesh(3, [0.1, 0.1, 0.1])]).unwrap();
+    r.prepare(&[good.clone(), box_mesh(3, [0.1, 0.1, 0.1])])
+        .unwrap();
     let k = k320();
     let poses = [Isometry3::identity(); 2];
     let mut out = RenderOutput::default();
@@ -378,7 +425,11 @@ fn bad_input_is_a_typed_error() {
     };
     assert!(matches!(
         r.render(&frame, &mut out),
-        Err(RenderError::LinkOutOfRange { link: 3, link_count: 2, which: "current" })
+        Err(RenderError::LinkOutOfRange {
+            link: 3,
+            link_count: 2,
+            which: "current"
+        })
     ));
     r.prepare(std::slice::from_ref(&good)).unwrap();
     // Previous view with too few links.
@@ -391,7 +442,10 @@ fn bad_input_is_a_typed_error() {
     };
     assert!(matches!(
         r.render(&frame2, &mut out),
-        Err(RenderError::LinkOutOfRange { which: "previous", .. })
+        Err(RenderError::LinkOutOfRange {
+            which: "previous",
+            ..
+        })
     ));
     // NaN pose.
     let mut nan_poses = poses;
@@ -410,15 +464,15 @@ fn bad_input_is_a_typed_error() {
         other => panic!("{other:?}"),
     }
     // Zero-size image.
-    let empty = Intrinsics {
-        width: 0,
-        ..k
-    };
+    let empty = Intrinsics { width: 0, ..k };
     let frame4 = RenderFrame {
         intrinsics: &empty,
         ..frame
     };
-    assert!(matches!(r.render(&frame4, &mut out), Err(RenderError::Intrinsics(_))));
+    assert!(matches!(
+        r.render(&frame4, &mut out),
+        Err(RenderError::Intrinsics(_))
+    ));
     // Settings.
     let bad_near = RenderConfig {
         near_m: 0.0,
@@ -434,7 +488,10 @@ fn bad_input_is_a_typed_error() {
     };
     assert!(matches!(
         create_renderer(&gpu),
-        Err(RenderError::BackendUnavailable { backend: RenderBackend::Wgpu, .. })
+        Err(RenderError::BackendUnavailable {
+            backend: RenderBackend::Wgpu,
+            ..
+        })
     ));
     // The renderer still works after the errors.
     r.render(&frame, &mut out).unwrap();
@@ -448,8 +505,14 @@ fn exact_flow_agrees_with_tvl1_of_the_shaded_renders() {
     let k = Intrinsics::new(160, 120, 150.0, 150.0, 79.5, 59.5).unwrap();
     let mut r = renderer(RenderConfig::default(), &[box_mesh(0, [0.15, 0.12, 0.1])]);
     let turn = UnitQuaternion::from_euler_angles(0.5, 0.6, 0.1);
-    let prev_links = [Isometry3::from_parts(Translation3::new(0.0, 0.0, 1.0), turn)];
-    let cur_links = [Isometry3::from_parts(Translation3::new(0.02, 0.01, 1.0), turn)];
+    let prev_links = [Isometry3::from_parts(
+        Translation3::new(0.0, 0.0, 1.0),
+        turn,
+    )];
+    let cur_links = [Isometry3::from_parts(
+        Translation3::new(0.02, 0.01, 1.0),
+        turn,
+    )];
     let prev = RobotView {
         camera_from_base: Isometry3::identity(),
         base_from_link: &prev_links,
@@ -461,8 +524,16 @@ fn exact_flow_agrees_with_tvl1_of_the_shaded_renders() {
     let exact = render(&mut r, &k, cur, Some(prev));
     let mut scratch = RenderOutput::default();
     let mut out = RenderOutput::default();
-    let tv = tvl1_body_flow(&mut r, &k, prev, cur, &FlowParams::default(), &mut scratch, &mut out)
-        .unwrap();
+    let tv = tvl1_body_flow(
+        &mut r,
+        &k,
+        prev,
+        cur,
+        &FlowParams::default(),
+        &mut scratch,
+        &mut out,
+    )
+    .unwrap();
     // Gray images: white background, darker robot.
     let gray = out.gray.as_ref().unwrap();
     assert_eq!(gray.get(0, 0), 255.0);
@@ -473,7 +544,10 @@ fn exact_flow_agrees_with_tvl1_of_the_shaded_renders() {
     let exact_med = crate::robot::body_motion_error(&exact.flow, &exact.flow, &exact.coverage)
         .unwrap()
         .expected_median_px;
-    assert!((exact_med[0] - 3.0).abs() < 0.6 && (exact_med[1] - 1.5).abs() < 0.3, "{exact_med:?}");
+    assert!(
+        (exact_med[0] - 3.0).abs() < 0.6 && (exact_med[1] - 1.5).abs() < 0.3,
+        "{exact_med:?}"
+    );
     let tv_med = e.observed_median_px;
     assert!(
         (tv_med[0] - exact_med[0]).abs() < 0.3 && (tv_med[1] - exact_med[1]).abs() < 0.3,
