@@ -567,26 +567,77 @@ impl Target<'_> {
         };
         let z0 = wz[0] - dzdx * px[0] - dzdy * py[0];
         let step = a.map(|ai| ai * one);
+        let last = x_max - x_min;
         for py in y_min..=y_max {
             let fy = py * one;
             let fx = x_min * one;
-            let mut e = [0usize, 1, 2].map(|i| a[i] * fx + b[i] * fy + c[i]);
-            let row = py as usize * self.width;
-            let span = row + x_min as usize..=row + x_max as usize;
+            let e = [0usize, 1, 2].map(|i| a[i] * fx + b[i] * fy + c[i]);
+            let Some((lo, hi)) = row_span(e, step, bias, last) else {
+                continue;
+            };
+            let row = py as usize * self.width + x_min as usize;
+            let span = row + lo as usize..=row + hi as usize;
             let zs = &mut self.inv_z[span.clone()];
             let ids = &mut self.tri_id[span];
-            let z_row = z0 + dzdy * py as f64;
+            let z_row = z0 + dzdy * py as f64 + dzdx * (x_min + lo) as f64;
             for (k, (zp, idp)) in zs.iter_mut().zip(ids.iter_mut()).enumerate() {
-                if e[0] >= bias[0] && e[1] >= bias[1] && e[2] >= bias[2] {
-                    let z = (z_row + dzdx * (x_min + k as i64) as f64) as f32;
-                    if z > *zp {
-                        *zp = z;
-                        *idp = id;
-                    }
+                let z = (z_row + dzdx * k as f64) as f32;
+                if z > *zp {
+                    *zp = z;
+                    *idp = id;
                 }
-                e[0] += step[0];
-                e[1] += step[1];
-                e[2] += step[2];
+            }
+        }
+    }
+}
+
+/// The pixels `k` in `0..=last` of a row where every edge function
+/// `e[i] + step[i] * k >= bias[i]`, as an inclusive range (exact integer arithmetic, so
+/// the same pixels as testing each one); `None` when there are none.
+fn row_span(e: [i64; 3], step: [i64; 3], bias: [i64; 3], last: i64) -> Option<(i64, i64)> {
+    let (mut lo, mut hi) = (0i64, last);
+    for i in 0..3 {
+        let need = bias[i] - e[i];
+        match step[i].cmp(&0) {
+            // k >= ceil(need / step)
+            std::cmp::Ordering::Greater => lo = lo.max(-(-need).div_euclid(step[i])),
+            // k <= floor(-need / -step)
+            std::cmp::Ordering::Less => hi = hi.min((-need).div_euclid(-step[i])),
+            std::cmp::Ordering::Equal => {
+                if need > 0 {
+                    return None;
+                }
+            }
+        }
+    }
+    (lo <= hi).then_some((lo, hi))
+}
+
+#[cfg(test)]
+mod span_tests {
+    use super::row_span;
+
+    #[test]
+    fn row_span_matches_testing_every_pixel() {
+        let mut state = 99u64;
+        let mut next = |m: i64| {
+            state = state
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            ((state >> 33) as i64 % (2 * m + 1)) - m
+        };
+        for _ in 0..20_000 {
+            let e = [next(5000), next(5000), next(5000)];
+            let step = [next(700), next(700), next(2)];
+            let bias = [next(1).abs(), 0, 1];
+            let last = next(30).abs();
+            let brute: Vec<i64> = (0..=last)
+                .filter(|&k| (0..3).all(|i| e[i] + step[i] * k >= bias[i]))
+                .collect();
+            let span = row_span(e, step, bias, last);
+            match span {
+                None => assert!(brute.is_empty(), "{e:?} {step:?} {bias:?} {last}"),
+                Some((lo, hi)) => assert_eq!(brute, (lo..=hi).collect::<Vec<_>>()),
             }
         }
     }
