@@ -24,6 +24,14 @@ use nalgebra::{Isometry3, Matrix3, Point3, Vector3};
 /// of the rasteriser's fixed-point range; their triangles are skipped.
 pub const GUARD_BAND_PX: f32 = 1_048_576.0;
 
+/// Shift that makes every in-guard-band value positive, for floor by truncation.
+const OFFSET: f64 = (1u64 << 40) as f64;
+
+/// `floor(x)` for `|x|` within a little more than the guard band.
+fn floor_in_guard(x: f32) -> i64 {
+    (f64::from(x) + OFFSET) as i64 - OFFSET as i64
+}
+
 /// Sub-pixel precision of the rasteriser: 8 bits (1/256 px).
 const SUB_BITS: u32 = 8;
 const SUB_SCALE: f64 = (1u32 << SUB_BITS) as f64;
@@ -487,20 +495,15 @@ impl Target<'_> {
     pub(super) fn raster(&mut self, v: [[f32; 3]; 3], id: u32) {
         // Most triangles of a dense mesh cover no pixel centre: reject them on a
         // conservative float bounding box (padded by the snapping step) before any
-        // fixed-point set-up. NaN compares false and is rejected too.
+        // fixed-point set-up. (`min`/`max` skip NaN, so check the coordinates' sum.)
+        if !(v[0][0] + v[1][0] + v[2][0] + v[0][1] + v[1][1] + v[2][1]).is_finite() {
+            return;
+        }
         let pad = 1.0 / SUB_SCALE as f32;
         let x_lo = v[0][0].min(v[1][0]).min(v[2][0]) - pad;
         let x_hi = v[0][0].max(v[1][0]).max(v[2][0]) + pad;
         let y_lo = v[0][1].min(v[1][1]).min(v[2][1]) - pad;
         let y_hi = v[0][1].max(v[1][1]).max(v[2][1]) + pad;
-        let (wf, hf) = ((self.width - 1) as f32, (self.height - 1) as f32);
-        if !(x_lo.ceil() <= x_hi.floor().min(wf)
-            && y_lo.ceil() <= y_hi.floor().min(hf)
-            && x_hi >= 0.0
-            && y_hi >= 0.0)
-        {
-            return;
-        }
         if !(x_lo >= -GUARD_BAND_PX
             && x_hi <= GUARD_BAND_PX
             && y_lo >= -GUARD_BAND_PX
@@ -508,7 +511,18 @@ impl Target<'_> {
         {
             return;
         }
-        let fixed = |c: f32| (f64::from(c) * SUB_SCALE).round() as i64;
+        // Inside the guard band, so the floor-by-truncation helper applies (and avoids a
+        // libm call on targets without SSE4.1).
+        let (wi, hi) = (self.width as i64 - 1, self.height as i64 - 1);
+        if -floor_in_guard(-x_lo) > floor_in_guard(x_hi).min(wi)
+            || -floor_in_guard(-y_lo) > floor_in_guard(y_hi).min(hi)
+            || x_hi < 0.0
+            || y_hi < 0.0
+        {
+            return;
+        }
+        // Round to the 1/256 grid, half up, by truncating a positive number.
+        let fixed = |c: f32| (f64::from(c) * SUB_SCALE + (OFFSET + 0.5)) as i64 - OFFSET as i64;
         let mut x = v.map(|p| fixed(p[0]));
         let mut y = v.map(|p| fixed(p[1]));
         let area = (x[1] - x[0]) * (y[2] - y[0]) - (y[1] - y[0]) * (x[2] - x[0]);
@@ -520,13 +534,12 @@ impl Target<'_> {
         if area > 0 && self.cull_back_faces {
             return;
         }
-        let area = if area < 0 {
+        // Edge functions below assume a positive area (the plane fit of 1/z does not
+        // depend on the order).
+        if area < 0 {
             x.swap(1, 2);
             y.swap(1, 2);
-            -area
-        } else {
-            area
-        };
+        }
         let (w, h) = (self.width as i64, self.height as i64);
         let one = 1i64 << SUB_BITS;
         let x_min = ((x[0].min(x[1]).min(x[2]) + one - 1) >> SUB_BITS).max(0);

@@ -110,7 +110,7 @@ mod tests {
         let cov: Vec<bool> = (0..w * h)
             .map(|_| {
                 state = state.wrapping_mul(1_103_515_245).wrapping_add(12345);
-                (state >> 16) % 13 == 0
+                (state >> 16).is_multiple_of(13)
             })
             .collect();
         for r in [1, 2, 3, 5] {
