@@ -2,7 +2,7 @@
 //! render + exact body flow + mask, min over repetitions. Thread CPU time does not count
 //! waiting for a core, so it is meaningful on a loaded machine.
 //!
-//! `cargo run --release --example render_time -- [triangles] [reps] [cull]`
+//! `cargo run --release --example render_time -- [triangles] [reps] [cull|nocull] [simplify_cell_m]`
 
 use vamos::robot::render::shapes::SyntheticArm;
 use vamos::robot::render::{
@@ -28,6 +28,7 @@ fn main() -> anyhow::Result<()> {
     let triangles: usize = args.get(1).map_or(Ok(100_000), |s| s.parse())?;
     let reps: usize = args.get(2).map_or(Ok(50), |s| s.parse())?;
     let cull = args.get(3).is_some_and(|s| s == "cull");
+    let simplify_cell_m: f64 = args.get(4).map_or(Ok(0.0), |s| s.parse())?;
     let arm = SyntheticArm::new(triangles);
     let q1 = SyntheticArm::POSE_RAD;
     let q0: Vec<f64> = q1.iter().map(|a| a - 0.02).collect();
@@ -36,6 +37,7 @@ fn main() -> anyhow::Result<()> {
     let camera_from_base = SyntheticArm::camera_from_base();
     let config = RenderConfig {
         cull_back_faces: cull,
+        simplify_cell_m,
         ..RenderConfig::default()
     };
     let mut renderer = CpuRenderer::new(&config)?;
@@ -43,8 +45,9 @@ fn main() -> anyhow::Result<()> {
     renderer.prepare(&arm.meshes)?;
     let prepare_ms = thread_cpu_ms() - t0;
     println!(
-        "{} triangles (cull {cull}), prepare {prepare_ms:.2} ms",
-        arm.triangle_count()
+        "{} triangles ({} drawn; cull {cull}, simplify {simplify_cell_m} m), prepare {prepare_ms:.2} ms",
+        arm.triangle_count(),
+        renderer.triangle_count()
     );
     for (w, h) in [(160u32, 120u32), (320, 240), (640, 480)] {
         let k = SyntheticArm::intrinsics(w, h)?;

@@ -61,6 +61,7 @@ pub struct CpuRenderer {
     margin_px: u32,
     grid: FlowGrid,
     cull_back_faces: bool,
+    simplify_cell_m: f32,
     groups: Vec<Group>,
     /// Vertex positions in their link's frame.
     positions: Vec<[f32; 3]>,
@@ -89,6 +90,7 @@ impl CpuRenderer {
             margin_px: config.mask_margin_px,
             grid: config.flow_grid,
             cull_back_faces: config.cull_back_faces,
+            simplify_cell_m: config.simplify_cell_m as f32,
             groups: Vec::new(),
             positions: Vec::new(),
             triangles: Vec::new(),
@@ -166,6 +168,16 @@ impl super::BodyRenderer for CpuRenderer {
         self.triangle_group.clear();
         self.max_link = None;
         for lm in meshes.iter().filter(|m| !m.mesh.triangles.is_empty()) {
+            let simplified;
+            let lm = if self.simplify_cell_m > 0.0 {
+                simplified = LinkMesh {
+                    link: lm.link,
+                    mesh: super::simplify::cluster_vertices(&lm.mesh, self.simplify_cell_m),
+                };
+                &simplified
+            } else {
+                lm
+            };
             let v0 = self.positions.len();
             let t0 = self.triangles.len();
             self.positions
