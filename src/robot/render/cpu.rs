@@ -24,6 +24,14 @@ use nalgebra::{Isometry3, Matrix3, Point3, Vector3};
 /// of the rasteriser's fixed-point range; their triangles are skipped.
 pub const GUARD_BAND_PX: f32 = 1_048_576.0;
 
+/// Shift that makes every in-guard-band value positive, for floor by truncation.
+const OFFSET: f64 = (1u64 << 40) as f64;
+
+/// `floor(x)` for `|x|` within a little more than the guard band.
+fn floor_in_guard(x: f32) -> i64 {
+    (f64::from(x) + OFFSET) as i64 - OFFSET as i64
+}
+
 /// Sub-pixel precision of the rasteriser: 8 bits (1/256 px).
 const SUB_BITS: u32 = 8;
 const SUB_SCALE: f64 = (1u32 << SUB_BITS) as f64;
@@ -53,6 +61,7 @@ pub struct CpuRenderer {
     margin_px: u32,
     grid: FlowGrid,
     cull_back_faces: bool,
+    simplify_cell_m: f32,
     groups: Vec<Group>,
     /// Vertex positions in their link's frame.
     positions: Vec<[f32; 3]>,
@@ -66,7 +75,10 @@ pub struct CpuRenderer {
     screen: Vec<[f32; 3]>,
     inv_z: Vec<f32>,
     tri_id: Vec<u32>,
-    other_from_shown: Vec<Option<Isometry3<f64>>>,
+    /// Per group: rotation and translation of `other_from_shown` (matrix form: cheaper
+    /// per pixel than the quaternion).
+    other_from_shown: Vec<Option<(Matrix3<f64>, Vector3<f64>)>>,
+    mask_scratch: Vec<u8>,
 }
 
 impl CpuRenderer {
@@ -78,6 +90,7 @@ impl CpuRenderer {
             margin_px: config.mask_margin_px,
             grid: config.flow_grid,
             cull_back_faces: config.cull_back_faces,
+            simplify_cell_m: config.simplify_cell_m as f32,
             groups: Vec::new(),
             positions: Vec::new(),
             triangles: Vec::new(),
@@ -88,6 +101,7 @@ impl CpuRenderer {
             inv_z: Vec::new(),
             tri_id: Vec::new(),
             other_from_shown: Vec::new(),
+            mask_scratch: Vec::new(),
         })
     }
 
@@ -154,6 +168,16 @@ impl super::BodyRenderer for CpuRenderer {
         self.triangle_group.clear();
         self.max_link = None;
         for lm in meshes.iter().filter(|m| !m.mesh.triangles.is_empty()) {
+            let simplified;
+            let lm = if self.simplify_cell_m > 0.0 {
+                simplified = LinkMesh {
+                    link: lm.link,
+                    mesh: super::simplify::cluster_vertices(&lm.mesh, self.simplify_cell_m),
+                };
+                &simplified
+            } else {
+                lm
+            };
             let v0 = self.positions.len();
             let t0 = self.triangles.len();
             self.positions
@@ -219,7 +243,12 @@ impl super::BodyRenderer for CpuRenderer {
         for group in &self.groups {
             let shown_from_link = shown.camera_from_base * shown.base_from_link[group.link];
             self.other_from_shown.push(other.map(|o| {
-                o.camera_from_base * o.base_from_link[group.link] * shown_from_link.inverse()
+                let m: Isometry3<f64> =
+                    o.camera_from_base * o.base_from_link[group.link] * shown_from_link.inverse();
+                (
+                    m.rotation.to_rotation_matrix().into_inner(),
+                    m.translation.vector,
+                )
             }));
             let rot: Matrix3<f32> = shown_from_link
                 .rotation
@@ -270,7 +299,7 @@ impl super::BodyRenderer for CpuRenderer {
 
 impl CpuRenderer {
     /// Second pass: depth, link, flow, gray and mask from the z-buffer.
-    fn resolve(&self, k: &Intrinsics, shade: bool, with_flow: bool, out: &mut RenderOutput) {
+    fn resolve(&mut self, k: &Intrinsics, shade: bool, with_flow: bool, out: &mut RenderOutput) {
         let (w, h) = (k.width as usize, k.height as usize);
         let n = w * h;
         out.width = w;
@@ -315,8 +344,8 @@ impl CpuRenderer {
                 out.link[i] = self.groups[g].link as u32;
                 let ray_x = (x as f64 - k.cx) / k.fx;
                 let p = Point3::new(ray_x * z, ray_y * z, z);
-                if with_flow && let Some(m) = &self.other_from_shown[g] {
-                    let q = m * p;
+                if with_flow && let Some((rot, tr)) = &self.other_from_shown[g] {
+                    let q = rot * p.coords + tr;
                     if q.z > 0.0 {
                         let qx = k.fx * q.x / q.z + k.cx;
                         let qy = k.fy * q.y / q.z + k.cy;
@@ -350,7 +379,14 @@ impl CpuRenderer {
             // Invariant: `data` has exactly w * h values.
             out.gray = GrayImage::new(w, h, data).ok();
         }
-        grow_mask(&out.coverage, w, h, self.margin_px, &mut out.mask);
+        grow_mask(
+            &out.coverage,
+            w,
+            h,
+            self.margin_px,
+            &mut self.mask_scratch,
+            &mut out.mask,
+        );
     }
 }
 
@@ -469,14 +505,36 @@ pub(super) struct Target<'a> {
 impl Target<'_> {
     /// Scan-converts one screen-space triangle (`x_px, y_px, 1/z` per vertex).
     pub(super) fn raster(&mut self, v: [[f32; 3]; 3], id: u32) {
-        // `!(a <= b)` also rejects NaN.
-        if !v
-            .iter()
-            .all(|p| p[0].abs() <= GUARD_BAND_PX && p[1].abs() <= GUARD_BAND_PX)
+        // Most triangles of a dense mesh cover no pixel centre: reject them on a
+        // conservative float bounding box (padded by the snapping step) before any
+        // fixed-point set-up. (`min`/`max` skip NaN, so check the coordinates' sum.)
+        if !(v[0][0] + v[1][0] + v[2][0] + v[0][1] + v[1][1] + v[2][1]).is_finite() {
+            return;
+        }
+        let pad = 1.0 / SUB_SCALE as f32;
+        let x_lo = v[0][0].min(v[1][0]).min(v[2][0]) - pad;
+        let x_hi = v[0][0].max(v[1][0]).max(v[2][0]) + pad;
+        let y_lo = v[0][1].min(v[1][1]).min(v[2][1]) - pad;
+        let y_hi = v[0][1].max(v[1][1]).max(v[2][1]) + pad;
+        if !(x_lo >= -GUARD_BAND_PX
+            && x_hi <= GUARD_BAND_PX
+            && y_lo >= -GUARD_BAND_PX
+            && y_hi <= GUARD_BAND_PX)
         {
             return;
         }
-        let fixed = |c: f32| (f64::from(c) * SUB_SCALE).round() as i64;
+        // Inside the guard band, so the floor-by-truncation helper applies (and avoids a
+        // libm call on targets without SSE4.1).
+        let (wi, hi) = (self.width as i64 - 1, self.height as i64 - 1);
+        if -floor_in_guard(-x_lo) > floor_in_guard(x_hi).min(wi)
+            || -floor_in_guard(-y_lo) > floor_in_guard(y_hi).min(hi)
+            || x_hi < 0.0
+            || y_hi < 0.0
+        {
+            return;
+        }
+        // Round to the 1/256 grid, half up, by truncating a positive number.
+        let fixed = |c: f32| (f64::from(c) * SUB_SCALE + (OFFSET + 0.5)) as i64 - OFFSET as i64;
         let mut x = v.map(|p| fixed(p[0]));
         let mut y = v.map(|p| fixed(p[1]));
         let area = (x[1] - x[0]) * (y[2] - y[0]) - (y[1] - y[0]) * (x[2] - x[0]);
@@ -488,13 +546,12 @@ impl Target<'_> {
         if area > 0 && self.cull_back_faces {
             return;
         }
-        let area = if area < 0 {
+        // Edge functions below assume a positive area (the plane fit of 1/z does not
+        // depend on the order).
+        if area < 0 {
             x.swap(1, 2);
             y.swap(1, 2);
-            -area
-        } else {
-            area
-        };
+        }
         let (w, h) = (self.width as i64, self.height as i64);
         let one = 1i64 << SUB_BITS;
         let x_min = ((x[0].min(x[1]).min(x[2]) + one - 1) >> SUB_BITS).max(0);
@@ -535,26 +592,77 @@ impl Target<'_> {
         };
         let z0 = wz[0] - dzdx * px[0] - dzdy * py[0];
         let step = a.map(|ai| ai * one);
+        let last = x_max - x_min;
         for py in y_min..=y_max {
             let fy = py * one;
             let fx = x_min * one;
-            let mut e = [0usize, 1, 2].map(|i| a[i] * fx + b[i] * fy + c[i]);
-            let row = py as usize * self.width;
-            let span = row + x_min as usize..=row + x_max as usize;
+            let e = [0usize, 1, 2].map(|i| a[i] * fx + b[i] * fy + c[i]);
+            let Some((lo, hi)) = row_span(e, step, bias, last) else {
+                continue;
+            };
+            let row = py as usize * self.width + x_min as usize;
+            let span = row + lo as usize..=row + hi as usize;
             let zs = &mut self.inv_z[span.clone()];
             let ids = &mut self.tri_id[span];
-            let z_row = z0 + dzdy * py as f64;
+            let z_row = z0 + dzdy * py as f64 + dzdx * (x_min + lo) as f64;
             for (k, (zp, idp)) in zs.iter_mut().zip(ids.iter_mut()).enumerate() {
-                if e[0] >= bias[0] && e[1] >= bias[1] && e[2] >= bias[2] {
-                    let z = (z_row + dzdx * (x_min + k as i64) as f64) as f32;
-                    if z > *zp {
-                        *zp = z;
-                        *idp = id;
-                    }
+                let z = (z_row + dzdx * k as f64) as f32;
+                if z > *zp {
+                    *zp = z;
+                    *idp = id;
                 }
-                e[0] += step[0];
-                e[1] += step[1];
-                e[2] += step[2];
+            }
+        }
+    }
+}
+
+/// The pixels `k` in `0..=last` of a row where every edge function
+/// `e[i] + step[i] * k >= bias[i]`, as an inclusive range (exact integer arithmetic, so
+/// the same pixels as testing each one); `None` when there are none.
+fn row_span(e: [i64; 3], step: [i64; 3], bias: [i64; 3], last: i64) -> Option<(i64, i64)> {
+    let (mut lo, mut hi) = (0i64, last);
+    for i in 0..3 {
+        let need = bias[i] - e[i];
+        match step[i].cmp(&0) {
+            // k >= ceil(need / step)
+            std::cmp::Ordering::Greater => lo = lo.max(-(-need).div_euclid(step[i])),
+            // k <= floor(-need / -step)
+            std::cmp::Ordering::Less => hi = hi.min((-need).div_euclid(-step[i])),
+            std::cmp::Ordering::Equal => {
+                if need > 0 {
+                    return None;
+                }
+            }
+        }
+    }
+    (lo <= hi).then_some((lo, hi))
+}
+
+#[cfg(test)]
+mod span_tests {
+    use super::row_span;
+
+    #[test]
+    fn row_span_matches_testing_every_pixel() {
+        let mut state = 99u64;
+        let mut next = |m: i64| {
+            state = state
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            ((state >> 33) as i64 % (2 * m + 1)) - m
+        };
+        for _ in 0..20_000 {
+            let e = [next(5000), next(5000), next(5000)];
+            let step = [next(700), next(700), next(2)];
+            let bias = [next(1).abs(), 0, 1];
+            let last = next(30).abs();
+            let brute: Vec<i64> = (0..=last)
+                .filter(|&k| (0..3).all(|i| e[i] + step[i] * k >= bias[i]))
+                .collect();
+            let span = row_span(e, step, bias, last);
+            match span {
+                None => assert!(brute.is_empty(), "{e:?} {step:?} {bias:?} {last}"),
+                Some((lo, hi)) => assert_eq!(brute, (lo..=hi).collect::<Vec<_>>()),
             }
         }
     }

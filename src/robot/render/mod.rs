@@ -67,6 +67,7 @@
 pub mod cpu;
 mod mask;
 pub mod shapes;
+pub mod simplify;
 #[cfg(test)]
 mod tests;
 
@@ -211,6 +212,13 @@ pub struct RenderConfig {
     /// counter-clockwise winding: open or inconsistently wound meshes (common in URDF
     /// visual meshes) lose faces. Saves little at low resolutions; off by default.
     pub cull_back_faces: bool,
+    /// Render-time simplification by vertex clustering, metres: at `prepare`, vertices of
+    /// each mesh that fall into the same cube of this side (in the link frame) merge into
+    /// their mean and collapsed triangles are dropped, so no surface point moves by more
+    /// than `sqrt(3)` x this. 0 = off. Pick it from the resolution: a fraction of a pixel
+    /// at the nearest expected distance, `cell = fraction x distance / fx` (0.5 px at 0.5 m
+    /// with fx = 340 px: 0.7 mm).
+    pub simplify_cell_m: f64,
 }
 
 impl Default for RenderConfig {
@@ -221,6 +229,7 @@ impl Default for RenderConfig {
             near_m: 0.05,
             flow_grid: FlowGrid::Target,
             cull_back_faces: false,
+            simplify_cell_m: 0.0,
         }
     }
 }
@@ -233,6 +242,13 @@ impl RenderConfig {
                 name: "near_m",
                 value: self.near_m.to_string(),
                 reason: "must be a positive number of metres",
+            });
+        }
+        if !(self.simplify_cell_m.is_finite() && self.simplify_cell_m >= 0.0) {
+            return Err(RenderError::BadConfig {
+                name: "simplify_cell_m",
+                value: self.simplify_cell_m.to_string(),
+                reason: "must be 0 (off) or a positive number of metres",
             });
         }
         if self.mask_margin_px > MAX_MASK_MARGIN_PX {

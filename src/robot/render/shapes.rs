@@ -199,8 +199,7 @@ impl SyntheticArm {
                 Vector3::y_axis()
             };
             let offset = Translation3::new(0.0, 0.0, self.lengths_m[j].max(0.12));
-            pose =
-                pose * Isometry3::from_parts(offset, UnitQuaternion::from_axis_angle(&axis, angle));
+            pose *= Isometry3::from_parts(offset, UnitQuaternion::from_axis_angle(&axis, angle));
             poses.push(pose);
         }
         poses

@@ -569,3 +569,47 @@ fn synthetic_arm_covers_a_fifth_to_a_third_of_the_image() {
     let fraction = out.covered_pixels() as f64 / (320.0 * 240.0);
     assert!((0.15..0.35).contains(&fraction), "{fraction}");
 }
+
+#[test]
+fn simplified_arm_renders_almost_the_same_mask() {
+    // 100k triangles (edges ~5 mm) clustered on an 8 mm grid (~2.7 px at 1 m, fx = 343 px).
+    let arm = SyntheticArm::new(100_000);
+    let k = SyntheticArm::intrinsics(320, 240).unwrap();
+    let links = arm.base_from_link(&SyntheticArm::POSE_RAD);
+    let view = RobotView {
+        camera_from_base: SyntheticArm::camera_from_base(),
+        base_from_link: &links,
+    };
+    let full = render(
+        &mut renderer(RenderConfig::default(), &arm.meshes),
+        &k,
+        view,
+        None,
+    );
+    let config = RenderConfig {
+        simplify_cell_m: 0.008,
+        ..RenderConfig::default()
+    };
+    let mut r = renderer(config, &arm.meshes);
+    assert!(
+        r.triangle_count() * 2 < arm.triangle_count(),
+        "{}",
+        r.triangle_count()
+    );
+    let simple = render(&mut r, &k, view, None);
+    let inter = full
+        .coverage
+        .iter()
+        .zip(&simple.coverage)
+        .filter(|(a, b)| **a && **b)
+        .count();
+    let union = full
+        .coverage
+        .iter()
+        .zip(&simple.coverage)
+        .filter(|(a, b)| **a || **b)
+        .count();
+    let iou = inter as f64 / union as f64;
+    assert!(iou > 0.97, "IoU {iou}, {} triangles", r.triangle_count());
+    eprintln!("IoU {iou}, {} triangles", r.triangle_count());
+}
