@@ -25,10 +25,12 @@ pub const CONFIG_ENV: &str = "VAMOS_CONFIG";
 
 /// `VAMOS_*` variables that are not settings keys: the settings file, the cache folder and
 /// Python interpreter of the ONNX Runtime look-up (`model::runtime`), test and bench knobs
-/// (`VAMOS_SKIP_*`, `VAMOS_BENCH_*`).
+/// (`VAMOS_SKIP_*`, `VAMOS_BENCH_*`, `VAMOS_BIN`: the binary the Python tests run).
 pub fn is_reserved_env(name: &str) -> bool {
-    matches!(name, CONFIG_ENV | "VAMOS_CACHE_DIR" | "VAMOS_PYTHON")
-        || name.starts_with("VAMOS_SKIP_")
+    matches!(
+        name,
+        CONFIG_ENV | "VAMOS_CACHE_DIR" | "VAMOS_PYTHON" | "VAMOS_BIN"
+    ) || name.starts_with("VAMOS_SKIP_")
         || name.starts_with("VAMOS_BENCH_")
 }
 

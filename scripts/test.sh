@@ -1,0 +1,28 @@
+#!/usr/bin/env bash
+# All of vamos's tests, with their set-up: the README's test command.
+#  1. Rust: `cargo test --release --locked` (unit, integration, doc tests). The model tests
+#     load ONNX Runtime; when it is not found (ORT_DYLIB_PATH, the vamos cache, Python's
+#     onnxruntime) vamos downloads the PyPI wheel into its cache with pip.
+#  2. Python (clients/python): a virtual environment in .venv with the package and its
+#     `train` + `test` extras (torch from PyPI: ~3 GB on the first run), then pytest,
+#     including the end-to-end test that runs the Rust binary built in step 1.
+set -euo pipefail
+cd "$(dirname "${BASH_SOURCE[0]}")/.."
+
+echo "== Rust tests"
+cargo test --release --locked
+
+echo "== Python environment (.venv)"
+PYTHON="${PYTHON:-python3}"
+if [ ! -x .venv/bin/python ]; then
+    if ! "$PYTHON" -m venv .venv; then
+        echo "error: cannot create a Python virtual environment; on Debian/Ubuntu install" >&2
+        echo "       it with: sudo apt-get install python3-venv" >&2
+        exit 1
+    fi
+fi
+.venv/bin/python -m pip install --quiet --upgrade pip
+.venv/bin/python -m pip install --quiet './clients/python[train,test]'
+
+echo "== Python tests"
+VAMOS_BIN="$PWD/target/release/vamos" .venv/bin/python -m pytest clients/python/tests -q
