@@ -111,9 +111,20 @@ enum Command {
         /// Output folder.
         #[arg(short, long)]
         out: PathBuf,
-        /// Flow variant: plain or registered (default: `pipeline.frames.variant`).
+        /// Flow variant: plain, registered, masked or masked_registered (default:
+        /// `pipeline.frames.variant`). Masked variants need --robot and --camera.
         #[arg(long)]
         variant: Option<vamos::pipeline::FlowVariant>,
+        /// Robot (URDF file, package folder or archive): with --camera, every frame's body
+        /// mask is rendered from the episode's joints.csv (`stamp_ns,JOINT,...`).
+        #[arg(long)]
+        robot: Option<PathBuf>,
+        /// Camera JSON (as `vamos render --camera`).
+        #[arg(long)]
+        camera: Option<PathBuf>,
+        /// Report image stamps further than this from a joint sample, milliseconds.
+        #[arg(long, default_value_t = 100.0)]
+        max_joint_gap_ms: f64,
         /// Process every N-th image (default: `pipeline.stride`).
         #[arg(long)]
         stride: Option<usize>,
@@ -239,6 +250,9 @@ fn run(cli: Cli) -> Result<()> {
             episodes,
             out,
             variant,
+            robot,
+            camera,
+            max_joint_gap_ms,
             stride,
             fps,
             preset,
@@ -252,6 +266,9 @@ fn run(cli: Cli) -> Result<()> {
                 stride,
                 fps,
                 preset,
+                robot,
+                camera,
+                max_joint_gap_ms,
             };
             pool(threads)?.install(|| cli::export::run(&settings, opts))?;
             Ok(())

@@ -4,9 +4,11 @@
 use anyhow::{Context, Result, bail};
 use std::path::{Path, PathBuf};
 use vamos::config::Settings;
-use vamos::episode::ImageSequence;
+use vamos::episode::{ImageSequence, JointTrack};
 use vamos::pipeline::dataset::{DatasetWriter, FrameRecord, InputSpec, ProcessingSpec};
 use vamos::pipeline::{FlowVariant, FrameProcessor};
+use vamos::robot::render::{BodyRenderer, RenderFrame, RenderOutput, RobotView, create_renderer};
+use vamos::robot::{CameraMount, CameraSpec, Intrinsics, JointMapper, Robot};
 use vamos::vision::GrayImage;
 use vamos::vision::flow::FlowParams;
 
@@ -24,6 +26,80 @@ pub struct ExportOptions {
     pub fps: f64,
     /// TV-L1 preset (default: settings).
     pub preset: Option<String>,
+    /// Robot description: with `camera`, the body mask of every frame is rendered from
+    /// each episode's `joints.csv` (needed by the masked variants; registration ignores
+    /// the body in every variant).
+    pub robot: Option<PathBuf>,
+    /// Camera description (JSON, as `vamos render --camera`).
+    pub camera: Option<PathBuf>,
+    /// Joint samples further than this from an image stamp are reported.
+    pub max_joint_gap_ms: f64,
+}
+
+/// What renders the body mask of each frame.
+struct BodyMasker {
+    robot: Robot,
+    mount: CameraMount,
+    intrinsics: Intrinsics,
+    renderer: Box<dyn BodyRenderer>,
+    out: RenderOutput,
+}
+
+impl BodyMasker {
+    fn new(
+        settings: &Settings,
+        robot: &Path,
+        camera: &Path,
+        width: usize,
+        height: usize,
+    ) -> Result<Self> {
+        let robot = Robot::load(robot, &settings.robot)
+            .with_context(|| format!("cannot load robot {}", robot.display()))?;
+        let text = std::fs::read_to_string(camera)
+            .with_context(|| format!("cannot read {}", camera.display()))?;
+        let spec: CameraSpec = serde_json::from_str(&text)
+            .with_context(|| format!("{} must be a camera description", camera.display()))?;
+        let intrinsics = spec.intrinsics()?.scaled_to(width as u32, height as u32)?;
+        let mut mount = robot.camera(&spec.frame, spec.convention)?;
+        mount.link_from_optical = spec.frame_from_camera() * mount.link_from_optical;
+        let mut renderer = create_renderer(&settings.render)?;
+        renderer.prepare(robot.link_meshes())?;
+        Ok(Self {
+            robot,
+            mount,
+            intrinsics,
+            renderer,
+            out: RenderOutput::default(),
+        })
+    }
+
+    /// The body mask (true = robot) for the given joint names and positions.
+    fn mask(
+        &mut self,
+        mapper: &mut JointMapper,
+        names: &[String],
+        positions: &[f64],
+    ) -> Result<&[bool]> {
+        let q = mapper.map(names, positions)?.positions;
+        let base_from_link = self.robot.forward(&q)?;
+        let camera_from_base = self
+            .mount
+            .camera_from_base(&base_from_link)
+            .context("the camera link has no pose")?;
+        self.renderer.render(
+            &RenderFrame {
+                intrinsics: &self.intrinsics,
+                current: RobotView {
+                    camera_from_base,
+                    base_from_link: &base_from_link,
+                },
+                previous: None,
+                shade: false,
+            },
+            &mut self.out,
+        )?;
+        Ok(&self.out.mask)
+    }
 }
 
 /// Runs the export; returns the number of frames written.
@@ -32,14 +108,22 @@ pub fn run(settings: &Settings, opts: ExportOptions) -> Result<usize> {
     if let Some(v) = opts.variant {
         frames_params.variant = v;
     }
-    if frames_params.variant.is_masked() {
-        bail!(
-            "flow variant {} needs the robot's body mask for every frame, which needs the \
-             robot model and joint states; image-folder episodes carry neither: export \
-             `plain` or `registered`",
+    let mut masker = match (&opts.robot, &opts.camera) {
+        (Some(robot), Some(camera)) => Some(BodyMasker::new(
+            settings,
+            robot,
+            camera,
+            frames_params.width,
+            frames_params.height,
+        )?),
+        (None, None) if frames_params.variant.is_masked() => bail!(
+            "flow variant {} needs the robot's body mask for every frame: pass --robot and \
+             --camera, with a joints.csv in every episode folder",
             frames_params.variant
-        );
-    }
+        ),
+        (None, None) => None,
+        _ => bail!("--robot and --camera go together"),
+    };
     let stride = opts.stride.unwrap_or(settings.pipeline.stride);
     if stride == 0 {
         bail!("--stride must be at least 1");
@@ -75,7 +159,16 @@ pub fn run(settings: &Settings, opts: ExportOptions) -> Result<usize> {
     let mut total = 0;
     for dir in &opts.episodes {
         let seq = ImageSequence::open(dir, period_ns)?;
-        let (records, rows) = export_episode(&mut processor, &seq, stride)
+        let joints = match &masker {
+            Some(_) => Some(JointTrack::read_csv(&dir.join("joints.csv"))?),
+            None => None,
+        };
+        let body = match (masker.as_mut(), joints.as_ref()) {
+            (Some(m), Some(j)) => Some((m, j)),
+            _ => None,
+        };
+        let max_gap_ns = (opts.max_joint_gap_ms * 1e6) as i64;
+        let (records, rows) = export_episode(&mut processor, &seq, stride, body, max_gap_ns)
             .with_context(|| format!("episode {}", dir.display()))?;
         tracing::info!(
             episode = %seq.name,
@@ -106,13 +199,41 @@ fn export_episode(
     processor: &mut FrameProcessor,
     seq: &ImageSequence,
     stride: usize,
+    mut body: Option<(&mut BodyMasker, &JointTrack)>,
+    max_gap_ns: i64,
 ) -> Result<(Vec<FrameRecord>, Vec<f32>)> {
     processor.reset();
     let mut records = Vec::new();
     let mut rows = Vec::new();
+    // One mapper per episode: its missing-joint warning is once per episode.
+    let mut mapper = body.as_ref().map(|(m, _)| m.robot.joint_mapper());
+    let mut gaps = 0usize;
     for (index, frame) in seq.frames.iter().enumerate().step_by(stride) {
         let image = load(&frame.path)?;
-        if let Some(p) = processor.push(&image, None)? {
+        let mask = match (body.as_mut(), mapper.as_mut()) {
+            (Some((masker, track)), Some(mapper)) => {
+                let sample = track.at(frame.stamp_ns);
+                if sample.gap_ns > max_gap_ns {
+                    gaps += 1;
+                }
+                Some(
+                    masker
+                        .mask(mapper, &track.names, &sample.positions)
+                        .with_context(|| format!("body mask of {}", frame.path.display()))?
+                        .to_vec(),
+                )
+            }
+            _ => None,
+        };
+        if gaps == 1 {
+            tracing::warn!(
+                episode = %seq.name,
+                max_gap_ms = max_gap_ns as f64 / 1e6,
+                "image stamps far from any joint sample (joint states interpolated over a gap)"
+            );
+            gaps += 1;
+        }
+        if let Some(p) = processor.push(&image, mask.as_deref())? {
             records.push(FrameRecord {
                 index,
                 stamp_ns: frame.stamp_ns,

@@ -155,3 +155,72 @@ fn bad_input_is_refused_clearly() {
         "no manifest for a failed export"
     );
 }
+
+/// The masked variant renders the panda's body mask from `joints.csv` for every frame and
+/// zeroes the flow there (REFERENCE.md section 3): the masked rows hold a block of exact
+/// zeros where the arm is, the plain rows do not.
+#[test]
+fn masked_export_renders_the_body_from_joint_states() {
+    let dir = tempfile::tempdir().unwrap();
+    let ep = dir.path().join("ep");
+    write_episode(&ep, 4, (1.0, 0.5), 5, true);
+    // Joint states at 50 Hz around the image stamps (1 us + k * 33 ms).
+    let mut csv = String::from("stamp_ns,panda_joint1,panda_joint2,panda_joint4,panda_joint6\n");
+    for i in 0..10 {
+        let t = i as i64 * 20_000_000;
+        csv.push_str(&format!("{t},{},-0.3,-2.0,1.8\n", 0.01 * i as f64));
+    }
+    std::fs::write(ep.join("joints.csv"), csv).unwrap();
+    let camera = dir.path().join("camera.json");
+    std::fs::write(
+        &camera,
+        r#"{"frame": "panda_link0", "convention": "body", "width": 320, "height": 240,
+            "hfov_deg": 70, "offset_xyz": [1.6, 0.0, 0.6], "offset_rpy": [0.0, 0.2, 3.141592653589793]}"#,
+    )
+    .unwrap();
+    let robot = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/robot/franka_panda");
+    let zeros = |variant: &str| -> usize {
+        let out = dir.path().join(variant);
+        let run = export(&[
+            ep.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+            "--preset",
+            "realtime",
+            "--variant",
+            variant,
+            "--robot",
+            robot.to_str().unwrap(),
+            "--camera",
+            camera.to_str().unwrap(),
+        ]);
+        assert!(
+            run.status.success(),
+            "{}",
+            String::from_utf8_lossy(&run.stderr)
+        );
+        let (shape, data) = read_npy_f32(&out.join("ep.npy")).unwrap();
+        assert_eq!(shape, [3, 2, 64, 64]);
+        data.iter().filter(|&&v| v == 0.0).count()
+    };
+    let masked = zeros("masked");
+    let plain = zeros("plain");
+    // The arm covers ~4 % of the image: ~160 of 4096 input pixels, 2 channels, 3 rows.
+    assert!(masked > 3 * 2 * 100, "masked zeros {masked}");
+    assert!(plain < 30, "plain zeros {plain}");
+    // Without joints.csv the masked export names the missing file.
+    std::fs::remove_file(ep.join("joints.csv")).unwrap();
+    let run = export(&[
+        ep.to_str().unwrap(),
+        "-o",
+        dir.path().join("x").to_str().unwrap(),
+        "--variant",
+        "masked",
+        "--robot",
+        robot.to_str().unwrap(),
+        "--camera",
+        camera.to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(!run.status.success() && err.contains("joints.csv"), "{err}");
+}
