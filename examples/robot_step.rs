@@ -28,8 +28,14 @@ fn thread_cpu_ms() -> f64 {
 
 fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().collect();
-    let default = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/fixtures/robot/franka_panda");
-    let path = args.get(1).filter(|s| !s.is_empty()).map_or(default, String::as_str);
+    let default = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/tests/fixtures/robot/franka_panda"
+    );
+    let path = args
+        .get(1)
+        .filter(|s| !s.is_empty())
+        .map_or(default, String::as_str);
     let reps: usize = args.get(2).map_or(Ok(50), |s| s.parse())?;
     let cull = args.get(3).is_some_and(|s| s == "cull");
     let simplify_cell_m: f64 = args.get(4).map_or(Ok(0.0), |s| s.parse())?;
@@ -132,8 +138,18 @@ fn main() -> anyhow::Result<()> {
             },
             &mut out,
         )?;
-        let both = out.coverage.iter().zip(&full.coverage).filter(|(a, b)| **a && **b).count();
-        let either = out.coverage.iter().zip(&full.coverage).filter(|(a, b)| **a || **b).count();
+        let both = out
+            .coverage
+            .iter()
+            .zip(&full.coverage)
+            .filter(|(a, b)| **a && **b)
+            .count();
+        let either = out
+            .coverage
+            .iter()
+            .zip(&full.coverage)
+            .filter(|(a, b)| **a || **b)
+            .count();
         println!(
             "{w}x{h}: step {best:.3} ms (FK + mapping {best_fk:.4} ms; min of {reps}), {:.1} % covered, silhouette IoU vs full mesh {:.4}",
             100.0 * out.covered_pixels() as f64 / f64::from(w * h),
