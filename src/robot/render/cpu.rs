@@ -110,7 +110,22 @@ impl CpuRenderer {
         self.triangles.len()
     }
 
-    fn check_links(&self, view: &RobotView<'_>, which: &'static str) -> Result<(), RenderError> {
+    /// The prepared (validated, possibly simplified) geometry, for other back-ends:
+    /// link-frame vertex positions, triangles indexing them, and per mesh group its link
+    /// index and vertex range (groups own contiguous vertex ranges).
+    #[cfg_attr(not(feature = "wgpu"), allow(dead_code))]
+    pub(super) fn prepared_geometry(
+        &self,
+    ) -> (&[[f32; 3]], &[[u32; 3]], Vec<(usize, std::ops::Range<usize>)>) {
+        let groups = self
+            .groups
+            .iter()
+            .map(|g| (g.link, g.vertices.clone()))
+            .collect();
+        (&self.positions, &self.triangles, groups)
+    }
+
+    pub(super) fn check_links(&self, view: &RobotView<'_>, which: &'static str) -> Result<(), RenderError> {
         view.validate(which)?;
         if let Some(link) = self.max_link
             && link >= view.base_from_link.len()
