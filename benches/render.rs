@@ -11,8 +11,8 @@
 use std::time::Duration;
 
 use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
-use vamos::robot::render::shapes::SyntheticArm;
 use nalgebra::{Isometry3, Point3, Vector3};
+use vamos::robot::render::shapes::SyntheticArm;
 use vamos::robot::render::{
     BodyRenderer, CpuRenderer, RenderConfig, RenderFrame, RenderOutput, RobotView,
 };
@@ -81,8 +81,11 @@ fn bench_render(c: &mut Criterion) {
     group.finish();
 }
 
+/// `base_from_link` of every link.
+type LinkPoses = Vec<Isometry3<f64>>;
+
 /// The panda at a bent pose and the same pose 0.02 rad earlier on every joint.
-fn panda_poses(robot: &Robot) -> Option<(Vec<Isometry3<f64>>, Vec<Isometry3<f64>>)> {
+fn panda_poses(robot: &Robot) -> Option<(LinkPoses, LinkPoses)> {
     let names: Vec<String> = robot.joints().iter().map(|j| j.name.clone()).collect();
     let pose = |delta: f64| -> Vec<f64> {
         names
@@ -132,7 +135,11 @@ fn bench_panda(c: &mut Criterion) {
     #[cfg(feature = "wgpu")]
     match vamos::robot::render::WgpuRenderer::new(&config) {
         Ok(r) => {
-            eprintln!("wgpu adapter: {} ({:?})", r.adapter_name(), r.adapter_type());
+            eprintln!(
+                "wgpu adapter: {} ({:?})",
+                r.adapter_name(),
+                r.adapter_type()
+            );
             renderers.push(Box::new(r));
         }
         Err(e) => eprintln!("no wgpu back-end: {e}"),

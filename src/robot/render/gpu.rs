@@ -376,10 +376,12 @@ impl WgpuRenderer {
                 staging,
             });
         }
-        self.targets.as_ref().ok_or(RenderError::BackendUnavailable {
-            backend: RenderBackend::Wgpu,
-            reason: "render targets missing",
-        })
+        self.targets
+            .as_ref()
+            .ok_or(RenderError::BackendUnavailable {
+                backend: RenderBackend::Wgpu,
+                reason: "render targets missing",
+            })
     }
 }
 
@@ -416,11 +418,12 @@ impl BodyRenderer for WgpuRenderer {
             .flatten()
             .flat_map(|i| i.to_le_bytes())
             .collect();
-        let index_count = u32::try_from(triangles.len() * 3).map_err(|_| RenderError::TooLarge {
-            what: "triangle indices",
-            count: triangles.len() * 3,
-            max: u32::MAX as usize,
-        })?;
+        let index_count =
+            u32::try_from(triangles.len() * 3).map_err(|_| RenderError::TooLarge {
+                what: "triangle indices",
+                count: triangles.len() * 3,
+                max: u32::MAX as usize,
+            })?;
         if groups.is_empty() {
             self.meshes = None;
             return Ok(());
@@ -537,7 +540,9 @@ impl BodyRenderer for WgpuRenderer {
         };
         let mut encoder = self
             .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("body") });
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("body"),
+            });
         {
             let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
                 label: Some("body"),

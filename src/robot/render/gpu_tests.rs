@@ -21,10 +21,7 @@ const FLOW_TOL_PX: f32 = 0.05;
 fn gpu(config: &RenderConfig) -> WgpuRenderer {
     match WgpuRenderer::new(config) {
         Ok(r) => r,
-        Err(e) => panic!(
-            "the wgpu back-end tests need a wgpu adapter and found none ({e}); on a machine \
-             without a GPU install Mesa lavapipe: apt-get install mesa-vulkan-drivers libvulkan1"
-        ),
+        Err(e) => panic!("the wgpu back-end tests need a wgpu adapter: {e}"),
     }
 }
 
@@ -166,7 +163,10 @@ fn synthetic_arm_agrees_with_the_cpu_on_both_grids_and_with_culling() {
                 };
                 let (c, g) = both(&config, &arm.meshes, &frame);
                 assert!(c.covered_pixels() as f64 > 0.1 * f64::from(w * h));
-                assert_agree(&compare(&c, &g), &format!("arm {w}x{h} {grid:?} cull {cull}"));
+                assert_agree(
+                    &compare(&c, &g),
+                    &format!("arm {w}x{h} {grid:?} cull {cull}"),
+                );
             }
         }
     }
