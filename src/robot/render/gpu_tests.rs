@@ -5,6 +5,9 @@
 //! Observed on lavapipe (LLVM 15, x86-64): see the numbers printed by each test and
 //! `benches/README.md`; the asserted tolerances are below.
 
+// Clippy's allow-unwrap-in-tests does not see through `cfg(all(test, feature))`.
+#![allow(clippy::unwrap_used)]
+
 use super::shapes::{SyntheticArm, cuboid};
 use super::*;
 use crate::robot::{Robot, RobotConfig};
