@@ -54,6 +54,15 @@ struct Group {
     radius: f32,
 }
 
+/// What [`CpuRenderer::prepared_geometry`] lends: vertices, triangles, per group its
+/// link index and vertex range.
+#[cfg_attr(not(feature = "wgpu"), allow(dead_code))]
+pub(super) type PreparedGeometry<'a> = (
+    &'a [[f32; 3]],
+    &'a [[u32; 3]],
+    Vec<(usize, std::ops::Range<usize>)>,
+);
+
 /// The CPU z-buffer renderer (see the module docs).
 #[derive(Debug, Clone)]
 pub struct CpuRenderer {
@@ -110,7 +119,24 @@ impl CpuRenderer {
         self.triangles.len()
     }
 
-    fn check_links(&self, view: &RobotView<'_>, which: &'static str) -> Result<(), RenderError> {
+    /// The prepared (validated, possibly simplified) geometry, for other back-ends:
+    /// link-frame vertex positions, triangles indexing them, and per mesh group its link
+    /// index and vertex range (groups own contiguous vertex ranges).
+    #[cfg_attr(not(feature = "wgpu"), allow(dead_code))]
+    pub(super) fn prepared_geometry(&self) -> PreparedGeometry<'_> {
+        let groups = self
+            .groups
+            .iter()
+            .map(|g| (g.link, g.vertices.clone()))
+            .collect();
+        (&self.positions, &self.triangles, groups)
+    }
+
+    pub(super) fn check_links(
+        &self,
+        view: &RobotView<'_>,
+        which: &'static str,
+    ) -> Result<(), RenderError> {
         view.validate(which)?;
         if let Some(link) = self.max_link
             && link >= view.base_from_link.len()

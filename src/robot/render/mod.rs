@@ -13,8 +13,13 @@
 //! a caller-owned [`RenderOutput`] whose buffers are reused from frame to frame.
 //! [`CpuRenderer`] is a z-buffer rasteriser written for this crate (see [`cpu`]); it is
 //! single-threaded on purpose: the service renders for many robots at once, one frame per
-//! worker, and a frame at 320x240 is far too small to amortise fork/join. A GPU (wgpu)
-//! back-end is not built yet; `backend = "wgpu"` is a [`RenderError::BackendUnavailable`].
+//! worker, and a frame at 320x240 is far too small to amortise fork/join. With the cargo
+//! feature `wgpu`, `gpu::WgpuRenderer` draws the same outputs in one headless wgpu render
+//! pass (see the `gpu` module); without it `backend = "wgpu"` is a
+//! [`RenderError::BackendUnavailable`]. `backend = "auto"` picks the wgpu back-end only when
+//! the feature is built and wgpu's adapter is a hardware GPU (discrete or integrated): a
+//! software adapter such as Mesa's lavapipe is slower than the CPU rasteriser (see
+//! `benches/README.md`); there is no timing probe.
 //!
 //! # Conventions of [`RenderOutput`]
 //! - **Pixel grid**: pixel `(x, y)` is the pixel whose centre is at `(x, y)` in the
@@ -65,6 +70,10 @@
 //! module's shared types.
 
 pub mod cpu;
+#[cfg(feature = "wgpu")]
+pub mod gpu;
+#[cfg(all(test, feature = "wgpu"))]
+mod gpu_tests;
 mod mask;
 pub mod shapes;
 pub mod simplify;
@@ -72,6 +81,8 @@ pub mod simplify;
 mod tests;
 
 pub use cpu::CpuRenderer;
+#[cfg(feature = "wgpu")]
+pub use gpu::WgpuRenderer;
 
 use crate::robot::camera::Intrinsics;
 use crate::robot::geometry::LinkMesh;
@@ -172,12 +183,14 @@ pub enum RenderError {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum RenderBackend {
-    /// The fastest available back-end (today: the CPU rasteriser).
+    /// The wgpu back-end when the `wgpu` feature is built and a hardware GPU adapter
+    /// exists, otherwise the CPU rasteriser.
     #[default]
     Auto,
     /// The CPU z-buffer rasteriser.
     Cpu,
-    /// A GPU renderer through wgpu (not built yet).
+    /// The wgpu renderer (cargo feature `wgpu`; an error without it or without an
+    /// adapter).
     Wgpu,
 }
 
@@ -378,14 +391,34 @@ pub trait BodyRenderer: Send {
     fn name(&self) -> &'static str;
 }
 
-/// The renderer `config` asks for.
+/// The renderer `config` asks for (see [`RenderBackend`]). With the `wgpu` feature,
+/// `auto` probes wgpu's default adapter (instance creation, ~0.3 s once).
 pub fn create_renderer(config: &RenderConfig) -> Result<Box<dyn BodyRenderer>, RenderError> {
     config.validate()?;
     match config.backend {
-        RenderBackend::Auto | RenderBackend::Cpu => Ok(Box::new(CpuRenderer::new(config)?)),
+        RenderBackend::Cpu => Ok(Box::new(CpuRenderer::new(config)?)),
+        #[cfg(feature = "wgpu")]
+        RenderBackend::Auto => {
+            // A software adapter (lavapipe, llvmpipe: device type Cpu) is slower than the
+            // CPU rasteriser; only a hardware GPU is worth the driver. No timing probe.
+            match gpu::default_adapter_type() {
+                Some(wgpu::DeviceType::DiscreteGpu | wgpu::DeviceType::IntegratedGpu) => {
+                    match WgpuRenderer::new(config) {
+                        Ok(r) => Ok(Box::new(r)),
+                        Err(_) => Ok(Box::new(CpuRenderer::new(config)?)),
+                    }
+                }
+                _ => Ok(Box::new(CpuRenderer::new(config)?)),
+            }
+        }
+        #[cfg(not(feature = "wgpu"))]
+        RenderBackend::Auto => Ok(Box::new(CpuRenderer::new(config)?)),
+        #[cfg(feature = "wgpu")]
+        RenderBackend::Wgpu => Ok(Box::new(WgpuRenderer::new(config)?)),
+        #[cfg(not(feature = "wgpu"))]
         RenderBackend::Wgpu => Err(RenderError::BackendUnavailable {
             backend: RenderBackend::Wgpu,
-            reason: "this build has no GPU back-end; use backend = \"cpu\" or \"auto\"",
+            reason: "this build has no GPU back-end (build with --features wgpu); use backend = \"cpu\" or \"auto\"",
         }),
     }
 }
