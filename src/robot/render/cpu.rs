@@ -14,10 +14,10 @@
 //! Single-threaded by design (see the parent module); buffers are kept between frames.
 
 use super::mask::grow_mask;
-use super::{FlowGrid, NO_LINK, RenderConfig, RenderError, RenderFrame, RenderOutput, RobotView};
+use super::{FlowGrid, RenderConfig, RenderError, RenderFrame, RenderOutput, RobotView};
 use crate::robot::camera::Intrinsics;
 use crate::robot::geometry::LinkMesh;
-use crate::vision::image::{FlowField, GrayImage};
+use crate::vision::image::GrayImage;
 use nalgebra::{Isometry3, Matrix3, Point3, Vector3};
 
 /// Vertices further than this from the image origin (pixels, after projection) are out
@@ -328,19 +328,7 @@ impl CpuRenderer {
     fn resolve(&mut self, k: &Intrinsics, shade: bool, with_flow: bool, out: &mut RenderOutput) {
         let (w, h) = (k.width as usize, k.height as usize);
         let n = w * h;
-        out.width = w;
-        out.height = h;
-        out.coverage.clear();
-        out.coverage.resize(n, false);
-        out.depth_m.clear();
-        out.depth_m.resize(n, f32::INFINITY);
-        out.link.clear();
-        out.link.resize(n, NO_LINK);
-        if out.flow.size() != (w, h) {
-            out.flow = FlowField::zeros(w, h);
-        }
-        out.flow.u.fill(f32::NAN);
-        out.flow.v.fill(f32::NAN);
+        out.reset(w, h);
         let mut gray = if shade {
             let mut data = out
                 .gray

@@ -31,11 +31,9 @@
 use super::cpu::CpuRenderer;
 use super::mask::grow_mask;
 use super::{
-    BodyRenderer, FlowGrid, NO_LINK, RenderBackend, RenderConfig, RenderError, RenderFrame,
-    RenderOutput,
+    BodyRenderer, FlowGrid, RenderBackend, RenderConfig, RenderError, RenderFrame, RenderOutput,
 };
 use crate::robot::geometry::LinkMesh;
-use crate::vision::image::FlowField;
 use nalgebra::{Isometry3, Matrix4};
 
 const SHADER: &str = r#"
@@ -612,21 +610,8 @@ impl BodyRenderer for WgpuRenderer {
         }
 
         let (w, h) = (width as usize, height as usize);
-        let n = w * h;
-        out.width = w;
-        out.height = h;
+        out.reset(w, h);
         out.gray = None;
-        out.coverage.clear();
-        out.coverage.resize(n, false);
-        out.depth_m.clear();
-        out.depth_m.resize(n, f32::INFINITY);
-        out.link.clear();
-        out.link.resize(n, NO_LINK);
-        if out.flow.size() != (w, h) {
-            out.flow = FlowField::zeros(w, h);
-        }
-        out.flow.u.fill(f32::NAN);
-        out.flow.v.fill(f32::NAN);
         {
             let data = slice
                 .get_mapped_range()

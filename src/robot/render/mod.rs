@@ -363,6 +363,25 @@ impl Default for RenderOutput {
 }
 
 impl RenderOutput {
+    /// Sizes the buffers for a `width x height` frame (allocations reused) and clears them
+    /// to "no robot": coverage false, depth `+inf`, link [`NO_LINK`], flow `NaN`.
+    pub(crate) fn reset(&mut self, width: usize, height: usize) {
+        let n = width * height;
+        self.width = width;
+        self.height = height;
+        self.coverage.clear();
+        self.coverage.resize(n, false);
+        self.depth_m.clear();
+        self.depth_m.resize(n, f32::INFINITY);
+        self.link.clear();
+        self.link.resize(n, NO_LINK);
+        if self.flow.size() != (width, height) {
+            self.flow = FlowField::zeros(width, height);
+        }
+        self.flow.u.fill(f32::NAN);
+        self.flow.v.fill(f32::NAN);
+    }
+
     /// Number of covered (robot) pixels.
     pub fn covered_pixels(&self) -> usize {
         self.coverage.iter().filter(|&&c| c).count()
