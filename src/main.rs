@@ -99,13 +99,74 @@ enum Command {
         #[arg(long)]
         timing: bool,
     },
+    /// Score recorded episodes (ROS 2 bags in MCAP) with a profile: one JSON summary line
+    /// per episode; with --out the per-frame scores (JSON lines) and, with --mcap, a bag of
+    /// the images plus score topics for Foxglove or `ros2 bag play`.
+    Score {
+        /// The profile (TOML; see README "Profiles").
+        #[arg(long)]
+        profile: PathBuf,
+        /// Episodes: .mcap files or folders of them.
+        #[arg(required = true)]
+        episodes: Vec<PathBuf>,
+        /// Output folder for `<episode>.scores.jsonl` (and `.scored.mcap`).
+        #[arg(short, long)]
+        out: Option<PathBuf>,
+        /// Also write `<episode>.scored.mcap`: input images, /vamos/score, /vamos/anomaly,
+        /// /vamos/e_c, /vamos/e_b, /vamos/e_o, /vamos/heatmap.
+        #[arg(long)]
+        mcap: bool,
+    },
+    /// Calibrate a profile's thresholds on nominal episodes: e_c and e_b maxima (the
+    /// paper) and a split-conformal threshold on the fused score from held-out episodes.
+    Calibrate {
+        /// The profile; the calibration is written beside it (`<stem>.calibration.json`).
+        #[arg(long)]
+        profile: PathBuf,
+        /// Nominal training episodes (.mcap files or folders).
+        #[arg(required = true)]
+        episodes: Vec<PathBuf>,
+        /// Held-out nominal episodes for the conformal threshold.
+        #[arg(long, num_args = 1..)]
+        holdout: Vec<PathBuf>,
+        /// Per-episode false-alarm budget of the conformal threshold.
+        #[arg(long, default_value_t = 0.1)]
+        alpha: f64,
+    },
+    /// Evaluate a profile on labelled episodes: frame-level AUC-ROC and AUC-PR (pooled),
+    /// per anomaly type, episode false-alarm rate and detection delay at the alarm
+    /// threshold; prints the report as JSON.
+    Eval {
+        /// The profile (calibrated).
+        #[arg(long)]
+        profile: PathBuf,
+        /// Labelled episodes (.mcap with `<stem>.labels.json` or a label topic), files or
+        /// folders.
+        #[arg(long, required = true, num_args = 1..)]
+        episodes: Vec<PathBuf>,
+        /// Also write the report here.
+        #[arg(long)]
+        json: Option<PathBuf>,
+        /// Write plots here: a score timeline per episode, roc.png, pr.png.
+        #[arg(long)]
+        plots: Option<PathBuf>,
+        /// Run the paper's ablation (4 flow variants x OF only / +body / +body+camera) and
+        /// write it as markdown here.
+        #[arg(long)]
+        ablation: Option<PathBuf>,
+        /// A model per flow variant for the ablation, `VARIANT=PATH` (repeatable); the
+        /// profile's model serves its own variant.
+        #[arg(long)]
+        variant_model: Vec<String>,
+    },
     /// Print the effective settings (defaults + file + environment) as TOML.
     Config,
     /// Write the flow predictor's training data (64x64 network inputs of every processed
     /// frame) from nominal episodes: one .npy per episode plus manifest.json.
     ExportDataset {
-        /// Episode folders: images (.png/.jpg) in name order, or listed with stamps in
-        /// `frames.csv` (`file,stamp_ns`).
+        /// Episodes: ROS 2 bags (.mcap, or folders of them; topics from `[episode]`), or
+        /// image folders: images (.png/.jpg) in name order, or listed with stamps in
+        /// `frames.csv` (`file,stamp_ns`), joint states in `joints.csv`.
         #[arg(required = true)]
         episodes: Vec<PathBuf>,
         /// Output folder.
@@ -246,6 +307,44 @@ fn run(cli: Cli) -> Result<()> {
             print!("{}", toml::to_string_pretty(&settings)?);
             Ok(())
         }
+        Command::Score {
+            profile,
+            episodes,
+            out,
+            mcap,
+        } => cli::score::run(&settings, &profile, &episodes, out, mcap),
+        Command::Calibrate {
+            profile,
+            episodes,
+            holdout,
+            alpha,
+        } => cli::calibrate::run(
+            &settings,
+            cli::calibrate::CalibrateOptions {
+                profile,
+                episodes,
+                holdout,
+                alpha,
+            },
+        ),
+        Command::Eval {
+            profile,
+            episodes,
+            json,
+            plots,
+            ablation,
+            variant_model,
+        } => cli::eval::run(
+            &settings,
+            cli::eval::EvalOptions {
+                profile,
+                episodes,
+                json,
+                plots,
+                ablation,
+                variant_models: variant_model,
+            },
+        ),
         Command::ExportDataset {
             episodes,
             out,

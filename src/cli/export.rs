@@ -4,7 +4,7 @@
 use anyhow::{Context, Result, bail};
 use std::path::{Path, PathBuf};
 use vamos::config::Settings;
-use vamos::episode::{ImageSequence, JointTrack};
+use vamos::episode::{EpisodeError, ImageSequence, JointTrack, McapEpisode};
 use vamos::pipeline::dataset::{DatasetWriter, FrameRecord, InputSpec, ProcessingSpec};
 use vamos::pipeline::{FlowVariant, FrameProcessor};
 use vamos::robot::render::{BodyRenderer, RenderFrame, RenderOutput, RobotView, create_renderer};
@@ -157,7 +157,24 @@ pub fn run(settings: &Settings, opts: ExportOptions) -> Result<usize> {
     )?;
     let period_ns = (1e9 / opts.fps).round() as i64;
     let mut total = 0;
-    for dir in &opts.episodes {
+    let max_gap_ns = (opts.max_joint_gap_ms * 1e6) as i64;
+    for dir in &expand_bags(&opts.episodes)? {
+        if dir.extension().is_some_and(|x| x == "mcap") {
+            let episode = McapEpisode::open(dir, &settings.episode)
+                .with_context(|| format!("episode {}", dir.display()))?;
+            let (records, rows, images) =
+                export_bag(&mut processor, &episode, stride, masker.as_mut(), max_gap_ns)
+                    .with_context(|| format!("episode {}", dir.display()))?;
+            eprintln!(
+                "{}: {} images -> {} frames",
+                episode.name(),
+                images,
+                records.len()
+            );
+            total += records.len();
+            writer.add_episode(episode.name(), records, &rows)?;
+            continue;
+        }
         let seq = ImageSequence::open(dir, period_ns)?;
         let joints = match &masker {
             Some(_) => Some(JointTrack::read_csv(&dir.join("joints.csv"))?),
@@ -167,7 +184,6 @@ pub fn run(settings: &Settings, opts: ExportOptions) -> Result<usize> {
             (Some(m), Some(j)) => Some((m, j)),
             _ => None,
         };
-        let max_gap_ns = (opts.max_joint_gap_ms * 1e6) as i64;
         let (records, rows) = export_episode(&mut processor, &seq, stride, body, max_gap_ns)
             .with_context(|| format!("episode {}", dir.display()))?;
         tracing::info!(
@@ -242,6 +258,91 @@ fn export_episode(
         }
     }
     Ok((records, rows))
+}
+
+/// Folders that hold `.mcap` files expand into them (sorted); other paths pass through
+/// (an image folder, a bag).
+fn expand_bags(paths: &[PathBuf]) -> Result<Vec<PathBuf>> {
+    let mut out = Vec::new();
+    for p in paths {
+        if p.is_dir() {
+            let mut bags: Vec<PathBuf> = std::fs::read_dir(p)
+                .with_context(|| format!("cannot list {}", p.display()))?
+                .filter_map(|e| e.ok().map(|e| e.path()))
+                .filter(|f| f.extension().is_some_and(|x| x == "mcap"))
+                .collect();
+            if !bags.is_empty() {
+                bags.sort();
+                out.extend(bags);
+                continue;
+            }
+        }
+        out.push(p.clone());
+    }
+    Ok(out)
+}
+
+/// Exports one ROS 2 bag: its frames in stamp order, joint states interpolated to each
+/// image stamp. Frames the reader refuses are skipped with a warning; a damaged file is
+/// exported up to the damage. Returns the records, rows and the images read.
+fn export_bag(
+    processor: &mut FrameProcessor,
+    episode: &McapEpisode,
+    stride: usize,
+    mut masker: Option<&mut BodyMasker>,
+    max_gap_ns: i64,
+) -> Result<(Vec<FrameRecord>, Vec<f32>, usize)> {
+    processor.reset();
+    let mut records = Vec::new();
+    let mut rows = Vec::new();
+    let mut mapper = masker.as_ref().map(|m| m.robot.joint_mapper());
+    let mut images = 0usize;
+    let mut gap_warned = false;
+    for item in episode.frames() {
+        let frame = match item {
+            Ok(f) => f,
+            Err(e @ EpisodeError::Truncated { .. }) => {
+                tracing::warn!(episode = %episode.name(), "{e}; exported up to there");
+                break;
+            }
+            Err(e) => {
+                tracing::warn!(episode = %episode.name(), "frame skipped: {e}");
+                continue;
+            }
+        };
+        images += 1;
+        if (images - 1) % stride != 0 {
+            continue;
+        }
+        let mask = match (masker.as_mut(), mapper.as_mut()) {
+            (Some(masker), Some(mapper)) => {
+                let Some(j) = &frame.joints else {
+                    bail!(
+                        "image {} has no joint states: the body mask needs them",
+                        frame.index
+                    );
+                };
+                if j.gap_ns > max_gap_ns && !gap_warned {
+                    tracing::warn!(
+                        episode = %episode.name(),
+                        gap_ms = j.gap_ns as f64 / 1e6,
+                        "image stamps far from any joint sample"
+                    );
+                    gap_warned = true;
+                }
+                Some(masker.mask(mapper, &j.names, &j.positions)?.to_vec())
+            }
+            _ => None,
+        };
+        if let Some(p) = processor.push(&frame.image, mask.as_deref())? {
+            records.push(FrameRecord {
+                index: frame.index,
+                stamp_ns: frame.stamp_ns,
+            });
+            rows.extend_from_slice(&p.network_input);
+        }
+    }
+    Ok((records, rows, images))
 }
 
 fn load(path: &Path) -> Result<GrayImage> {

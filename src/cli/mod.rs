@@ -1,6 +1,9 @@
 //! Implementations of the larger CLI sub-commands (binary-only; `main.rs` dispatches).
 
+pub mod calibrate;
+pub mod eval;
 pub mod export;
 pub mod model;
 pub mod render;
 pub mod robot;
+pub mod score;

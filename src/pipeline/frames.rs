@@ -25,6 +25,7 @@ use crate::vision::{FlowField, GrayImage};
 use serde::{Deserialize, Serialize};
 use std::fmt;
 use std::str::FromStr;
+use std::time::Instant;
 
 /// Which flow the predictor sees (REFERENCE.md section 3; masked was best in the paper).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
@@ -171,6 +172,25 @@ pub struct ProcessedFrame {
     pub network_input: Vec<f32>,
     /// For masked variants: which of the `n x n` input pixels are valid (not robot body).
     pub network_valid: Option<Vec<bool>>,
+    /// Wall time of each stage of this push.
+    pub timings: FrontEndTimings,
+}
+
+/// Wall time of the front end's stages for one frame, microseconds.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+pub struct FrontEndTimings {
+    /// Resize and histogram equalisation.
+    pub prepare_us: u64,
+    /// Fourier-Mellin registration.
+    pub registration_us: u64,
+    /// TV-L1 optical flow.
+    pub flow_us: u64,
+    /// Flow variant and the 64x64 network input (and its mask).
+    pub network_input_us: u64,
+}
+
+fn micros_since(start: Instant) -> u64 {
+    u64::try_from(start.elapsed().as_micros()).unwrap_or(u64::MAX)
 }
 
 /// The stateful front end of one stream (a session or an episode).
@@ -255,9 +275,15 @@ impl FrameProcessor {
                 variant: self.params.variant,
             });
         }
+        let mut timings = FrontEndTimings::default();
+        let start = Instant::now();
         let frame = self.prepare(image)?;
+        timings.prepare_us = micros_since(start);
         // Registration first: if it fails the flow estimator has not advanced either.
+        let start = Instant::now();
         let registration = self.registrar.push(&frame, body_mask)?;
+        timings.registration_us = micros_since(start);
+        let start = Instant::now();
         let flow = match self.flow.push(&frame) {
             Ok(f) => f,
             Err(e) => {
@@ -267,9 +293,11 @@ impl FrameProcessor {
                 return Err(e.into());
             }
         };
+        timings.flow_us = micros_since(start);
         let (Some(flow), Some(registration)) = (flow, registration) else {
             return Ok(None);
         };
+        let start = Instant::now();
         let variant_flow = apply_variant(
             &flow,
             self.params.variant,
@@ -281,11 +309,13 @@ impl FrameProcessor {
             (true, Some(m)) => Some(network_mask(m, w, h, &self.network)?),
             _ => None,
         };
+        timings.network_input_us = micros_since(start);
         Ok(Some(ProcessedFrame {
             flow,
             registration,
             network_input,
             network_valid,
+            timings,
         }))
     }
 }

@@ -5,13 +5,25 @@
 //!   resolution, histogram equalisation, TV-L1 flow from the previous processed frame,
 //!   Fourier-Mellin registration, and the flow predictor's 64x64 input in the configured
 //!   [`FlowVariant`].
+//! - [`scorer`]: the detector of one stream: frames and joint states in, fused scores out
+//!   (`e_c`, `e_b`, `e_o`, thresholds).
+//! - [`profile`]: what binds a robot, a camera, pipeline parameters, a model and the
+//!   calibrated thresholds, as a TOML file plus its calibration.
 //! - [`dataset`]: the training dataset (`docs/model-bundle.md`) written from processed frames.
 
 pub mod dataset;
 pub mod frames;
+pub mod profile;
+pub mod scorer;
 
 pub use frames::{
-    FlowVariant, FrameProcessor, FrameProcessorParams, PipelineError, ProcessedFrame,
+    FlowVariant, FrameProcessor, FrameProcessorParams, FrontEndTimings, PipelineError,
+    ProcessedFrame,
+};
+pub use profile::{AlarmRule, Calibration, Profile, ProfileError};
+pub use scorer::{
+    FrameInput, FrameScore, JointInput, RobotSetup, Scorer, ScorerError, ScorerParts,
+    StageTimings,
 };
 
 use crate::robot::camera_motion::{CameraErrorWeights, CameraMotionParams};
@@ -29,6 +41,37 @@ pub struct PipelineConfig {
     pub camera_motion: CameraMotionParams,
     /// Optional rotation and scale terms of `e_c`.
     pub camera_error: CameraErrorWeights,
+    /// Which detectors contribute to the score (the paper's ablation columns).
+    pub detectors: DetectorSwitches,
+    /// Smallest past offset A (processed frames); absent = the model bundle's.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub offset_a: Option<usize>,
+    /// Offsets span `A..=A+B`; absent = the model bundle's B.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub offset_b: Option<usize>,
+}
+
+/// Which detectors contribute to the score. A detector also needs its inputs: camera and
+/// body need a robot and joint states, flow a model.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct DetectorSwitches {
+    /// Camera-motion error `e_c`.
+    pub camera: bool,
+    /// Body-motion error `e_b`.
+    pub body: bool,
+    /// Flow-prediction error `e_o`.
+    pub flow: bool,
+}
+
+impl Default for DetectorSwitches {
+    fn default() -> Self {
+        Self {
+            camera: true,
+            body: true,
+            flow: true,
+        }
+    }
 }
 
 impl Default for PipelineConfig {
@@ -38,6 +81,9 @@ impl Default for PipelineConfig {
             frames: FrameProcessorParams::default(),
             camera_motion: CameraMotionParams::default(),
             camera_error: CameraErrorWeights::default(),
+            detectors: DetectorSwitches::default(),
+            offset_a: None,
+            offset_b: None,
         }
     }
 }

@@ -1,0 +1,314 @@
+//! `vamos score`: the detector over recorded episodes (ROS 2 bags in MCAP), and the
+//! profile loading that `vamos calibrate` and `vamos eval` share.
+
+use anyhow::{Context, Result, bail};
+use rayon::prelude::*;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use vamos::config::Settings;
+use vamos::episode::{EpisodeFrame, ImageData, McapEpisode, ScoreBagWriter};
+use vamos::eval::Thresholds;
+use vamos::model::FlowModel;
+use vamos::pipeline::offline::{EpisodeScores, score_episode};
+use vamos::pipeline::{FrameScore, PipelineConfig, Profile, RobotSetup, Scorer, ScorerParts};
+use vamos::robot::Robot;
+use vamos::vision::flow::FlowParams;
+
+/// A profile with its robot and model loaded, ready to make scorers.
+pub struct Setup {
+    /// The settings.
+    pub settings: Settings,
+    /// The profile.
+    pub profile: Profile,
+    /// Pipeline parameters in force (the profile's, else the settings').
+    pub config: PipelineConfig,
+    /// TV-L1 parameters in force.
+    pub flow: FlowParams,
+    /// The robot, if the profile has one.
+    pub robot: Option<RobotSetup>,
+    /// The model, if the profile has one.
+    pub model: Option<Arc<FlowModel>>,
+}
+
+impl Setup {
+    /// Loads `profile` with its robot, camera and model.
+    pub fn load(settings: &Settings, profile: &Path) -> Result<Self> {
+        let profile = Profile::load(profile)?;
+        let config = profile
+            .file
+            .pipeline
+            .clone()
+            .unwrap_or_else(|| settings.pipeline.clone());
+        let flow = match &profile.file.flow_preset {
+            Some(p) => FlowParams::preset(p)?,
+            None => settings.vision.flow.clone(),
+        };
+        let robot = match (&profile.file.robot, &profile.camera) {
+            (Some(path), Some(spec)) => {
+                let robot = Robot::load(path, &settings.robot)
+                    .with_context(|| format!("cannot load robot {}", path.display()))?;
+                for w in robot.warnings() {
+                    tracing::warn!(robot = %path.display(), "{w}");
+                }
+                let mut mount = robot.camera(&spec.frame, spec.convention)?;
+                mount.link_from_optical = spec.frame_from_camera() * mount.link_from_optical;
+                Some(RobotSetup {
+                    robot: Arc::new(robot),
+                    mount,
+                    intrinsics: spec.intrinsics().ok(),
+                })
+            }
+            (Some(_), None) => bail!(
+                "profile {} names a robot but no camera: add `camera = \"camera.json\"`",
+                profile.path.display()
+            ),
+            (None, _) => None,
+        };
+        let model = match &profile.file.model {
+            Some(path) => Some(Arc::new(
+                FlowModel::load(path, &settings.model.load_options())
+                    .with_context(|| format!("cannot load model {}", path.display()))?,
+            )),
+            None => None,
+        };
+        Ok(Self {
+            settings: settings.clone(),
+            profile,
+            config,
+            flow,
+            robot,
+            model,
+        })
+    }
+
+    /// A scorer for the episode (or session) `key`, with `config` (default: the profile's)
+    /// and `model` (default: the profile's).
+    pub fn scorer(
+        &self,
+        key: &str,
+        thresholds: Thresholds,
+        alarm_threshold: f64,
+        heatmaps: bool,
+        config: Option<&PipelineConfig>,
+        model: Option<&Arc<FlowModel>>,
+    ) -> Result<Scorer> {
+        Ok(Scorer::new(ScorerParts {
+            config: config.unwrap_or(&self.config).clone(),
+            flow: self.flow.clone(),
+            registration: self.settings.vision.registration.clone(),
+            network: self.settings.vision.network_input.clone(),
+            render: self.settings.render.clone(),
+            robot: self.robot.clone(),
+            model: model.or(self.model.as_ref()).cloned(),
+            samples: self.settings.model.samples,
+            seed: self.settings.model.session_seed(key),
+            thresholds,
+            alarm_threshold,
+            heatmaps,
+        })?)
+    }
+
+    /// Scores `episodes` in parallel (one scorer each); `per_episode` runs on each result
+    /// as it finishes (e.g. to print progress). Episodes that cannot be opened are errors.
+    pub fn score_all(
+        &self,
+        episodes: &[PathBuf],
+        thresholds: Thresholds,
+        alarm_threshold: f64,
+        config: Option<&PipelineConfig>,
+        model: Option<&Arc<FlowModel>>,
+        output: Option<&OutputOptions>,
+    ) -> Result<Vec<EpisodeScores>> {
+        let done = std::sync::atomic::AtomicUsize::new(0);
+        let total = episodes.len();
+        let results: Vec<Result<EpisodeScores>> = episodes
+            .par_iter()
+            .map(|path| {
+                let episode = McapEpisode::open(path, &self.settings.episode)
+                    .with_context(|| format!("episode {}", path.display()))?;
+                let heatmaps = output.is_some_and(|o| o.mcap);
+                let mut scorer = self.scorer(
+                    episode.name(),
+                    thresholds,
+                    alarm_threshold,
+                    heatmaps,
+                    config,
+                    model,
+                )?;
+                let scores = match output {
+                    Some(o) => write_outputs(&mut scorer, &episode, o)?,
+                    None => score_episode::<anyhow::Error>(&mut scorer, &episode, |_, _| Ok(()))?,
+                };
+                let n = done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
+                eprintln!(
+                    "[{n}/{total}] {}: {} frames scored{}{}",
+                    scores.name,
+                    scores.frames.len(),
+                    if scores.frame_errors.is_empty() {
+                        String::new()
+                    } else {
+                        format!(", {} refused", scores.frame_errors.len())
+                    },
+                    scores
+                        .damage
+                        .as_ref()
+                        .map_or(String::new(), |d| format!(", damaged: {d}"))
+                );
+                Ok(scores)
+            })
+            .collect();
+        results.into_iter().collect()
+    }
+}
+
+/// Where `vamos score` writes.
+pub struct OutputOptions {
+    /// Output folder.
+    pub dir: PathBuf,
+    /// Also write `<name>.scored.mcap` (input images + score topics + heatmaps).
+    pub mcap: bool,
+}
+
+/// Expands folders into the `.mcap` files they hold (sorted); files pass through.
+pub fn expand_episodes(paths: &[PathBuf]) -> Result<Vec<PathBuf>> {
+    let mut out = Vec::new();
+    for p in paths {
+        if p.is_dir() {
+            let mut found: Vec<PathBuf> = std::fs::read_dir(p)
+                .with_context(|| format!("cannot list {}", p.display()))?
+                .filter_map(|e| e.ok().map(|e| e.path()))
+                .filter(|f| f.extension().is_some_and(|x| x == "mcap"))
+                .collect();
+            found.sort();
+            if found.is_empty() {
+                bail!("{} holds no .mcap episodes", p.display());
+            }
+            out.extend(found);
+        } else {
+            out.push(p.clone());
+        }
+    }
+    if out.is_empty() {
+        bail!("no episodes given");
+    }
+    Ok(out)
+}
+
+/// Scores one episode writing `<name>.scores.jsonl` and, if asked, `<name>.scored.mcap`.
+fn write_outputs(
+    scorer: &mut Scorer,
+    episode: &McapEpisode,
+    o: &OutputOptions,
+) -> Result<EpisodeScores> {
+    std::fs::create_dir_all(&o.dir).with_context(|| format!("cannot create {}", o.dir.display()))?;
+    let jsonl = o.dir.join(format!("{}.scores.jsonl", episode.name()));
+    let mut lines = std::io::BufWriter::new(
+        std::fs::File::create(&jsonl).with_context(|| format!("cannot create {}", jsonl.display()))?,
+    );
+    let mut bag = if o.mcap {
+        let path = o.dir.join(format!("{}.scored.mcap", episode.name()));
+        Some(ScoreBagWriter::create(&path, Some(&episode.info()))?)
+    } else {
+        None
+    };
+    let scores = score_episode::<anyhow::Error>(scorer, episode, |frame, score| {
+        serde_json::to_writer(&mut lines, score)?;
+        lines.write_all(b"\n")?;
+        if let Some(bag) = bag.as_mut() {
+            write_frame(bag, frame, score)?;
+        }
+        Ok(())
+    })?;
+    lines.flush()?;
+    if let Some(bag) = bag {
+        bag.finish()?;
+    }
+    Ok(scores)
+}
+
+/// The score topics of one frame, beside a copy of its image.
+fn write_frame(bag: &mut ScoreBagWriter, frame: &EpisodeFrame, s: &FrameScore) -> Result<()> {
+    let t = frame.stamp_ns;
+    bag.write_image(&frame.source.topic, t, ImageData::Source(&frame.source))?;
+    bag.write_f64("/vamos/score", t, s.score)?;
+    bag.write_bool("/vamos/anomaly", t, s.anomaly)?;
+    for (topic, v) in [
+        ("/vamos/e_c", s.e_c),
+        ("/vamos/e_b", s.e_b),
+        ("/vamos/e_o", s.e_o),
+    ] {
+        if let Some(v) = v {
+            bag.write_f64(topic, t, v)?;
+        }
+    }
+    if let Some(map) = &s.heatmap {
+        let side = (map.len() as f64).sqrt() as usize;
+        if side * side == map.len() {
+            let rgb = heatmap_rgb(map);
+            bag.write_heatmap("/vamos/heatmap", t, side as u32, side as u32, &rgb)?;
+        }
+    }
+    Ok(())
+}
+
+/// Colours a squared-error map: black (0) through red and yellow to white at an RMS error
+/// of 0.25 network units (7.5 px at 640 px wide), the same scale for every frame.
+pub fn heatmap_rgb(map: &[f32]) -> Vec<u8> {
+    let mut rgb = Vec::with_capacity(map.len() * 3);
+    for &v in map {
+        let x = (v.max(0.0).sqrt() / 0.25).clamp(0.0, 1.0);
+        let r = (x * 3.0).min(1.0);
+        let g = (x * 3.0 - 1.0).clamp(0.0, 1.0);
+        let b = (x * 3.0 - 2.0).clamp(0.0, 1.0);
+        rgb.extend([(r * 255.0) as u8, (g * 255.0) as u8, (b * 255.0) as u8]);
+    }
+    rgb
+}
+
+/// `vamos score`: prints one JSON summary line per episode on stdout.
+pub fn run(settings: &Settings, profile: &Path, episodes: &[PathBuf], out: Option<PathBuf>, mcap: bool) -> Result<()> {
+    if mcap && out.is_none() {
+        bail!("--mcap writes into the --out folder: give --out");
+    }
+    let setup = Setup::load(settings, profile)?;
+    if setup.profile.calibration.is_none() {
+        eprintln!(
+            "note: profile {} is not calibrated (run `vamos calibrate`): no thresholds, no alarms",
+            setup.profile.path.display()
+        );
+    }
+    let episodes = expand_episodes(episodes)?;
+    let output = out.map(|dir| OutputOptions { dir, mcap });
+    let results = setup.score_all(
+        &episodes,
+        setup.profile.thresholds(),
+        setup.profile.alarm_threshold(),
+        None,
+        None,
+        output.as_ref(),
+    )?;
+    for r in &results {
+        let alarms = r.frames.iter().filter(|f| f.anomaly).count();
+        let first_alarm_ns = r.frames.iter().find(|f| f.anomaly).map(|f| f.stamp_ns);
+        let max_score = r.frames.iter().map(|f| f.score).fold(f64::NAN, f64::max);
+        let mean_ms = r.frames.iter().map(|f| f.timings.total_us as f64).sum::<f64>()
+            / r.frames.len().max(1) as f64
+            / 1e3;
+        println!(
+            "{}",
+            serde_json::json!({
+                "episode": r.name,
+                "frames": r.frames.len(),
+                "alarms": alarms,
+                "first_alarm_ns": first_alarm_ns,
+                "max_score": if max_score.is_nan() { None } else { Some(max_score) },
+                "refused": r.frame_errors,
+                "damage": r.damage,
+                "no_joint_states": r.no_joint_states,
+                "mean_frame_ms": mean_ms,
+            })
+        );
+    }
+    Ok(())
+}

@@ -1,0 +1,292 @@
+//! Profiles: what binds a robot, a camera, pipeline parameters, a model and thresholds.
+//!
+//! A profile is a TOML file (`deny_unknown_fields`; paths relative to the file):
+//!
+//! ```toml
+//! name = "shelf-arm"
+//! robot = "robot/arm.urdf"        # URDF file, package folder or .zip/.tar.gz (optional)
+//! camera = "camera.json"          # camera description, as `vamos render --camera` (optional)
+//! model = "model.vamos"           # flow-predictor bundle (optional)
+//! flow_preset = "realtime"        # TV-L1 preset (optional; default: the settings' [vision.flow])
+//! alarm = "conformal"             # which calibrated threshold sets the anomaly flag
+//! [pipeline]                      # optional; absent = the settings' [pipeline]
+//! stride = 1
+//! ```
+//!
+//! `vamos calibrate` writes the thresholds beside it, as `<stem>.calibration.json`
+//! ([`Calibration`]), which [`Profile::load`] reads back when present.
+
+use super::PipelineConfig;
+use crate::eval::{ConformalThreshold, Thresholds};
+use crate::robot::CameraSpec;
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// Errors of reading and writing profiles.
+#[derive(Debug, thiserror::Error)]
+pub enum ProfileError {
+    /// A file could not be read or written.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The error.
+        source: std::io::Error,
+    },
+    /// A file is not a valid profile, camera or calibration.
+    #[error("{path}: {reason}")]
+    Invalid {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        reason: String,
+    },
+}
+
+/// Which calibrated threshold on the fused score sets the anomaly flag.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum AlarmRule {
+    /// The split-conformal threshold (episode-level false-alarm budget); falls back to
+    /// `max` when the calibration has none.
+    #[default]
+    Conformal,
+    /// The largest fused score seen on the training episodes (the paper's rule applied to
+    /// the fused score).
+    Max,
+}
+
+/// The profile file (see the module docs).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ProfileFile {
+    /// Name.
+    pub name: String,
+    /// Robot description path.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub robot: Option<PathBuf>,
+    /// Camera description path (JSON [`CameraSpec`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub camera: Option<PathBuf>,
+    /// Model bundle path.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub model: Option<PathBuf>,
+    /// TV-L1 preset name.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub flow_preset: Option<String>,
+    /// Which threshold drives the anomaly flag.
+    #[serde(default)]
+    pub alarm: AlarmRule,
+    /// Pipeline parameters.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pipeline: Option<PipelineConfig>,
+}
+
+/// Thresholds and how they were obtained (`<profile>.calibration.json`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Calibration {
+    /// When, seconds since the Unix epoch.
+    pub created_unix_s: u64,
+    /// sha256 of the model bundle the scores came from (`None`: no model).
+    pub model_sha256: Option<String>,
+    /// The episodes the maximum thresholds come from.
+    pub training_episodes: Vec<String>,
+    /// The held-out nominal episodes of the conformal threshold.
+    pub calibration_episodes: Vec<String>,
+    /// Frames scored on the training episodes.
+    pub training_frames: usize,
+    /// `e_c` and `e_b` thresholds: their maxima over the training episodes (the paper).
+    pub thresholds: Thresholds,
+    /// The largest fused score over the training episodes.
+    pub score_max: f64,
+    /// The split-conformal threshold on the fused score, from the held-out episodes.
+    pub conformal: Option<ConformalThreshold>,
+}
+
+impl Calibration {
+    /// The fused-score threshold of `rule`: a frame alarms when `score >= threshold`.
+    /// For `max`, the next float above the training maximum (no training frame alarms).
+    pub fn alarm_threshold(&self, rule: AlarmRule) -> f64 {
+        match (rule, &self.conformal) {
+            (AlarmRule::Conformal, Some(c)) => c.threshold,
+            _ => self.score_max.next_up(),
+        }
+    }
+}
+
+/// A loaded profile: the file with its paths resolved, and its calibration if any.
+#[derive(Debug, Clone)]
+pub struct Profile {
+    /// The profile file's path.
+    pub path: PathBuf,
+    /// Its contents, paths resolved against its folder.
+    pub file: ProfileFile,
+    /// The camera description, read.
+    pub camera: Option<CameraSpec>,
+    /// The calibration, if `vamos calibrate` has run.
+    pub calibration: Option<Calibration>,
+}
+
+impl Profile {
+    /// Reads a profile, its camera description and its calibration (when present).
+    pub fn load(path: &Path) -> Result<Self, ProfileError> {
+        let text = read(path)?;
+        let mut file: ProfileFile = toml::from_str(&text).map_err(|e| ProfileError::Invalid {
+            path: path.into(),
+            reason: e.to_string(),
+        })?;
+        let dir = path.parent().unwrap_or(Path::new("."));
+        for p in [&mut file.robot, &mut file.camera, &mut file.model]
+            .into_iter()
+            .flatten()
+        {
+            if p.is_relative() {
+                *p = dir.join(&*p);
+            }
+        }
+        let camera = match &file.camera {
+            Some(c) => Some(
+                serde_json::from_str::<CameraSpec>(&read(c)?).map_err(|e| {
+                    ProfileError::Invalid {
+                        path: c.clone(),
+                        reason: format!("not a camera description: {e}"),
+                    }
+                })?,
+            ),
+            None => None,
+        };
+        let cal_path = Self::calibration_path_for(path);
+        let calibration = if cal_path.exists() {
+            Some(
+                serde_json::from_str::<Calibration>(&read(&cal_path)?).map_err(|e| {
+                    ProfileError::Invalid {
+                        path: cal_path.clone(),
+                        reason: format!("not a calibration: {e}"),
+                    }
+                })?,
+            )
+        } else {
+            None
+        };
+        Ok(Self {
+            path: path.into(),
+            file,
+            camera,
+            calibration,
+        })
+    }
+
+    /// Where the calibration of the profile at `path` lives.
+    pub fn calibration_path_for(path: &Path) -> PathBuf {
+        let stem = path
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_else(|| "profile".into());
+        path.with_file_name(format!("{stem}.calibration.json"))
+    }
+
+    /// Writes `calibration` beside the profile (atomically: a temporary file, then a
+    /// rename, so a crash never leaves half a file).
+    pub fn save_calibration(&mut self, calibration: Calibration) -> Result<PathBuf, ProfileError> {
+        let path = Self::calibration_path_for(&self.path);
+        let text =
+            serde_json::to_string_pretty(&calibration).map_err(|e| ProfileError::Invalid {
+                path: path.clone(),
+                reason: e.to_string(),
+            })?;
+        let tmp = path.with_extension("json.tmp");
+        std::fs::write(&tmp, text + "\n").map_err(|source| ProfileError::Io {
+            path: tmp.clone(),
+            source,
+        })?;
+        std::fs::rename(&tmp, &path).map_err(|source| ProfileError::Io {
+            path: path.clone(),
+            source,
+        })?;
+        self.calibration = Some(calibration);
+        Ok(path)
+    }
+
+    /// The thresholds in force (none before calibration).
+    pub fn thresholds(&self) -> Thresholds {
+        self.calibration
+            .as_ref()
+            .map(|c| c.thresholds)
+            .unwrap_or_default()
+    }
+
+    /// The fused-score alarm threshold in force (`score >= threshold` alarms; `+inf`
+    /// before calibration).
+    pub fn alarm_threshold(&self) -> f64 {
+        self.calibration
+            .as_ref()
+            .map_or(f64::INFINITY, |c| c.alarm_threshold(self.file.alarm))
+    }
+}
+
+fn read(path: &Path) -> Result<String, ProfileError> {
+    std::fs::read_to_string(path).map_err(|source| ProfileError::Io {
+        path: path.into(),
+        source,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn profile_paths_resolve_against_its_folder_and_calibration_round_trips() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(
+            dir.path().join("camera.json"),
+            r#"{"frame": "cam", "width": 320, "height": 240, "hfov_deg": 60.0}"#,
+        )
+        .unwrap();
+        let path = dir.path().join("p.toml");
+        std::fs::write(
+            &path,
+            "name = \"p\"\nrobot = \"r.urdf\"\ncamera = \"camera.json\"\nalarm = \"max\"\n\
+             [pipeline]\nstride = 3\n",
+        )
+        .unwrap();
+        let mut p = Profile::load(&path).unwrap();
+        assert_eq!(p.file.robot.as_deref(), Some(dir.path().join("r.urdf").as_path()));
+        assert_eq!(p.camera.as_ref().unwrap().width, 320);
+        assert_eq!(p.file.pipeline.as_ref().unwrap().stride, 3);
+        assert!(p.calibration.is_none());
+        assert_eq!(p.alarm_threshold(), f64::INFINITY);
+        let cal = Calibration {
+            created_unix_s: 1,
+            model_sha256: None,
+            training_episodes: vec!["a".into()],
+            calibration_episodes: vec![],
+            training_frames: 10,
+            thresholds: Thresholds {
+                e_c: Some(2.0),
+                e_b: None,
+            },
+            score_max: 0.5,
+            conformal: None,
+        };
+        let saved = p.save_calibration(cal.clone()).unwrap();
+        assert_eq!(saved, dir.path().join("p.calibration.json"));
+        let again = Profile::load(&path).unwrap();
+        assert_eq!(again.calibration.as_ref(), Some(&cal));
+        assert_eq!(again.alarm_threshold(), 0.5f64.next_up(), "max rule, and conformal absent");
+        assert_eq!(again.thresholds().e_c, Some(2.0));
+    }
+
+    #[test]
+    fn unknown_keys_and_missing_files_are_named() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("p.toml");
+        std::fs::write(&path, "name = \"p\"\nrobt = \"r.urdf\"\n").unwrap();
+        let e = Profile::load(&path).unwrap_err().to_string();
+        assert!(e.contains("robt"), "{e}");
+        std::fs::write(&path, "name = \"p\"\ncamera = \"nope.json\"\n").unwrap();
+        let e = Profile::load(&path).unwrap_err().to_string();
+        assert!(e.contains("nope.json"), "{e}");
+    }
+}

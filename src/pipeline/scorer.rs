@@ -1,0 +1,588 @@
+//! The detector of one stream: image (+ joint states) in, a scored frame out
+//! (REFERENCE.md sections 1-3 and "Score").
+//!
+//! Per pushed image, with state carried across frames:
+//! 1. the frame stride: only every `stride`-th image is processed (the others return
+//!    `None` and cost nothing);
+//! 2. joint states -> forward kinematics -> `camera_from_base` (when the scorer has a
+//!    robot and the frame has joint states);
+//! 3. the robot body rendered at `t` (body mask of the target frame, and the exact
+//!    expected body flow `t-1 -> t` when the previous frame had a pose);
+//! 4. the visual front end ([`FrameProcessor`]): TV-L1 flow, Fourier-Mellin registration
+//!    with the body masked out, the flow variant, the 64x64 network input;
+//! 5. `e_c` (expected camera motion from the two camera poses vs. the registration),
+//!    `e_b` (median body flow, expected vs. observed), `e_o` (the flow predictor);
+//! 6. the fused score ([`crate::eval::fuse`]) and the alarm flag.
+//!
+//! A component that cannot be computed for a frame is `None`, never a made-up number:
+//! no joint states (no `e_c`, no `e_b`), robot not in view (no `e_b`), first processed
+//! frame (no flow at all), model warming up. Until the predictor has `A + B` frames of
+//! history the frame is scored from `e_c` and `e_b` only and marked `warming_up`.
+//! Everything switchable (detectors, variant, resolution, A, B, M) comes from
+//! [`PipelineConfig`]; the paper's ablations are configuration changes.
+//!
+//! A frame that fails (bad pixels, NaN joints, stamps going backwards) is an error that
+//! leaves the scorer as it was for the stages that had not run yet; the next good frame
+//! goes on from the last good one.
+
+use super::frames::{FrameProcessor, FrontEndTimings, PipelineError, ProcessedFrame};
+use super::{DetectorSwitches, PipelineConfig};
+use crate::eval::{Detector, Thresholds, fuse};
+use crate::model::predictor::{Prediction, Predictor, PredictorParams};
+use crate::model::{FlowModel, ModelError};
+use crate::robot::camera_motion::{Depth, camera_motion_error, expected_camera_motion};
+use crate::robot::render::{BodyRenderer, RenderConfig, RenderFrame, RenderOutput, RobotView};
+use crate::robot::{CameraMount, Intrinsics, JointMapper, Robot};
+use crate::vision::GrayImage;
+use crate::vision::flow::FlowParams;
+use crate::vision::preprocess::NetworkInputParams;
+use crate::vision::registration::RegistrationParams;
+use nalgebra::Isometry3;
+use serde::Serialize;
+use std::sync::Arc;
+use std::time::Instant;
+
+/// Errors of one pushed frame (the scorer stays usable) or of building a scorer.
+#[derive(Debug, thiserror::Error)]
+pub enum ScorerError {
+    /// The visual front end failed.
+    #[error(transparent)]
+    Frame(#[from] PipelineError),
+    /// Kinematics, the camera or rendering failed.
+    #[error("robot: {0}")]
+    Robot(String),
+    /// The flow predictor failed.
+    #[error("flow predictor: {0}")]
+    Model(#[from] ModelError),
+    /// Image stamps must increase.
+    #[error("image {index} has stamp {stamp_ns} ns, not after the previous image's {previous_ns} ns")]
+    StampNotIncreasing {
+        /// Index of the refused image in the stream.
+        index: u64,
+        /// Its stamp.
+        stamp_ns: i64,
+        /// The last accepted stamp.
+        previous_ns: i64,
+    },
+    /// The configuration cannot work (e.g. a masked variant without a robot).
+    #[error("pipeline configuration: {0}")]
+    Config(String),
+}
+
+/// The robot a scorer renders and moves: its description and where the camera sits.
+#[derive(Clone)]
+pub struct RobotSetup {
+    /// The robot.
+    pub robot: Arc<Robot>,
+    /// The camera's link and optical frame.
+    pub mount: CameraMount,
+    /// The profile's intrinsics, at any resolution (scaled to the processing resolution);
+    /// a frame's own camera info wins over it.
+    pub intrinsics: Option<Intrinsics>,
+}
+
+/// Joint states of one frame (already interpolated to the image stamp).
+#[derive(Debug, Clone, Copy)]
+pub struct JointInput<'a> {
+    /// Joint names.
+    pub names: &'a [String],
+    /// Positions, radians or metres, parallel to `names`.
+    pub positions: &'a [f64],
+}
+
+/// One image of the stream.
+#[derive(Debug, Clone, Copy)]
+pub struct FrameInput<'a> {
+    /// Image stamp, nanoseconds (must increase).
+    pub stamp_ns: i64,
+    /// Gray image 0..255 at any resolution (resized to the processing resolution).
+    pub image: &'a GrayImage,
+    /// Joint states at the image stamp, if any.
+    pub joints: Option<JointInput<'a>>,
+    /// Intrinsics from the stream's camera info, at the image's resolution.
+    pub intrinsics: Option<&'a Intrinsics>,
+}
+
+/// Wall time per stage of one frame, microseconds.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+pub struct StageTimings {
+    /// Forward kinematics and joint mapping.
+    pub kinematics_us: u64,
+    /// Robot render (mask, expected body flow).
+    pub render_us: u64,
+    /// The visual front end (resize, registration, flow, network input).
+    pub front_end: FrontEndTimings,
+    /// Expected camera motion and `e_c`.
+    pub camera_us: u64,
+    /// `e_b`.
+    pub body_us: u64,
+    /// The flow predictor (encoder + head).
+    pub model_us: u64,
+    /// The whole push.
+    pub total_us: u64,
+}
+
+/// The score of one processed frame.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct FrameScore {
+    /// Index of the image in the stream (0-based, counting skipped images).
+    pub index: u64,
+    /// Index among processed frames.
+    pub frame: u64,
+    /// Image stamp, nanoseconds.
+    pub stamp_ns: i64,
+    /// The fused score (see [`crate::eval::fuse`]).
+    pub score: f64,
+    /// Camera-motion error, pixels.
+    pub e_c: Option<f64>,
+    /// Body-motion error, pixels.
+    pub e_b: Option<f64>,
+    /// Flow-prediction error (mean squared error in network-input units).
+    pub e_o: Option<f64>,
+    /// The alarm: `score` reached the alarm threshold.
+    pub anomaly: bool,
+    /// Which detector's threshold the frame crossed, if any.
+    pub triggered: Option<Detector>,
+    /// The predictor lacks `A + B` frames of history (scored from `e_c` and `e_b` only).
+    pub warming_up: bool,
+    /// The past offset `n` of the best prediction.
+    pub best_offset: Option<usize>,
+    /// Registration confidence (peak-energy share) of the observed camera motion.
+    pub registration_confidence: Option<f32>,
+    /// Robot pixels in the body mask.
+    pub body_pixels: usize,
+    /// Per-stage timings.
+    pub timings: StageTimings,
+    /// `[S, S]` squared prediction error of the best prediction (when heatmaps are on).
+    #[serde(skip)]
+    pub heatmap: Option<Vec<f32>>,
+}
+
+/// The state that moves the robot and renders it.
+struct BodyState {
+    setup: RobotSetup,
+    mapper: JointMapper,
+    renderer: Box<dyn BodyRenderer>,
+    out: RenderOutput,
+    /// Previous processed frame: `base_from_link` and `camera_from_base`.
+    previous: Option<(Vec<Isometry3<f64>>, Isometry3<f64>)>,
+}
+
+/// The detector of one stream (a session or an episode); see the module docs.
+pub struct Scorer {
+    config: PipelineConfig,
+    thresholds: Thresholds,
+    alarm_threshold: f64,
+    heatmaps: bool,
+    processor: FrameProcessor,
+    body: Option<BodyState>,
+    predictor: Option<Predictor>,
+    images: u64,
+    frames: u64,
+    last_stamp_ns: Option<i64>,
+    warned_no_joints: bool,
+}
+
+/// What a [`Scorer`] is built from.
+pub struct ScorerParts {
+    /// Pipeline parameters.
+    pub config: PipelineConfig,
+    /// TV-L1 parameters.
+    pub flow: FlowParams,
+    /// Registration parameters.
+    pub registration: RegistrationParams,
+    /// Flow -> network input.
+    pub network: NetworkInputParams,
+    /// Render settings.
+    pub render: RenderConfig,
+    /// The robot (without it: no `e_c`, no `e_b`, no masked variants).
+    pub robot: Option<RobotSetup>,
+    /// The flow predictor's model (without it: no `e_o`).
+    pub model: Option<Arc<FlowModel>>,
+    /// Prior samples M per past offset; 0 = the model bundle's (`[model] samples`).
+    pub samples: usize,
+    /// Seed of the predictor's prior samples.
+    pub seed: u64,
+    /// Per-detector thresholds.
+    pub thresholds: Thresholds,
+    /// `anomaly` is set when the fused score is at least this (`+inf`: never).
+    pub alarm_threshold: f64,
+    /// Keep the prediction-error map of every scored frame.
+    pub heatmaps: bool,
+}
+
+impl Scorer {
+    /// Builds a scorer; checks that the configuration can work with what it is given.
+    pub fn new(parts: ScorerParts) -> Result<Self, ScorerError> {
+        let ScorerParts {
+            config,
+            flow,
+            registration,
+            network,
+            render,
+            robot,
+            model,
+            samples,
+            seed,
+            thresholds,
+            alarm_threshold,
+            heatmaps,
+        } = parts;
+        if config.stride == 0 {
+            return Err(ScorerError::Config("stride must be at least 1".into()));
+        }
+        if config.frames.variant.is_masked() && robot.is_none() {
+            return Err(ScorerError::Config(format!(
+                "flow variant {} masks the robot body: the profile needs a robot",
+                config.frames.variant
+            )));
+        }
+        let predictor = match model {
+            Some(model) if config.detectors.flow => {
+                let manifest = model.manifest();
+                if !same_variant(manifest.flow_variant, config.frames.variant) {
+                    tracing::warn!(
+                        model = ?manifest.flow_variant,
+                        pipeline = %config.frames.variant,
+                        "the model was trained on another flow variant than the pipeline computes"
+                    );
+                }
+                let mut params = PredictorParams::from_manifest(manifest, samples);
+                if let Some(a) = config.offset_a {
+                    params.a = a;
+                }
+                if let Some(b) = config.offset_b {
+                    params.b = b;
+                }
+                Some(Predictor::new(model, params, seed)?)
+            }
+            _ => None,
+        };
+        let body = match robot {
+            Some(setup) => {
+                let mut renderer = crate::robot::render::create_renderer(&render)
+                    .map_err(|e| ScorerError::Robot(e.to_string()))?;
+                renderer
+                    .prepare(setup.robot.link_meshes())
+                    .map_err(|e| ScorerError::Robot(e.to_string()))?;
+                Some(BodyState {
+                    mapper: setup.robot.joint_mapper(),
+                    setup,
+                    renderer,
+                    out: RenderOutput::default(),
+                    previous: None,
+                })
+            }
+            None => None,
+        };
+        let processor = FrameProcessor::new(config.frames.clone(), flow, registration, network)?;
+        Ok(Self {
+            config,
+            thresholds,
+            alarm_threshold,
+            heatmaps,
+            processor,
+            body,
+            predictor,
+            images: 0,
+            frames: 0,
+            last_stamp_ns: None,
+            warned_no_joints: false,
+        })
+    }
+
+    /// The pipeline parameters.
+    pub fn config(&self) -> &PipelineConfig {
+        &self.config
+    }
+
+    /// The detector switches actually in force (flow needs a model, camera and body a
+    /// robot).
+    pub fn active(&self) -> DetectorSwitches {
+        DetectorSwitches {
+            camera: self.config.detectors.camera && self.body.is_some(),
+            body: self.config.detectors.body && self.body.is_some(),
+            flow: self.predictor.is_some(),
+        }
+    }
+
+    /// The predictor's temporal parameters, if there is a model.
+    pub fn predictor_params(&self) -> Option<PredictorParams> {
+        self.predictor.as_ref().map(Predictor::params)
+    }
+
+    /// Images pushed so far (including skipped and refused ones).
+    pub fn images_seen(&self) -> u64 {
+        self.images
+    }
+
+    /// Starts a new stream: forgets every past frame (the random generator goes on).
+    pub fn reset(&mut self) {
+        self.processor.reset();
+        if let Some(b) = &mut self.body {
+            b.previous = None;
+        }
+        if let Some(p) = &mut self.predictor {
+            p.reset();
+        }
+        self.images = 0;
+        self.frames = 0;
+        self.last_stamp_ns = None;
+    }
+
+    /// Pushes the next image. `Ok(None)` for images the stride skips.
+    pub fn push(&mut self, input: &FrameInput<'_>) -> Result<Option<FrameScore>, ScorerError> {
+        let start = Instant::now();
+        let index = self.images;
+        self.images += 1;
+        if let Some(previous_ns) = self.last_stamp_ns
+            && input.stamp_ns <= previous_ns
+        {
+            return Err(ScorerError::StampNotIncreasing {
+                index,
+                stamp_ns: input.stamp_ns,
+                previous_ns,
+            });
+        }
+        self.last_stamp_ns = Some(input.stamp_ns);
+        if index % self.config.stride as u64 != 0 {
+            return Ok(None);
+        }
+        let mut timings = StageTimings::default();
+        let (w, h) = (self.config.frames.width, self.config.frames.height);
+
+        // Robot pose and render at t.
+        let t0 = Instant::now();
+        let pose = match (&mut self.body, input.joints) {
+            (Some(body), Some(joints)) => Some(body.pose(joints)?),
+            (Some(_), None) => {
+                if !self.warned_no_joints {
+                    tracing::warn!(
+                        index,
+                        "frame without joint states: no e_c, no e_b, body not masked"
+                    );
+                    self.warned_no_joints = true;
+                }
+                None
+            }
+            _ => None,
+        };
+        timings.kinematics_us = micros(t0);
+        let t0 = Instant::now();
+        let mut intrinsics = None;
+        if let (Some(body), Some((links, camera_from_base))) = (&mut self.body, &pose) {
+            let k = input.intrinsics.or(body.setup.intrinsics.as_ref());
+            if let Some(k) = k {
+                let k = k
+                    .scaled_to(w as u32, h as u32)
+                    .map_err(|e| ScorerError::Robot(e.to_string()))?;
+                let previous = body
+                    .previous
+                    .as_ref()
+                    .map(|(links, camera_from_base)| RobotView {
+                        camera_from_base: *camera_from_base,
+                        base_from_link: links,
+                    });
+                body.renderer
+                    .render(
+                        &RenderFrame {
+                            intrinsics: &k,
+                            current: RobotView {
+                                camera_from_base: *camera_from_base,
+                                base_from_link: links,
+                            },
+                            previous,
+                            shade: false,
+                        },
+                        &mut body.out,
+                    )
+                    .map_err(|e| ScorerError::Robot(e.to_string()))?;
+                intrinsics = Some(k);
+            }
+        }
+        timings.render_us = micros(t0);
+        let mask = match (&self.body, &intrinsics) {
+            (Some(body), Some(_)) => Some(body.out.mask.as_slice()),
+            _ => None,
+        };
+        // A masked variant without a mask this frame (no joints or no intrinsics): nothing
+        // is masked, rather than no score at all.
+        let empty;
+        let mask = match mask {
+            None if self.config.frames.variant.is_masked() => {
+                empty = vec![false; w * h];
+                Some(empty.as_slice())
+            }
+            m => m,
+        };
+        let body_pixels = mask.map_or(0, |m| m.iter().filter(|&&v| v).count());
+
+        let processed = self.processor.push(input.image, mask)?;
+        let frame = self.frames;
+        self.frames += 1;
+        let previous_pose = match &mut self.body {
+            Some(body) => {
+                let previous = body.previous.take();
+                body.previous = pose.clone();
+                previous
+            }
+            None => None,
+        };
+        let Some(processed) = processed else {
+            timings.total_us = micros(start);
+            return Ok(Some(FrameScore {
+                index,
+                frame,
+                stamp_ns: input.stamp_ns,
+                score: 0.0,
+                e_c: None,
+                e_b: None,
+                e_o: None,
+                anomaly: false,
+                triggered: None,
+                warming_up: true,
+                best_offset: None,
+                registration_confidence: None,
+                body_pixels,
+                timings,
+                heatmap: None,
+            }));
+        };
+        timings.front_end = processed.timings;
+
+        let t0 = Instant::now();
+        let e_c = match (&pose, &previous_pose, &intrinsics) {
+            (Some((_, current)), Some((_, previous)), Some(k)) if self.config.detectors.camera => {
+                let expected = expected_camera_motion(
+                    previous,
+                    current,
+                    k,
+                    Depth::Assumed,
+                    &self.config.camera_motion,
+                )
+                .map_err(|e| ScorerError::Robot(e.to_string()))?;
+                let e = camera_motion_error(
+                    &expected.transform,
+                    &processed.registration.transform,
+                    &self.config.camera_error,
+                );
+                // A registration that failed numerically must alarm, not hide.
+                Some(if e.is_nan() { f64::INFINITY } else { e })
+            }
+            _ => None,
+        };
+        timings.camera_us = micros(t0);
+        let t0 = Instant::now();
+        let e_b = match (&self.body, &previous_pose, &intrinsics) {
+            (Some(body), Some(_), Some(_)) if self.config.detectors.body => {
+                let m = crate::robot::body_motion::body_motion_error(
+                    &body.out.flow,
+                    &processed.flow,
+                    &body.out.mask,
+                )
+                .map_err(|e| ScorerError::Robot(e.to_string()))?;
+                m.body_visible.then_some(m.e_b_px)
+            }
+            _ => None,
+        };
+        timings.body_us = micros(t0);
+
+        let t0 = Instant::now();
+        let (e_o, best_offset, heatmap, warming_up) = self.predict(&processed)?;
+        timings.model_us = micros(t0);
+
+        let fused = fuse(e_c, e_b, e_o, &self.thresholds);
+        timings.total_us = micros(start);
+        Ok(Some(FrameScore {
+            index,
+            frame,
+            stamp_ns: input.stamp_ns,
+            score: fused.score,
+            e_c,
+            e_b,
+            e_o,
+            anomaly: fused.score >= self.alarm_threshold,
+            triggered: fused.triggered,
+            warming_up,
+            best_offset,
+            registration_confidence: Some(processed.registration.confidence),
+            body_pixels,
+            timings,
+            heatmap,
+        }))
+    }
+
+    /// Runs the predictor on a processed frame: `(e_o, best n, heatmap, warming_up)`.
+    #[allow(clippy::type_complexity)]
+    fn predict(
+        &mut self,
+        processed: &ProcessedFrame,
+    ) -> Result<(Option<f64>, Option<usize>, Option<Vec<f32>>, bool), ScorerError> {
+        let Some(predictor) = &mut self.predictor else {
+            return Ok((None, None, None, false));
+        };
+        let p = predictor.params();
+        let history = predictor.frames_seen();
+        let prediction = predictor.push(
+            &processed.network_input,
+            processed.network_valid.as_deref(),
+        )?;
+        let full_history = history >= (p.a + p.b) as u64;
+        Ok(match prediction {
+            Prediction::Scored(s) if full_history => (
+                Some(s.e_o),
+                Some(s.n),
+                self.heatmaps.then_some(s.error_map),
+                false,
+            ),
+            Prediction::Scored(_) | Prediction::WarmingUp { .. } => (None, None, None, true),
+            Prediction::NoValidPixels { .. } => (None, None, None, !full_history),
+        })
+    }
+}
+
+impl BodyState {
+    /// Maps the joint states and runs the kinematics: `(base_from_link, camera_from_base)`.
+    fn pose(
+        &mut self,
+        joints: JointInput<'_>,
+    ) -> Result<(Vec<Isometry3<f64>>, Isometry3<f64>), ScorerError> {
+        let q = self
+            .mapper
+            .map(joints.names, joints.positions)
+            .map_err(|e| ScorerError::Robot(e.to_string()))?
+            .positions;
+        let links = self
+            .setup
+            .robot
+            .forward(&q)
+            .map_err(|e| ScorerError::Robot(e.to_string()))?;
+        let camera_from_base = self
+            .setup
+            .mount
+            .camera_from_base(&links)
+            .ok_or_else(|| ScorerError::Robot("the camera link has no pose".into()))?;
+        Ok((links, camera_from_base))
+    }
+}
+
+/// Whether the model was trained on the flow variant the pipeline computes.
+fn same_variant(model: crate::model::FlowVariant, pipeline: super::FlowVariant) -> bool {
+    use crate::model::FlowVariant as M;
+    use super::FlowVariant as P;
+    matches!(
+        (model, pipeline),
+        (M::Plain, P::Plain)
+            | (M::Registered, P::Registered)
+            | (M::Masked, P::Masked)
+            | (M::MaskedRegistered, P::MaskedRegistered)
+    )
+}
+
+fn micros(start: Instant) -> u64 {
+    u64::try_from(start.elapsed().as_micros()).unwrap_or(u64::MAX)
+}
+
+#[cfg(test)]
+#[path = "scorer_tests.rs"]
+mod tests;
