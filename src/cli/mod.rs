@@ -1,5 +1,6 @@
 //! Implementations of the larger CLI sub-commands (binary-only; `main.rs` dispatches).
 
+pub mod episode;
 pub mod export;
 pub mod model;
 pub mod render;
