@@ -7,6 +7,7 @@
 //! Unknown keys, in the file or the environment, are errors: a
 //! typo must not silently fall back to a default.
 
+use crate::episode::EpisodeConfig;
 use crate::model::ModelConfig;
 use crate::pipeline::PipelineConfig;
 use crate::robot::RobotConfig;
@@ -78,6 +79,8 @@ pub struct Settings {
     pub render: RenderConfig,
     /// The flow predictor (ONNX Runtime).
     pub model: ModelConfig,
+    /// Recorded episodes (ROS 2 bags in MCAP): topics, joint-gap warning, size caps.
+    pub episode: EpisodeConfig,
 }
 
 impl Settings {

@@ -236,6 +236,11 @@ enum Command {
         #[command(subcommand)]
         command: RobotCommand,
     },
+    /// Recorded episodes (ROS 2 bags in MCAP).
+    Episode {
+        #[command(subcommand)]
+        command: EpisodeCommand,
+    },
     /// Flow-predictor model bundles and the ONNX Runtime library.
     Model {
         #[command(subcommand)]
@@ -255,6 +260,27 @@ enum RobotCommand {
         /// `out_of_limits`.
         #[arg(long)]
         joints: Option<PathBuf>,
+    },
+}
+
+#[derive(Subcommand, Debug)]
+enum EpisodeCommand {
+    /// Print what a bag holds (topics, chosen topics, counts, labels, camera info) as one
+    /// JSON object.
+    Inspect {
+        /// The bag (.mcap).
+        bag: PathBuf,
+        /// Also read every frame: count frames, warnings and errors.
+        #[arg(long)]
+        frames: bool,
+    },
+    /// Copy a bag through vamos's reader and writer (images, camera info, joints, URDF,
+    /// plus per-frame diagnostics); recovers the valid part of a damaged bag.
+    Copy {
+        /// The input bag.
+        input: PathBuf,
+        /// The output bag (replaced).
+        output: PathBuf,
     },
 }
 
@@ -396,6 +422,18 @@ fn run(cli: Cli) -> Result<()> {
             };
             let summary = cli::render::run(&opts, &settings.robot, &settings.render)?;
             println!("{summary}");
+            Ok(())
+        }
+        Command::Episode { command } => {
+            let out = match command {
+                EpisodeCommand::Inspect { bag, frames } => {
+                    cli::episode::inspect(&bag, &settings.episode, frames)?
+                }
+                EpisodeCommand::Copy { input, output } => {
+                    cli::episode::copy(&input, &output, &settings.episode)?
+                }
+            };
+            println!("{out}");
             Ok(())
         }
         Command::Robot {

@@ -1,6 +1,7 @@
 //! Implementations of the larger CLI sub-commands (binary-only; `main.rs` dispatches).
 
 pub mod calibrate;
+pub mod episode;
 pub mod eval;
 pub mod export;
 pub mod model;

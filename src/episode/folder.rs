@@ -40,6 +40,78 @@ pub enum EpisodeError {
         /// The period given.
         period_ns: i64,
     },
+    /// An MCAP file could not be read or written (not a truncation of the data section).
+    #[error("{path}: {reason}")]
+    Mcap {
+        /// The file.
+        path: String,
+        /// What failed.
+        reason: String,
+    },
+    /// An MCAP file breaks off or is corrupt at `offset`; every valid message before it
+    /// has been yielded.
+    #[error("{path} is truncated or corrupt near byte {offset}: {reason}")]
+    Truncated {
+        /// The file.
+        path: String,
+        /// Byte offset in the file up to which records were read when the damage was found.
+        offset: u64,
+        /// The reader's reason.
+        reason: String,
+    },
+    /// A topic is missing, ambiguous or of the wrong type.
+    #[error("{path}: {reason}")]
+    Topic {
+        /// The file.
+        path: String,
+        /// What is wrong, with the candidate topics.
+        reason: String,
+    },
+    /// One message could not be decoded or is invalid (NaN joint position, bad sizes...).
+    #[error("{topic}, message {index}: {reason}")]
+    BadMessage {
+        /// The topic.
+        topic: String,
+        /// 0-based index of the message on its topic, in read order.
+        index: usize,
+        /// What is wrong.
+        reason: String,
+    },
+    /// An image uses an encoding (or compressed format) vamos does not decode.
+    #[error("{topic}, message {index}: unknown image encoding {encoding:?}")]
+    UnknownEncoding {
+        /// The topic.
+        topic: String,
+        /// 0-based image index.
+        index: usize,
+        /// The encoding.
+        encoding: String,
+    },
+    /// An image's size differs from the episode's first image; later images of the first
+    /// size still come.
+    #[error(
+        "image {index} is {width}x{height}, the episode's images are {expected_width}x{expected_height}"
+    )]
+    ImageSizeChanged {
+        /// 0-based image index.
+        index: usize,
+        /// Width of the first image.
+        expected_width: usize,
+        /// Height of the first image.
+        expected_height: usize,
+        /// This image's width.
+        width: usize,
+        /// This image's height.
+        height: usize,
+    },
+    /// A labels file or label message is malformed.
+    #[error("labels {path}: {reason}")]
+    Labels {
+        /// The file or topic.
+        path: String,
+        /// What is wrong.
+        reason: String,
+    },
 }
 
 /// One image of a sequence.

@@ -111,36 +111,50 @@ impl JointTrack {
         self.stamps_ns.is_empty()
     }
 
-    fn row(&self, i: usize) -> &[f64] {
-        let n = self.names.len();
-        &self.positions[i * n..(i + 1) * n]
-    }
-
     /// The positions at `stamp_ns`.
     pub fn at(&self, stamp_ns: i64) -> JointSample {
-        let s = &self.stamps_ns;
-        let after = s.partition_point(|&t| t < stamp_ns);
-        if after == 0 || after == s.len() {
-            let i = if after == 0 { 0 } else { s.len() - 1 };
-            return JointSample {
-                positions: self.row(i).to_vec(),
-                gap_ns: (s[i] - stamp_ns).abs(),
-                extrapolated: s[i] != stamp_ns,
-            };
-        }
-        let (t0, t1) = (s[after - 1], s[after]);
-        let w = (stamp_ns - t0) as f64 / (t1 - t0) as f64;
-        let positions = self
-            .row(after - 1)
-            .iter()
-            .zip(self.row(after))
-            .map(|(a, b)| a + w * (b - a))
-            .collect();
-        JointSample {
-            positions,
-            gap_ns: (stamp_ns - t0).min(t1 - stamp_ns),
-            extrapolated: false,
-        }
+        interpolate_rows(&self.stamps_ns, &self.positions, self.names.len(), stamp_ns)
+    }
+}
+
+/// Interpolates row-major samples (`rows`: `stamps_ns.len()` rows of `n` values, stamps
+/// ascending, at least one) to `stamp_ns`: linear between the two samples around it, the
+/// nearest sample outside the span; `gap_ns` is the distance to the nearest sample.
+pub(crate) fn interpolate_rows(
+    stamps_ns: &[i64],
+    rows: &[f64],
+    n: usize,
+    stamp_ns: i64,
+) -> JointSample {
+    let s = stamps_ns;
+    let row = |i: usize| &rows[i * n..(i + 1) * n];
+    if s.is_empty() {
+        return JointSample {
+            positions: Vec::new(),
+            gap_ns: i64::MAX,
+            extrapolated: true,
+        };
+    }
+    let after = s.partition_point(|&t| t < stamp_ns);
+    if after == 0 || after == s.len() {
+        let i = if after == 0 { 0 } else { s.len() - 1 };
+        return JointSample {
+            positions: row(i).to_vec(),
+            gap_ns: s[i].abs_diff(stamp_ns).min(i64::MAX as u64) as i64,
+            extrapolated: s[i] != stamp_ns,
+        };
+    }
+    let (t0, t1) = (s[after - 1], s[after]);
+    let w = (stamp_ns - t0) as f64 / (t1 - t0) as f64;
+    let positions = row(after - 1)
+        .iter()
+        .zip(row(after))
+        .map(|(a, b)| a + w * (b - a))
+        .collect();
+    JointSample {
+        positions,
+        gap_ns: (stamp_ns - t0).min(t1 - stamp_ns),
+        extrapolated: false,
     }
 }
 

@@ -1,11 +1,46 @@
-//! Recorded executions (episodes): reading them frame by frame in stamp order.
+//! Recorded executions (episodes): reading them frame by frame in stamp order, and writing
+//! score bags.
 //!
 //! - [`folder`]: an episode as a folder of images with optional stamps (`frames.csv`).
-//!   ROS 2 bags in MCAP come with the episode issue.
 //! - [`joints`]: joint states at their own rate (`joints.csv`), interpolated to image stamps.
+//! - [`bag`]: ROS 2 bags in MCAP ([`McapEpisode`]): topics resolved by name or schema,
+//!   frames streamed chunk by chunk with joint states interpolated to each image stamp,
+//!   damaged files read up to where they break. Settings: [`EpisodeConfig`] (`[episode]`).
+//! - [`writer`]: [`ScoreBagWriter`], MCAP output with images and score topics.
+//! - [`cdr`], [`ros`]: the CDR encoding and the ROS 2 messages vamos reads and writes.
+//! - [`labels`]: evaluation labels (`<stem>.labels.json` or a label topic).
+//!
+//! Typical use:
+//! ```no_run
+//! # use vamos::episode::{EpisodeConfig, McapEpisode};
+//! # fn main() -> Result<(), vamos::episode::EpisodeError> {
+//! let ep = McapEpisode::open("run.mcap".as_ref(), &EpisodeConfig::default())?;
+//! let urdf = ep.robot_description()?;
+//! for frame in ep.frames() {
+//!     match frame {
+//!         Ok(f) => println!("{} {} {:?}", f.index, f.stamp_ns, f.joints.map(|j| j.positions)),
+//!         Err(e) => eprintln!("{e}"), // one bad frame; later frames still come
+//!     }
+//! }
+//! # Ok(()) }
+//! ```
+//!
+//! May import `vision` and `robot`; never async crates.
 
+pub mod bag;
+pub mod cdr;
 pub mod folder;
 pub mod joints;
+pub mod labels;
+pub mod ros;
+pub mod writer;
 
+pub use bag::{
+    ChosenTopics, EpisodeConfig, EpisodeFrame, EpisodeInfo, EpisodeTopics, Frames, JointStateAt,
+    McapEpisode, SourceMessage, TopicInfo,
+};
 pub use folder::{EpisodeError, ImageSequence, SequenceFrame};
 pub use joints::{JointSample, JointTrack};
+pub use labels::Labels;
+pub use ros::CameraInfoMsg;
+pub use writer::{ImageData, ScoreBagWriter};

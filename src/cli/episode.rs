@@ -1,0 +1,134 @@
+//! `vamos episode inspect|copy`: what a recorded ROS 2 bag (MCAP) holds, and a copy of it
+//! through vamos's reader and writer.
+
+use anyhow::{Context, Result};
+use serde_json::{Value, json};
+use std::path::Path;
+use vamos::episode::{EpisodeConfig, EpisodeError, ImageData, McapEpisode, ScoreBagWriter};
+
+/// Opens `bag` and returns one JSON object: `info` (topics, chosen topics, counts,
+/// duration, damage), `labels` (sidecar or label topic, or null), `camera_info` (first K,
+/// width, height, or null) and `robot_description_bytes`. With `frames`, also reads every
+/// frame and adds `frames` (count), `frame_errors` (messages) and the final
+/// `skipped_backwards`.
+pub fn inspect(bag: &Path, cfg: &EpisodeConfig, frames: bool) -> Result<Value> {
+    let ep =
+        McapEpisode::open(bag, cfg).with_context(|| format!("cannot open {}", bag.display()))?;
+    let labels = ep.labels()?;
+    let camera = ep.camera_info()?.map(|c| {
+        json!({ "width": c.width, "height": c.height, "k": c.k, "distortion_model": c.distortion_model })
+    });
+    let urdf = ep.robot_description()?;
+    let mut out = json!({
+        "labels": labels,
+        "camera_info": camera,
+        "robot_description_bytes": urdf.map(|u| u.len()),
+    });
+    if frames {
+        let (mut ok, mut errors) = (0usize, Vec::new());
+        let mut warnings = 0usize;
+        for f in ep.frames() {
+            match f {
+                Ok(f) => {
+                    ok += 1;
+                    warnings += f.warnings.len();
+                }
+                Err(e) => errors.push(e.to_string()),
+            }
+        }
+        out["frames"] = json!(ok);
+        out["frame_warnings"] = json!(warnings);
+        out["frame_errors"] = json!(errors);
+    }
+    out["info"] = serde_json::to_value(ep.info())?;
+    Ok(out)
+}
+
+/// Copies `input` to `output` through [`McapEpisode::frames`] and [`ScoreBagWriter`]: the
+/// image messages unchanged, the camera-info, joint-state and robot-description messages
+/// with their schemas, plus per-frame diagnostics `/vamos/joint_gap_ms` (Float64),
+/// `/vamos/joints_extrapolated` (Bool) and `/vamos/gray` (the decoded image, mono8).
+/// Frames that fail and a damaged tail are skipped (the valid part of a truncated bag is
+/// recovered). Returns a JSON summary.
+pub fn copy(input: &Path, output: &Path, cfg: &EpisodeConfig) -> Result<Value> {
+    let ep = McapEpisode::open(input, cfg)
+        .with_context(|| format!("cannot open {}", input.display()))?;
+    let info = ep.info();
+    let mut w = ScoreBagWriter::create(output, Some(&info))?;
+    let c = &info.chosen;
+    let other: Vec<String> = [
+        &c.camera_info,
+        &c.joint_states,
+        &c.robot_description,
+        &c.labels,
+    ]
+    .into_iter()
+    .flatten()
+    .cloned()
+    .collect();
+    let mut copied = 0usize;
+    let mut damage = None;
+    for topic in &other {
+        let Some((name, enc, data)) = ep.schema_of(topic)? else {
+            continue;
+        };
+        let mut result = Ok(());
+        let r = ep.for_each_message(std::slice::from_ref(topic), |t, _, log_time, msg| {
+            if result.is_ok() {
+                result = w.copy_message(t, &name, &enc, &data, msg, log_time);
+                copied += 1;
+            }
+        });
+        result?;
+        match r {
+            Ok(()) => {}
+            Err(e @ EpisodeError::Truncated { .. }) => damage = Some(e.to_string()),
+            Err(e) => return Err(e.into()),
+        }
+    }
+    let (mut frames, mut errors) = (0usize, Vec::new());
+    for f in ep.frames() {
+        let f = match f {
+            Ok(f) => f,
+            Err(e @ EpisodeError::Truncated { .. }) => {
+                damage = Some(e.to_string());
+                continue;
+            }
+            Err(e) => {
+                errors.push(e.to_string());
+                continue;
+            }
+        };
+        w.write_image(&c.image, f.stamp_ns, ImageData::Source(&f.source))?;
+        if let Some(j) = &f.joints {
+            w.write_f64("/vamos/joint_gap_ms", f.stamp_ns, j.gap_ns as f64 * 1e-6)?;
+            w.write_bool("/vamos/joints_extrapolated", f.stamp_ns, j.extrapolated)?;
+        }
+        let gray: Vec<u8> = f
+            .image
+            .data()
+            .iter()
+            .map(|&v| v.round().clamp(0.0, 255.0) as u8)
+            .collect();
+        w.write_image(
+            "/vamos/gray",
+            f.stamp_ns,
+            ImageData::Raw {
+                width: u32::try_from(f.image.width())?,
+                height: u32::try_from(f.image.height())?,
+                encoding: "mono8",
+                data: &gray,
+            },
+        )?;
+        frames += 1;
+    }
+    w.finish()?;
+    Ok(json!({
+        "input": input.display().to_string(),
+        "output": output.display().to_string(),
+        "frames": frames,
+        "other_messages": copied,
+        "frame_errors": errors,
+        "damage": damage,
+    }))
+}
