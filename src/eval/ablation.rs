@@ -78,7 +78,10 @@ pub struct AblationTable {
 /// The paper's Table (REFERENCE.md), A = 5, B = 4, M = 10.
 const PAPER: [(&str, [(f64, f64); 3]); 4] = [
     ("plain", [(0.740, 0.380), (0.741, 0.387), (0.792, 0.489)]),
-    ("registered", [(0.716, 0.353), (0.716, 0.362), (0.773, 0.466)]),
+    (
+        "registered",
+        [(0.716, 0.353), (0.716, 0.362), (0.773, 0.466)],
+    ),
     ("masked", [(0.752, 0.467), (0.752, 0.464), (0.804, 0.549)]),
     (
         "masked + registered",
@@ -184,7 +187,10 @@ mod tests {
         t.set("Masked", FusionLevel::FlowBodyCamera, pair(0.81, 0.55));
         t.set("mine", FusionLevel::FlowBody, AucPair::default());
         assert_eq!(t.rows.len(), 2);
-        assert_eq!(t.get("MASKED", FusionLevel::FlowOnly), Some(pair(0.75, 0.4567)));
+        assert_eq!(
+            t.get("MASKED", FusionLevel::FlowOnly),
+            Some(pair(0.75, 0.4567))
+        );
         assert_eq!(
             t.to_markdown(),
             "| input flow variant | OF only | OF + body | OF + body + camera |\n\
@@ -194,7 +200,9 @@ mod tests {
         );
         let md = t.with_paper_reference().to_markdown();
         assert!(
-            md.contains("| masked | 0.750 / 0.457 (paper 0.752 / 0.467) | - (paper 0.752 / 0.464) |"),
+            md.contains(
+                "| masked | 0.750 / 0.457 (paper 0.752 / 0.467) | - (paper 0.752 / 0.464) |"
+            ),
             "{md}"
         );
         assert!(md.contains("| mine | - | n/a / n/a | - |"), "{md}");

@@ -27,7 +27,9 @@ pub fn max_threshold(values: &[f64]) -> Option<f64> {
         .iter()
         .copied()
         .filter(|v| !v.is_nan())
-        .fold(None, |best: Option<f64>, v| Some(best.map_or(v, |b| b.max(v))))
+        .fold(None, |best: Option<f64>, v| {
+            Some(best.map_or(v, |b| b.max(v)))
+        })
 }
 
 /// A conformal threshold on the fused score with its guarantees.
@@ -160,8 +162,7 @@ fn ln_prefactor(a: f64, b: f64, x: f64, y: f64) -> f64 {
         // a ln(x (a+b) / a) + b ln(y (a+b) / b) with both logs near 0 where the
         // function varies; t = x b - y a keeps that difference exact-ish.
         let t = x * b - y * a;
-        a * (t / a).ln_1p() + b * (-t / b).ln_1p() + 0.5 * (a * b / (a + b)).ln()
-            - HALF_LN_2PI
+        a * (t / a).ln_1p() + b * (-t / b).ln_1p() + 0.5 * (a * b / (a + b)).ln() - HALF_LN_2PI
             + stirling_correction(a + b)
             - stirling_correction(a)
             - stirling_correction(b)
@@ -222,8 +223,7 @@ fn beta_continued_fraction(a: f64, b: f64, x: f64) -> f64 {
 /// where the fraction would converge slowly. NaN for a <= 0, b <= 0, x outside [0, 1]
 /// or NaN arguments.
 pub fn regularized_beta(a: f64, b: f64, x: f64) -> f64 {
-    if !(a > 0.0 && b > 0.0 && (0.0..=1.0).contains(&x)) || a.is_infinite() || b.is_infinite()
-    {
+    if !(a > 0.0 && b > 0.0 && (0.0..=1.0).contains(&x)) || a.is_infinite() || b.is_infinite() {
         return f64::NAN;
     }
     if x == 0.0 {

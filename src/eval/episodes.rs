@@ -80,7 +80,13 @@ fn outcome(name: &str, frames: &[&ScoredFrame], threshold: f64) -> EpisodeOutcom
         .map(|f| f.stamp_ns);
     let max_score = frames
         .iter()
-        .map(|f| if f.score.is_nan() { f64::INFINITY } else { f.score })
+        .map(|f| {
+            if f.score.is_nan() {
+                f64::INFINITY
+            } else {
+                f.score
+            }
+        })
         .fold(f64::NEG_INFINITY, f64::max);
     let anomalous_frames = frames.iter().filter(|f| f.anomalous).count();
     let (false_alarm, detection_delay_s, anomaly_type) = match onset_ns {
@@ -140,7 +146,10 @@ pub fn episode_false_alarm_rate(frames: &[ScoredFrame], threshold: f64) -> Optio
 
 fn nominal_false_alarm_rate(outcomes: &[EpisodeOutcome]) -> Option<f64> {
     let nominal: Vec<_> = outcomes.iter().filter(|o| !o.anomalous).collect();
-    share(nominal.iter().filter(|o| o.false_alarm).count(), nominal.len())
+    share(
+        nominal.iter().filter(|o| o.false_alarm).count(),
+        nominal.len(),
+    )
 }
 
 /// Share of anomalous episodes with an alarm strictly before their first anomalous
@@ -155,7 +164,9 @@ pub fn pre_onset_false_alarm_rate(frames: &[ScoredFrame], threshold: f64) -> Opt
 }
 
 /// Detection rate and median delay over anomalous episodes.
-fn detection<'a>(anomalous: impl Iterator<Item = &'a EpisodeOutcome>) -> (Option<f64>, Option<f64>) {
+fn detection<'a>(
+    anomalous: impl Iterator<Item = &'a EpisodeOutcome>,
+) -> (Option<f64>, Option<f64>) {
     let mut total = 0;
     let mut delays = Vec::new();
     for o in anomalous {
@@ -232,8 +243,10 @@ pub fn evaluate(frames: &[ScoredFrame], threshold: f64) -> EvalReport {
         .map(|o| (o.episode.as_str(), o.anomaly_type.as_deref()))
         .collect();
     let mut per_type = BTreeMap::new();
-    let kinds: std::collections::BTreeSet<&str> =
-        anomalous.iter().filter_map(|o| o.anomaly_type.as_deref()).collect();
+    let kinds: std::collections::BTreeSet<&str> = anomalous
+        .iter()
+        .filter_map(|o| o.anomaly_type.as_deref())
+        .collect();
     for kind in kinds {
         let mut type_scores = Vec::new();
         let mut type_labels = Vec::new();
@@ -290,7 +303,13 @@ mod tests {
 
     const S: i64 = 1_000_000_000;
 
-    fn frame(episode: &str, stamp_ns: i64, score: f64, anomalous: bool, kind: Option<&str>) -> ScoredFrame {
+    fn frame(
+        episode: &str,
+        stamp_ns: i64,
+        score: f64,
+        anomalous: bool,
+        kind: Option<&str>,
+    ) -> ScoredFrame {
         ScoredFrame {
             episode: episode.to_string(),
             stamp_ns,
@@ -350,7 +369,10 @@ mod tests {
         let names: Vec<&str> = outcomes.iter().map(|o| o.episode.as_str()).collect();
         assert_eq!(names, ["a", "b", "c", "d", "e", "f", "g"]);
         let delays: Vec<Option<f64>> = outcomes.iter().map(|o| o.detection_delay_s).collect();
-        assert_eq!(delays, [None, None, None, Some(2.0), Some(0.5), None, Some(0.0)]);
+        assert_eq!(
+            delays,
+            [None, None, None, Some(2.0), Some(0.5), None, Some(0.0)]
+        );
         assert_eq!(outcomes[3].onset_ns, Some(2 * S));
         assert_eq!(outcomes[4].first_alarm_ns, Some(0));
         assert_eq!(outcomes[2].max_score, f64::INFINITY);
@@ -370,11 +392,21 @@ mod tests {
         assert_eq!(keys, ["collision", "slip", UNTYPED_ANOMALY]);
         let collision = &r.per_type["collision"];
         // d (6) + e (4) + nominal a, b, c (8) frames; 4 anomalous.
-        assert_eq!((collision.frames, collision.anomalous_frames, collision.episodes), (18, 4, 2));
+        assert_eq!(
+            (
+                collision.frames,
+                collision.anomalous_frames,
+                collision.episodes
+            ),
+            (18, 4, 2)
+        );
         assert_eq!(collision.detection_rate, Some(1.0));
         assert_eq!(collision.median_detection_delay_s, Some(1.25));
         let slip = &r.per_type["slip"];
-        assert_eq!((slip.frames, slip.episodes, slip.detection_rate), (11, 1, Some(0.0)));
+        assert_eq!(
+            (slip.frames, slip.episodes, slip.detection_rate),
+            (11, 1, Some(0.0))
+        );
         assert_eq!(slip.median_detection_delay_s, None);
 
         // Per-type AUC pools exactly those frames.
@@ -412,8 +444,14 @@ mod tests {
     fn empty_and_one_sided_inputs() {
         let r = evaluate(&[], 0.5);
         assert_eq!((r.frames, r.episodes), (0, 0));
-        assert_eq!((r.auc_roc, r.episode_false_alarm_rate, r.detection_rate), (None, None, None));
-        let nominal_only: Vec<ScoredFrame> = episodes().into_iter().filter(|f| f.episode.as_str() < "d").collect();
+        assert_eq!(
+            (r.auc_roc, r.episode_false_alarm_rate, r.detection_rate),
+            (None, None, None)
+        );
+        let nominal_only: Vec<ScoredFrame> = episodes()
+            .into_iter()
+            .filter(|f| f.episode.as_str() < "d")
+            .collect();
         let r = evaluate(&nominal_only, 0.5);
         assert_eq!(r.auc_roc, None);
         assert_eq!(r.pre_onset_false_alarm_rate, None);
@@ -424,23 +462,46 @@ mod tests {
     fn json_field_names_are_the_contract() {
         let r = evaluate(&episodes(), 0.5);
         let value = serde_json::to_value(&r).unwrap();
-        let mut keys: Vec<&str> = value.as_object().unwrap().keys().map(String::as_str).collect();
+        let mut keys: Vec<&str> = value
+            .as_object()
+            .unwrap()
+            .keys()
+            .map(String::as_str)
+            .collect();
         keys.sort_unstable();
         assert_eq!(
             keys,
             [
-                "anomalous_episodes", "anomalous_frames", "auc_pr", "auc_roc", "detection_rate",
-                "episode_false_alarm_rate", "episodes", "frames", "median_detection_delay_s",
-                "per_type", "pre_onset_false_alarm_rate", "threshold",
+                "anomalous_episodes",
+                "anomalous_frames",
+                "auc_pr",
+                "auc_roc",
+                "detection_rate",
+                "episode_false_alarm_rate",
+                "episodes",
+                "frames",
+                "median_detection_delay_s",
+                "per_type",
+                "pre_onset_false_alarm_rate",
+                "threshold",
             ]
         );
-        let mut type_keys: Vec<&str> =
-            value["per_type"]["slip"].as_object().unwrap().keys().map(String::as_str).collect();
+        let mut type_keys: Vec<&str> = value["per_type"]["slip"]
+            .as_object()
+            .unwrap()
+            .keys()
+            .map(String::as_str)
+            .collect();
         type_keys.sort_unstable();
         assert_eq!(
             type_keys,
             [
-                "anomalous_frames", "auc_pr", "auc_roc", "detection_rate", "episodes", "frames",
+                "anomalous_frames",
+                "auc_pr",
+                "auc_roc",
+                "detection_rate",
+                "episodes",
+                "frames",
                 "median_detection_delay_s",
             ]
         );

@@ -150,7 +150,10 @@ mod tests {
         assert_eq!(f.score, TRIGGER_BASE + 2.0);
         // Exactly at the threshold fires (>=), ratio 1.
         let f = fuse(Some(2.0), None, Some(7.0), &T);
-        assert_eq!((f.triggered, f.score), (Some(Detector::Camera), TRIGGER_BASE + 1.0));
+        assert_eq!(
+            (f.triggered, f.score),
+            (Some(Detector::Camera), TRIGGER_BASE + 1.0)
+        );
         // e_o > 1 untriggered still ranks below the triggered frame.
         assert!(fuse(None, None, Some(50.0), &T).score < f.score);
         // Missing components never trigger; nothing at all scores 0.
@@ -167,9 +170,15 @@ mod tests {
     #[test]
     fn broken_values_do_not_hide() {
         let f = fuse(Some(f64::NAN), Some(1.0), Some(0.1), &T);
-        assert_eq!((f.triggered, f.score), (Some(Detector::Camera), TRIGGER_BASE + RATIO_CAP));
+        assert_eq!(
+            (f.triggered, f.score),
+            (Some(Detector::Camera), TRIGGER_BASE + RATIO_CAP)
+        );
         let f = fuse(Some(0.0), Some(0.0), Some(f64::NAN), &T);
-        assert_eq!((f.triggered, f.score), (Some(Detector::Flow), UNTRIGGERED_MAX));
+        assert_eq!(
+            (f.triggered, f.score),
+            (Some(Detector::Flow), UNTRIGGERED_MAX)
+        );
         let nan_threshold = Thresholds {
             e_c: Some(f64::NAN),
             e_b: None,

@@ -191,10 +191,21 @@ pub fn plot_episode(
             .y_label_area_size(70)
             .build_cartesian_2d(x_lo..x_hi, y_lo..y_hi)
             .map_err(e)?;
+        // Grid first: the opaque shading then hides it inside the intervals.
+        let log_label = |v: &f64| format!("{:.0e}", 10f64.powf(*v));
+        let linear_label = |v: &f64| format!("{v:.3}");
+        chart
+            .configure_mesh()
+            .x_desc("time (s)")
+            .y_desc(if log_y { "score (log10)" } else { "score" })
+            .y_label_formatter(if log_y { &log_label } else { &linear_label })
+            .light_line_style(RGBColor(235, 235, 235))
+            .draw()
+            .map_err(e)?;
         let mut labelled_shade = false;
         for &(a, b) in intervals_s {
             let (a, b) = (a.max(x_lo), b.min(x_hi));
-            if !(a <= b) {
+            if a.is_nan() || b.is_nan() || a > b {
                 continue;
             }
             let series = chart
@@ -210,16 +221,6 @@ pub fn plot_episode(
                 labelled_shade = true;
             }
         }
-        let log_label = |v: &f64| format!("1e{v:.1}");
-        let linear_label = |v: &f64| format!("{v:.3}");
-        chart
-            .configure_mesh()
-            .x_desc("time (s)")
-            .y_desc(if log_y { "score (log10)" } else { "score" })
-            .y_label_formatter(if log_y { &log_label } else { &linear_label })
-            .light_line_style(RGBColor(235, 235, 235))
-            .draw()
-            .map_err(e)?;
         let mut labelled_score = false;
         for segment in points.split(|p| !p.1.is_finite()) {
             if segment.is_empty() {
@@ -385,4 +386,184 @@ pub fn plot_pr(
         SeriesLabelPosition::UpperRight,
         options,
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::eval::{pr_curve, roc_curve};
+
+    fn decode(path: &Path) -> image::RgbImage {
+        image::open(path).unwrap().to_rgb8()
+    }
+
+    fn has_color(img: &image::RgbImage, c: RGBColor) -> usize {
+        img.pixels().filter(|p| p.0 == [c.0, c.1, c.2]).count()
+    }
+
+    /// Runs of consecutive columns that contain the interval shade: (first, last).
+    fn shaded_bands(img: &image::RgbImage) -> Vec<(u32, u32)> {
+        let shade = [INTERVAL_SHADE.0, INTERVAL_SHADE.1, INTERVAL_SHADE.2];
+        let mut bands: Vec<(u32, u32)> = Vec::new();
+        for x in 0..img.width() {
+            if (0..img.height()).any(|y| img.get_pixel(x, y).0 == shade) {
+                match bands.last_mut() {
+                    Some(band) if band.1 + 1 == x => band.1 = x,
+                    _ => bands.push((x, x)),
+                }
+            }
+        }
+        bands
+    }
+
+    #[test]
+    fn episode_plot_shades_intervals_and_draws_the_threshold() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("episode.png");
+        let stamps: Vec<f64> = (0..=100).map(|i| i as f64 * 0.1).collect();
+        let scores: Vec<f64> = stamps.iter().map(|t| 0.5 + 0.4 * (t * 1.3).sin()).collect();
+        let options = PlotOptions {
+            width_px: 800,
+            height_px: 300,
+            log_y: false,
+        };
+        let intervals = [(2.0, 4.0), (6.0, 8.0)];
+        plot_episode(
+            &path,
+            "episode 7",
+            &stamps,
+            &scores,
+            &intervals,
+            Some(0.6),
+            &options,
+        )
+        .unwrap();
+        let img = decode(&path);
+        assert_eq!(img.dimensions(), (800, 300));
+
+        // Two bands of equal width (2 s each) separated by a gap of the same width (4..6
+        // s): the shading sits where the time axis puts it.
+        // (Narrow runs are the legend's swatch.)
+        let bands: Vec<_> = shaded_bands(&img)
+            .into_iter()
+            .filter(|b| b.1 - b.0 > 40)
+            .collect();
+        assert_eq!(bands.len(), 2, "{bands:?}");
+        let width = |b: (u32, u32)| f64::from(b.1 - b.0 + 1);
+        let (w1, w2) = (width(bands[0]), width(bands[1]));
+        let gap = f64::from(bands[1].0 - bands[0].1 - 1);
+        assert!(
+            w1 > 100.0 && (w1 - w2).abs() <= 2.0 && (gap - w1).abs() <= 3.0,
+            "{bands:?}"
+        );
+        // Shaded pixels differ from the background: the band's middle column is mostly
+        // shade, the gap's middle column has none.
+        let column = |x: u32| {
+            (0..img.height())
+                .filter(|&y| img.get_pixel(x, y).0 == [255, 205, 205])
+                .count()
+        };
+        assert!(column((bands[0].0 + bands[0].1) / 2) > 150);
+        assert_eq!(column(bands[0].1 + (gap / 2.0) as u32), 0);
+        assert!(has_color(&img, THRESHOLD_COLOR) > 100);
+        assert!(has_color(&img, SCORE_COLOR) > 100);
+        // The caption was drawn (text from the embedded font): dark pixels in the top rows.
+        let caption_ink = (0..img.width())
+            .flat_map(|x| (0..30).map(move |y| (x, y)))
+            .filter(|&(x, y)| img.get_pixel(x, y).0.iter().all(|&c| c < 128))
+            .count();
+        assert!(caption_ink > 20, "caption ink {caption_ink}");
+    }
+
+    #[test]
+    fn log_axis_copes_with_zero_and_triggered_scores() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("log.png");
+        let stamps = [0.0, 0.1, 0.2, 0.3, 0.4, 0.5];
+        let scores = [0.0, 0.01, f64::NAN, 0.2, 1.0e6 + 3.0, 0.05];
+        let options = PlotOptions {
+            log_y: true,
+            ..PlotOptions::default()
+        };
+        plot_episode(
+            &path,
+            "triggered",
+            &stamps,
+            &scores,
+            &[(0.3, 0.45)],
+            Some(0.1),
+            &options,
+        )
+        .unwrap();
+        let img = decode(&path);
+        assert_eq!(img.dimensions(), (900, 500));
+        let bands: Vec<_> = shaded_bands(&img)
+            .into_iter()
+            .filter(|b| b.1 - b.0 > 40)
+            .collect();
+        assert_eq!(bands.len(), 1, "{bands:?}");
+    }
+
+    #[test]
+    fn roc_and_pr_plots() {
+        let dir = tempfile::tempdir().unwrap();
+        let scores = [0.9, 0.8, 0.7, 0.6, 0.55, 0.5, 0.4, 0.3, 0.2, 0.1];
+        let labels = [
+            true, true, false, true, false, true, false, false, true, false,
+        ];
+        let roc = roc_curve(&scores, &labels).unwrap();
+        let flipped: Vec<f64> = scores.iter().map(|s| 1.0 - s).collect();
+        let roc2 = roc_curve(&flipped, &labels).unwrap();
+        let options = PlotOptions {
+            width_px: 500,
+            height_px: 480,
+            log_y: false,
+        };
+        let path = dir.path().join("roc.png");
+        plot_roc(
+            &path,
+            &[("model", &roc, Some(0.7)), ("flipped", &roc2, None)],
+            &options,
+        )
+        .unwrap();
+        let img = decode(&path);
+        assert_eq!(img.dimensions(), (500, 480));
+        assert!(has_color(&img, PALETTE[0]) > 100);
+        assert!(has_color(&img, PALETTE[1]) > 100);
+
+        let pr = pr_curve(&scores, &labels).unwrap();
+        let path = dir.path().join("pr.png");
+        plot_pr(&path, &[("model", &pr, Some(0.6))], &options).unwrap();
+        let img = decode(&path);
+        assert_eq!(img.dimensions(), (500, 480));
+        assert!(has_color(&img, PALETTE[0]) > 100);
+    }
+
+    #[test]
+    fn bad_plot_inputs_are_errors() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("x.png");
+        let options = PlotOptions::default();
+        assert!(matches!(
+            plot_episode(&path, "e", &[0.0, 1.0], &[0.5], &[], None, &options),
+            Err(EvalError::LengthMismatch {
+                left: 2,
+                right: 1,
+                ..
+            })
+        ));
+        let tiny = PlotOptions {
+            width_px: 10,
+            ..options
+        };
+        assert!(matches!(
+            plot_roc(&path, &[], &tiny),
+            Err(EvalError::PlotSize { width_px: 10, .. })
+        ));
+        let missing_dir = dir.path().join("no/such/dir/x.png");
+        assert!(matches!(
+            plot_pr(&missing_dir, &[], &options),
+            Err(EvalError::Write { .. })
+        ));
+    }
 }

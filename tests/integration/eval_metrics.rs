@@ -73,7 +73,12 @@ fn reference_covers_the_hard_cases() {
     let r = reference();
     assert!(r.versions["sklearn"].is_string());
     let names: Vec<&str> = r.metric_cases.iter().map(|c| c.name.as_str()).collect();
-    for needed in ["ties_rounded", "all_equal", "imbalance_1pct", "one_positive"] {
+    for needed in [
+        "ties_rounded",
+        "all_equal",
+        "imbalance_1pct",
+        "one_positive",
+    ] {
         assert!(names.contains(&needed), "{needed} missing from {names:?}");
     }
 }
@@ -84,7 +89,11 @@ fn auc_roc_and_average_precision_match_sklearn() {
         let auc = roc_auc(&case.scores, &case.labels).unwrap();
         assert_close(&format!("{} roc_auc", case.name), auc, case.roc_auc);
         let ap = average_precision(&case.scores, &case.labels).unwrap();
-        assert_close(&format!("{} average_precision", case.name), ap, case.average_precision);
+        assert_close(
+            &format!("{} average_precision", case.name),
+            ap,
+            case.average_precision,
+        );
     }
 }
 
@@ -98,7 +107,12 @@ fn roc_curve_matches_sklearn_point_for_point() {
             assert_close(&format!("{} fpr[{i}]", case.name), p.fpr, case.roc_fpr[i]);
             assert_close(&format!("{} tpr[{i}]", case.name), p.tpr, case.roc_tpr[i]);
             if i > 0 {
-                assert_eq!(p.threshold, case.roc_thresholds[i - 1], "{} thr[{i}]", case.name);
+                assert_eq!(
+                    p.threshold,
+                    case.roc_thresholds[i - 1],
+                    "{} thr[{i}]",
+                    case.name
+                );
             }
         }
     }
