@@ -59,26 +59,36 @@ pub struct ConformalThreshold {
 
 /// The split-conformal rank k = ceil((n + 1)(1 - alpha)), 1-based; may exceed n.
 ///
-/// The product is computed in floating point and shrunk by a relative 1e-12 before the
+/// The product is computed in floating point and lowered by 4 ulps' worth before the
 /// ceiling, so that budgets written in decimal (0.05, 0.1) give the rank exact
-/// arithmetic gives (20 * (1 - 0.05) is 19.000000000000004 in f64).
+/// arithmetic gives (20 * (1 - 0.05) is 19.000000000000004 in f64); a product that is
+/// genuinely above an integer by more than that keeps its ceiling.
 pub fn conformal_rank(n: usize, alpha: f64) -> usize {
     let v = (n as f64 + 1.0) * (1.0 - alpha);
-    (v * (1.0 - 1e-12)).ceil().max(0.0) as usize
+    (v - 4.0 * f64::EPSILON * v.abs()).ceil().max(0.0) as usize
 }
 
-/// The fewest calibration episodes for which `conformal_rank(n, alpha) <= n`.
+/// The fewest calibration episodes for which `conformal_rank(n, alpha) <= n` (capped at
+/// 2^53 for absurdly small budgets).
 fn episodes_needed(alpha: f64) -> usize {
-    // rank(n) - n = ceil((1 - alpha) - n alpha) falls with n, so search from the
-    // closed-form estimate (1 - alpha) / alpha.
-    let mut n = ((1.0 - alpha) / alpha).ceil().clamp(1.0, 1e15) as usize;
-    while n > 1 && conformal_rank(n - 1, alpha) < n {
-        n -= 1;
+    const CAP: usize = 1 << 53;
+    let fits = |n: usize| conformal_rank(n, alpha) <= n;
+    // rank(n) - n = ceil((1 - alpha) - n alpha) (up to rounding) falls with n: double
+    // until it fits, then bisect.
+    let mut hi = 1usize;
+    while !fits(hi) && hi < CAP {
+        hi *= 2;
     }
-    while conformal_rank(n, alpha) > n {
-        n += 1;
+    let mut lo = hi / 2; // does not fit (or 0)
+    while hi - lo > 1 {
+        let mid = lo + (hi - lo) / 2;
+        if fits(mid) {
+            hi = mid;
+        } else {
+            lo = mid;
+        }
     }
-    n
+    hi
 }
 
 /// Split-conformal threshold on the fused score from the per-episode maxima of held-out
@@ -265,6 +275,10 @@ mod tests {
         assert_eq!(episodes_needed(0.2), 4);
         assert_eq!(episodes_needed(0.3), 3); // 3 * 0.7 = 2.1 -> 3 > 2; 4 * 0.7 = 2.8 -> 3
         assert_eq!(episodes_needed(0.5), 1);
+        assert_eq!(episodes_needed(0.01), 99);
+        assert_eq!(episodes_needed(1e-6), 999_999);
+        // (n + 1)(1 - alpha) = 1000001 * 0.999999 = 999999.999999: k = 10^6 = n.
+        assert_eq!(conformal_rank(1_000_000, 1e-6), 1_000_000);
     }
 
     #[test]
