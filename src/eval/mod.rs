@@ -35,7 +35,6 @@ use serde::{Deserialize, Serialize};
 
 /// One scored frame of a labelled episode: the unit the evaluation pools over.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
 pub struct ScoredFrame {
     /// Episode name; frames with the same name form one episode.
     pub episode: String,

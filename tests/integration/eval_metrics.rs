@@ -11,7 +11,8 @@ use std::path::Path;
 
 use serde::Deserialize;
 use vamos::eval::{
-    average_precision, conformal_threshold, pr_curve, regularized_beta, roc_auc, roc_curve,
+    ScoredFrame, average_precision, conformal_threshold, evaluate, pr_curve, regularized_beta,
+    roc_auc, roc_curve,
 };
 
 #[derive(Deserialize)]
@@ -198,4 +199,43 @@ fn conformal_ranks_and_confidence_match_exact_arithmetic_and_scipy() {
         let expected_rate = (c.n - c.rank_k) as f64 / c.n as f64;
         assert_eq!(t.calibration_false_alarm_rate, expected_rate);
     }
+}
+
+#[test]
+fn evaluate_pools_frames_across_episodes_like_sklearn() {
+    // Cut the pooled case into 50 episodes of 100 frames at 10 Hz: the report's AUCs are
+    // the pooled ones (no per-episode normalisation), whatever the episode split.
+    let case = reference()
+        .metric_cases
+        .into_iter()
+        .find(|c| c.name == "pooled_5k_ties")
+        .unwrap();
+    let frames: Vec<ScoredFrame> = case
+        .scores
+        .iter()
+        .zip(&case.labels)
+        .enumerate()
+        .map(|(i, (&score, &anomalous))| ScoredFrame {
+            episode: format!("ep{:02}", i / 100),
+            stamp_ns: (i % 100) as i64 * 100_000_000,
+            score,
+            anomalous,
+            anomaly_type: Some(if i / 100 % 2 == 0 { "even" } else { "odd" }.to_string()),
+            warming_up: i % 100 < 9,
+        })
+        .collect();
+    let report = evaluate(&frames, 0.1);
+    assert_eq!(report.frames, 5000);
+    assert_eq!(report.episodes, 50);
+    assert_eq!(
+        report.anomalous_frames,
+        case.labels.iter().filter(|&&l| l).count()
+    );
+    assert_close("pooled auc_roc", report.auc_roc.unwrap(), case.roc_auc);
+    assert_close(
+        "pooled auc_pr",
+        report.auc_pr.unwrap(),
+        case.average_precision,
+    );
+    assert_eq!(report.per_type.len(), 2);
 }
