@@ -14,11 +14,15 @@
 //!   into flow, registration and the predictor's input).
 //! - [`model`]: the ONNX flow predictor: model bundles, ONNX Runtime sessions and the
 //!   per-session prediction error `e_o`. Synchronous.
+//! - [`eval`]: evaluation and calibration maths (AUC-ROC/PR as scikit-learn defines them,
+//!   episode false alarms and detection delays, max and conformal thresholds, the fused
+//!   score, the ablation table, PNG plots). A leaf: imports no other vamos module.
 //! - [`config`]: service settings composed of each module's `*Config`.
 //! - [`telemetry`]: `tracing` set-up (human or JSON logs).
 
 pub mod config;
 pub mod episode;
+pub mod eval;
 pub mod model;
 pub mod pipeline;
 pub mod robot;

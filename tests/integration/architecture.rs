@@ -4,8 +4,9 @@
 
 use std::path::{Path, PathBuf};
 
-/// Core modules in dependency order: each may import only the ones before it.
-const CORE: &[&str] = &["vision", "robot", "model", "episode", "pipeline"];
+/// Core modules in dependency order: each may import only the ones before it. `eval`
+/// (evaluation and calibration maths) comes first: a leaf that imports no vamos module.
+const CORE: &[&str] = &["eval", "vision", "robot", "model", "episode", "pipeline"];
 /// Crates the core must not use (the service layer's business).
 const FORBIDDEN: &[&str] = &["tokio", "tonic", "prost", "axum", "http", "hyper", "tower"];
 
@@ -76,6 +77,31 @@ fn core_modules_respect_the_dependency_direction() {
         checked >= 5,
         "expected to scan the vision sources, scanned {checked} files"
     );
+}
+
+#[test]
+fn eval_is_a_leaf() {
+    let mut files = Vec::new();
+    rust_files(
+        &Path::new(env!("CARGO_MANIFEST_DIR")).join("src/eval"),
+        &mut files,
+    );
+    assert!(
+        files.len() >= 5,
+        "expected the eval sources, found {files:?}"
+    );
+    for file in files {
+        let text = std::fs::read_to_string(&file).unwrap();
+        for root in referenced_roots(&text) {
+            if let Some(m) = root.strip_prefix("crate::") {
+                assert!(
+                    m.is_empty() || m == "eval",
+                    "{} imports `crate::{m}`; eval must not depend on other vamos modules",
+                    file.display()
+                );
+            }
+        }
+    }
 }
 
 #[test]

@@ -1,0 +1,241 @@
+//! The fused per-frame anomaly score (REFERENCE.md "Score"), one definition shared by
+//! the pipeline, calibration and evaluation.
+//!
+//! The paper: score = 1 if e_c >= e_c_thres or e_b >= e_b_thres, else e_o. With e_o a
+//! mean squared flow error it can exceed 1, and a triggered frame must still rank above
+//! every untriggered one. The mapping here keeps two bands:
+//!
+//! - untriggered: score = e_o exactly (clamped at [`UNTRIGGERED_MAX`] = 5e5, far above any
+//!   real e_o: network inputs are clipped to +-0.5, so realistic errors are below ~1);
+//! - triggered: score = [`TRIGGER_BASE`] (1e6) + the larger ratio e / e_thres of the
+//!   triggered components (capped at [`RATIO_CAP`]), so triggered frames rank above all
+//!   untriggered ones and, among themselves, by how far they overshoot their threshold.
+//!
+//! Only the ordering matters to AUC and to thresholds on the fused score; values stay
+//! finite, so they survive JSON. Plots of scores want a log axis.
+//!
+//! Missing components (`None`) never trigger. A NaN e_c or e_b is a failed measurement
+//! and triggers with the capped ratio (a broken frame must not hide); a NaN e_o ranks at
+//! the top of the untriggered band. A NaN threshold never triggers; a threshold <= 0
+//! triggers with ratio 1.
+
+use serde::{Deserialize, Serialize};
+
+/// Lower edge of the triggered band: every triggered score is at least this plus 1
+/// (ratio >= 1), or exactly this plus 1 for thresholds <= 0.
+pub const TRIGGER_BASE: f64 = 1.0e6;
+/// Largest untriggered score: e_o above it is clamped (monotone, never above the band).
+pub const UNTRIGGERED_MAX: f64 = 5.0e5;
+/// Largest threshold overshoot ratio carried into the triggered score.
+pub const RATIO_CAP: f64 = 1.0e9;
+
+/// The per-frame detectors.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Detector {
+    /// Camera-motion error e_c reached its threshold.
+    Camera,
+    /// Body-motion error e_b reached its threshold.
+    Body,
+    /// Flow-prediction error e_o (the score when no threshold was reached).
+    Flow,
+}
+
+/// Per-component thresholds (the paper: maxima over the training episodes); `None`
+/// disables that detector.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Thresholds {
+    /// Threshold on e_c (pixels at processing resolution, as e_c itself).
+    pub e_c: Option<f64>,
+    /// Threshold on e_b (pixels, as e_b itself).
+    pub e_b: Option<f64>,
+}
+
+/// A fused score and where it came from.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Fused {
+    /// The anomaly score (see the module doc for the bands).
+    pub score: f64,
+    /// Which detector set the score: `Camera` or `Body` when its error reached its
+    /// threshold (both: the one with the larger ratio, camera on a tie), `Flow` when no
+    /// threshold was reached and the score is e_o, `None` when no threshold was reached
+    /// and e_o is missing (warming up; score 0).
+    pub triggered: Option<Detector>,
+}
+
+impl Fused {
+    /// True when a thresholded detector (camera or body) fired.
+    pub fn is_triggered(&self) -> bool {
+        matches!(self.triggered, Some(Detector::Camera | Detector::Body))
+    }
+}
+
+/// Overshoot ratio of a component against its threshold, `None` when it does not fire.
+fn overshoot(value: Option<f64>, threshold: Option<f64>) -> Option<f64> {
+    let (v, t) = (value?, threshold?);
+    if t.is_nan() {
+        return None;
+    }
+    if v.is_nan() {
+        return Some(RATIO_CAP);
+    }
+    if v < t {
+        return None;
+    }
+    let ratio = if t > 0.0 && t.is_finite() { v / t } else { 1.0 };
+    Some(ratio.min(RATIO_CAP))
+}
+
+/// Fuse the three errors of one frame into its anomaly score (see the module doc).
+pub fn fuse(
+    e_c: Option<f64>,
+    e_b: Option<f64>,
+    e_o: Option<f64>,
+    thresholds: &Thresholds,
+) -> Fused {
+    let camera = overshoot(e_c, thresholds.e_c);
+    let body = overshoot(e_b, thresholds.e_b);
+    let trigger = match (camera, body) {
+        (Some(c), Some(b)) if b > c => Some((Detector::Body, b)),
+        (Some(c), _) => Some((Detector::Camera, c)),
+        (None, Some(b)) => Some((Detector::Body, b)),
+        (None, None) => None,
+    };
+    if let Some((detector, ratio)) = trigger {
+        return Fused {
+            score: TRIGGER_BASE + ratio,
+            triggered: Some(detector),
+        };
+    }
+    match e_o {
+        Some(v) if v.is_nan() => Fused {
+            score: UNTRIGGERED_MAX,
+            triggered: Some(Detector::Flow),
+        },
+        Some(v) => Fused {
+            score: v.min(UNTRIGGERED_MAX),
+            triggered: Some(Detector::Flow),
+        },
+        None => Fused {
+            score: 0.0,
+            triggered: None,
+        },
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    const T: Thresholds = Thresholds {
+        e_c: Some(2.0),
+        e_b: Some(4.0),
+    };
+
+    #[test]
+    fn hand_cases() {
+        // Untriggered: the score is e_o itself.
+        assert_eq!(
+            fuse(Some(1.0), Some(3.9), Some(0.25), &T),
+            Fused {
+                score: 0.25,
+                triggered: Some(Detector::Flow)
+            }
+        );
+        // e_c = 3 vs 2: ratio 1.5; e_b = 8 vs 4: ratio 2 -> body decides.
+        let f = fuse(Some(3.0), Some(8.0), Some(0.1), &T);
+        assert_eq!(f.triggered, Some(Detector::Body));
+        assert_eq!(f.score, TRIGGER_BASE + 2.0);
+        // Exactly at the threshold fires (>=), ratio 1.
+        let f = fuse(Some(2.0), None, Some(7.0), &T);
+        assert_eq!(
+            (f.triggered, f.score),
+            (Some(Detector::Camera), TRIGGER_BASE + 1.0)
+        );
+        // e_o > 1 untriggered still ranks below the triggered frame.
+        assert!(fuse(None, None, Some(50.0), &T).score < f.score);
+        // Missing components never trigger; nothing at all scores 0.
+        assert_eq!(
+            fuse(None, None, None, &T),
+            Fused {
+                score: 0.0,
+                triggered: None
+            }
+        );
+        assert!(!fuse(Some(100.0), Some(100.0), None, &Thresholds::default()).is_triggered());
+    }
+
+    #[test]
+    fn broken_values_do_not_hide() {
+        let f = fuse(Some(f64::NAN), Some(1.0), Some(0.1), &T);
+        assert_eq!(
+            (f.triggered, f.score),
+            (Some(Detector::Camera), TRIGGER_BASE + RATIO_CAP)
+        );
+        let f = fuse(Some(0.0), Some(0.0), Some(f64::NAN), &T);
+        assert_eq!(
+            (f.triggered, f.score),
+            (Some(Detector::Flow), UNTRIGGERED_MAX)
+        );
+        let nan_threshold = Thresholds {
+            e_c: Some(f64::NAN),
+            e_b: None,
+        };
+        assert!(!fuse(Some(9.0), None, Some(0.1), &nan_threshold).is_triggered());
+        let zero = Thresholds {
+            e_c: Some(0.0),
+            e_b: None,
+        };
+        assert_eq!(fuse(Some(0.0), None, None, &zero).score, TRIGGER_BASE + 1.0);
+    }
+
+    fn component() -> impl Strategy<Value = Option<f64>> {
+        prop_oneof![
+            Just(None),
+            Just(Some(f64::NAN)),
+            Just(Some(f64::INFINITY)),
+            Just(Some(f64::MAX)),
+            (0.0..10.0f64).prop_map(Some),
+            (0.0..1e12f64).prop_map(Some),
+            any::<f64>().prop_map(Some),
+        ]
+    }
+
+    fn thresholds() -> impl Strategy<Value = Thresholds> {
+        let one = prop_oneof![Just(None), (0.0..20.0f64).prop_map(Some)];
+        (one.clone(), one).prop_map(|(e_c, e_b)| Thresholds { e_c, e_b })
+    }
+
+    proptest! {
+        #[test]
+        fn any_triggered_frame_outranks_any_untriggered_one(
+            a in (component(), component(), component()),
+            b in (component(), component(), component()),
+            t in thresholds(),
+        ) {
+            let fa = fuse(a.0, a.1, a.2, &t);
+            let fb = fuse(b.0, b.1, b.2, &t);
+            prop_assert!(!fa.score.is_nan() && !fb.score.is_nan());
+            if fa.is_triggered() && !fb.is_triggered() {
+                prop_assert!(fa.score > fb.score, "{fa:?} vs {fb:?}");
+            }
+            if fb.is_triggered() && !fa.is_triggered() {
+                prop_assert!(fb.score > fa.score, "{fa:?} vs {fb:?}");
+            }
+        }
+
+        #[test]
+        fn untriggered_scores_are_e_o_and_monotone(
+            e_o1 in 0.0..UNTRIGGERED_MAX,
+            e_o2 in 0.0..1e9f64,
+            e_c in 0.0..1.9f64,
+        ) {
+            let f1 = fuse(Some(e_c), None, Some(e_o1), &T);
+            let f2 = fuse(Some(e_c), None, Some(e_o2), &T);
+            prop_assert_eq!(f1.score, e_o1);
+            prop_assert_eq!(f1.score <= f2.score, e_o1 <= e_o2 || e_o2 >= UNTRIGGERED_MAX);
+        }
+    }
+}
