@@ -1,0 +1,181 @@
+"""The simulated robot: a fixed 6-DoF arm with a two-finger gripper and a pan-tilt head.
+
+The URDF is built from primitives (boxes and cylinders, colours from materials) by
+:func:`urdf_text`; the committed copy ``assets/vamos_arm.urdf`` is its output (a test keeps
+the two equal). World frame = ``base_link``: x forward (towards the table and the shelf),
+z up. The head camera looks forward and down; ``head_camera_optical_frame`` is its optical
+frame (z forward, x right, y down), the frame the images are rendered from.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+
+#: Robot name (also the URDF file stem).
+ROBOT_NAME = "vamos_arm"
+#: The six arm joints, base to wrist.
+ARM_JOINTS = tuple(f"arm_joint_{i}" for i in range(1, 7))
+#: The two prismatic finger joints (0 = closed, 0.05 m = open, each).
+FINGER_JOINTS = ("finger_left_joint", "finger_right_joint")
+#: Pan (about z) and tilt (about y, positive looks down) of the head.
+HEAD_JOINTS = ("head_pan_joint", "head_tilt_joint")
+#: Every movable joint, in the order of the published joint states.
+MOVABLE_JOINTS = ARM_JOINTS + FINGER_JOINTS + HEAD_JOINTS
+#: Link whose origin is the grasp point between the fingertips (z along the fingers).
+TOOL_LINK = "tool_link"
+#: The camera's optical frame.
+CAMERA_FRAME = "head_camera_optical_frame"
+#: Finger opening per finger, metres.
+FINGER_OPEN_M = 0.05
+
+_COLOURS = {
+    "graphite": (0.22, 0.23, 0.26, 1.0),
+    "orange": (0.93, 0.45, 0.12, 1.0),
+    "steel": (0.62, 0.65, 0.70, 1.0),
+    "blue": (0.15, 0.35, 0.75, 1.0),
+    "black": (0.08, 0.08, 0.09, 1.0),
+}
+
+
+@dataclass(frozen=True)
+class _Visual:
+    kind: str  # "box" or "cylinder"
+    size: tuple[float, ...]  # box: x y z; cylinder: radius length
+    xyz: tuple[float, float, float]
+    material: str
+
+
+def _f(v: float) -> str:
+    return f"{v:.6g}"
+
+
+def _geometry(v: _Visual) -> str:
+    if v.kind == "box":
+        return f'<box size="{" ".join(_f(s) for s in v.size)}"/>'
+    return f'<cylinder radius="{_f(v.size[0])}" length="{_f(v.size[1])}"/>'
+
+
+def _inertia(mass: float, visuals: list[_Visual]) -> str:
+    # A box inertia around the bounding box of the first visual: plausible, not exact.
+    v = visuals[0]
+    if v.kind == "box":
+        x, y, z = v.size
+    else:
+        x = y = 2 * v.size[0]
+        z = v.size[1]
+    ixx = mass * (y * y + z * z) / 12
+    iyy = mass * (x * x + z * z) / 12
+    izz = mass * (x * x + y * y) / 12
+    cx, cy, cz = v.xyz
+    return (f'    <inertial><origin xyz="{_f(cx)} {_f(cy)} {_f(cz)}"/><mass value="{_f(mass)}"/>'
+            f'<inertia ixx="{_f(ixx)}" ixy="0" ixz="0" iyy="{_f(iyy)}" iyz="0" izz="{_f(izz)}"/></inertial>\n')
+
+
+def _link(name: str, mass: float, visuals: list[_Visual], collide: bool = True) -> str:
+    out = [f'  <link name="{name}">\n']
+    if visuals:
+        out.append(_inertia(mass, visuals))
+    for v in visuals:
+        xyz = " ".join(_f(c) for c in v.xyz)
+        out.append(f'    <visual><origin xyz="{xyz}" rpy="0 0 0"/><geometry>{_geometry(v)}</geometry>'
+                   f'<material name="{v.material}"/></visual>\n')
+        if collide:
+            out.append(f'    <collision><origin xyz="{xyz}" rpy="0 0 0"/>'
+                       f'<geometry>{_geometry(v)}</geometry></collision>\n')
+    if not visuals:
+        out.append('    <inertial><mass value="0.01"/>'
+                   '<inertia ixx="1e-6" ixy="0" ixz="0" iyy="1e-6" iyz="0" izz="1e-6"/></inertial>\n')
+    out.append("  </link>\n")
+    return "".join(out)
+
+
+def _joint(name: str, kind: str, parent: str, child: str, xyz: tuple[float, float, float],
+           rpy: tuple[float, float, float] = (0.0, 0.0, 0.0), axis: tuple[float, float, float] | None = None,
+           limits: tuple[float, float, float, float] | None = None) -> str:
+    s = [f'  <joint name="{name}" type="{kind}">\n',
+         f'    <parent link="{parent}"/><child link="{child}"/>\n',
+         f'    <origin xyz="{" ".join(_f(c) for c in xyz)}" rpy="{" ".join(_f(c) for c in rpy)}"/>\n']
+    if axis is not None:
+        s.append(f'    <axis xyz="{" ".join(_f(c) for c in axis)}"/>\n')
+    if limits is not None:
+        lo, hi, effort, velocity = limits
+        s.append(f'    <limit lower="{_f(lo)}" upper="{_f(hi)}" effort="{_f(effort)}" velocity="{_f(velocity)}"/>\n')
+        s.append('    <dynamics damping="0.5" friction="0.0"/>\n')
+    s.append("  </joint>\n")
+    return "".join(s)
+
+
+def urdf_text() -> str:
+    """The robot's URDF (deterministic text)."""
+    b, c = "box", "cylinder"
+    parts = [f'<?xml version="1.0"?>\n<robot name="{ROBOT_NAME}">\n']
+    for name, rgba in _COLOURS.items():
+        parts.append(f'  <material name="{name}"><color rgba="{" ".join(_f(x) for x in rgba)}"/></material>\n')
+    # Base: floor plate, pedestal for the arm, mast for the head (behind the arm).
+    parts.append(_link("base_link", 0.0, [
+        _Visual(b, (0.34, 0.34, 0.04), (0.0, 0.0, 0.02), "graphite"),
+        _Visual(c, (0.07, 0.56), (0.0, 0.0, 0.32), "steel"),
+        _Visual(b, (0.14, 0.14, 0.04), (-0.35, 0.0, 0.02), "graphite"),
+        _Visual(c, (0.03, 1.36), (-0.35, 0.0, 0.72), "steel"),
+    ]))
+    arm = [
+        # (link, mass, visuals, joint origin in parent, axis, limits)
+        ("arm_link_1", 3.0, [_Visual(c, (0.075, 0.12), (0.0, 0.0, 0.06), "orange")],
+         (0.0, 0.0, 0.60), (0, 0, 1), (-2.9, 2.9, 150, 2.0)),
+        ("arm_link_2", 2.5, [_Visual(b, (0.08, 0.09, 0.45), (0.0, 0.0, 0.225), "orange"),
+                             _Visual(c, (0.055, 0.10), (0.0, 0.0, 0.0), "graphite")],
+         (0.0, 0.0, 0.12), (0, 1, 0), (-2.0, 2.0, 150, 2.0)),
+        ("arm_link_3", 1.8, [_Visual(b, (0.065, 0.07, 0.40), (0.0, 0.0, 0.20), "orange"),
+                             _Visual(c, (0.045, 0.09), (0.0, 0.0, 0.0), "graphite")],
+         (0.0, 0.0, 0.45), (0, 1, 0), (-2.6, 2.6, 100, 2.0)),
+        ("arm_link_4", 0.6, [_Visual(c, (0.035, 0.08), (0.0, 0.0, 0.04), "steel")],
+         (0.0, 0.0, 0.40), (0, 0, 1), (-3.0, 3.0, 40, 3.0)),
+        ("arm_link_5", 0.5, [_Visual(b, (0.06, 0.06, 0.08), (0.0, 0.0, 0.04), "blue")],
+         (0.0, 0.0, 0.08), (0, 1, 0), (-2.2, 2.2, 40, 3.0)),
+        ("arm_link_6", 0.3, [_Visual(c, (0.04, 0.03), (0.0, 0.0, 0.015), "steel")],
+         (0.0, 0.0, 0.09), (0, 0, 1), (-3.0, 3.0, 20, 3.0)),
+    ]
+    parent = "base_link"
+    for i, (link, mass, visuals, xyz, axis, limits) in enumerate(arm):
+        parts.append(_joint(ARM_JOINTS[i], "revolute", parent, link, xyz, axis=axis, limits=limits))
+        parts.append(_link(link, mass, visuals))
+        parent = link
+    parts.append(_joint("gripper_joint", "fixed", parent, "gripper_base", (0.0, 0.0, 0.03)))
+    parts.append(_link("gripper_base", 0.4, [_Visual(b, (0.05, 0.15, 0.04), (0.0, 0.0, 0.02), "graphite")]))
+    for name, sign in (("left", 1.0), ("right", -1.0)):
+        parts.append(_joint(f"finger_{name}_joint", "prismatic", "gripper_base", f"finger_{name}_link",
+                            (0.0, 0.0, 0.04), axis=(0, sign, 0), limits=(0.0, FINGER_OPEN_M, 40, 0.2)))
+        parts.append(_link(f"finger_{name}_link", 0.05,
+                           [_Visual(b, (0.02, 0.015, 0.075), (0.0, sign * 0.0075, 0.0375), "black")]))
+    parts.append(_joint("tool_joint", "fixed", "gripper_base", TOOL_LINK, (0.0, 0.0, 0.085)))
+    parts.append(_link(TOOL_LINK, 0.0, []))
+    # Head: pan about z on top of the mast, tilt about y (positive looks down).
+    parts.append(_joint("head_pan_joint", "revolute", "base_link", "head_pan_link", (-0.35, 0.0, 1.42),
+                        axis=(0, 0, 1), limits=(-1.2, 1.2, 20, 1.5)))
+    parts.append(_link("head_pan_link", 0.3, [_Visual(c, (0.045, 0.06), (0.0, 0.0, 0.03), "graphite")]))
+    parts.append(_joint("head_tilt_joint", "revolute", "head_pan_link", "head_tilt_link", (0.0, 0.0, 0.10),
+                        axis=(0, 1, 0), limits=(-0.4, 1.3, 20, 1.5)))
+    parts.append(_link("head_tilt_link", 0.4, [_Visual(b, (0.09, 0.18, 0.07), (-0.01, 0.0, 0.0), "graphite")]))
+    parts.append(_joint("head_camera_joint", "fixed", "head_tilt_link", "head_camera_link", (0.05, 0.0, 0.0)))
+    parts.append(_link("head_camera_link", 0.0, []))
+    parts.append(_joint("head_camera_optical_joint", "fixed", "head_camera_link", CAMERA_FRAME, (0.0, 0.0, 0.0),
+                        rpy=(-math.pi / 2, 0.0, -math.pi / 2)))
+    parts.append(_link(CAMERA_FRAME, 0.0, []))
+    parts.append("</robot>\n")
+    return "".join(parts)
+
+
+def asset_path() -> Path:
+    """The packaged URDF file (``vamos/sim/assets/vamos_arm.urdf``)."""
+    return Path(str(resources.files("vamos.sim") / "assets" / f"{ROBOT_NAME}.urdf"))
+
+
+def write_robot_package(folder: Path) -> Path:
+    """Writes the robot package folder (the URDF); returns the URDF path."""
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / f"{ROBOT_NAME}.urdf"
+    path.write_text(urdf_text())
+    return path
