@@ -416,7 +416,7 @@ class Episode:
             seg = plan.add("detour_over", self._duration(1.4), q_a, closed)
             plan.add("detour_down", self._duration(0.6), q_b, closed)
             sweep = plan.add("sweep", self._duration(0.9), q_c, closed)
-            plan.add("detour_up", self._duration(0.6), self._ik(c + [0, 0, 0.2], 0.0, q_c), closed)
+            plan.add("detour_up", self._duration(0.6), self._ik(c + [-0.05, -0.1, 0.08], 0.0, q_c), closed)
             self.anomaly_info = {"onset": seg.t0 + 0.3 * (seg.t1 - seg.t0), "motion_end": sweep.t1,
                                  "watch": list(self.row_books)}
         plan.add("carry", durations["carry"], q_pre_place, closed)
@@ -519,9 +519,9 @@ class Episode:
         return rgba[:, :, :3].tobytes()
 
     def _head_target(self, tool: np.ndarray, t: float) -> tuple[float, float]:
-        centre = np.array([0.52, 0.0, self.board_z - 0.05])
-        look = centre + 0.35 * (tool - centre)
-        origin = np.array([-0.35, 0.0, 1.52])
+        centre = np.array([0.55, 0.1, self.board_z - 0.1])
+        look = centre + 0.3 * (tool - centre)
+        origin = np.array(rb.HEAD_PAN_XYZ) + np.array([0.0, 0.0, rb.HEAD_TILT_DZ])
         d = look - origin
         pan = math.atan2(d[1], d[0]) + self.head_sway * math.sin(2 * math.pi * t / self.head_period)
         tilt = math.atan2(-d[2], math.hypot(d[0], d[1]))

@@ -28,6 +28,10 @@ MOVABLE_JOINTS = ARM_JOINTS + FINGER_JOINTS + HEAD_JOINTS
 TOOL_LINK = "tool_link"
 #: The camera's optical frame.
 CAMERA_FRAME = "head_camera_optical_frame"
+#: Position of the head pan joint in ``base_link`` (top of the mast), metres.
+HEAD_PAN_XYZ = (-0.6, -0.3, 1.55)
+#: Height of the tilt axis above the pan joint, metres.
+HEAD_TILT_DZ = 0.10
 #: Finger opening per finger, metres.
 FINGER_OPEN_M = 0.05
 
@@ -118,8 +122,9 @@ def urdf_text() -> str:
     parts.append(_link("base_link", 0.0, [
         _Visual(b, (0.34, 0.34, 0.04), (0.0, 0.0, 0.02), "graphite"),
         _Visual(c, (0.07, 0.56), (0.0, 0.0, 0.32), "steel"),
-        _Visual(b, (0.14, 0.14, 0.04), (-0.35, 0.0, 0.02), "graphite"),
-        _Visual(c, (0.03, 1.36), (-0.35, 0.0, 0.72), "steel"),
+        _Visual(b, (0.14, 0.14, 0.04), (HEAD_PAN_XYZ[0], HEAD_PAN_XYZ[1], 0.02), "graphite"),
+        _Visual(c, (0.03, HEAD_PAN_XYZ[2] - 0.04), (HEAD_PAN_XYZ[0], HEAD_PAN_XYZ[1], HEAD_PAN_XYZ[2] / 2 + 0.02),
+                "steel"),
     ]))
     arm = [
         # (link, mass, visuals, joint origin in parent, axis, limits)
@@ -153,10 +158,10 @@ def urdf_text() -> str:
     parts.append(_joint("tool_joint", "fixed", "gripper_base", TOOL_LINK, (0.0, 0.0, 0.085)))
     parts.append(_link(TOOL_LINK, 0.0, []))
     # Head: pan about z on top of the mast, tilt about y (positive looks down).
-    parts.append(_joint("head_pan_joint", "revolute", "base_link", "head_pan_link", (-0.35, 0.0, 1.42),
+    parts.append(_joint("head_pan_joint", "revolute", "base_link", "head_pan_link", HEAD_PAN_XYZ,
                         axis=(0, 0, 1), limits=(-1.2, 1.2, 20, 1.5)))
     parts.append(_link("head_pan_link", 0.3, [_Visual(c, (0.045, 0.06), (0.0, 0.0, 0.03), "graphite")]))
-    parts.append(_joint("head_tilt_joint", "revolute", "head_pan_link", "head_tilt_link", (0.0, 0.0, 0.10),
+    parts.append(_joint("head_tilt_joint", "revolute", "head_pan_link", "head_tilt_link", (0.0, 0.0, HEAD_TILT_DZ),
                         axis=(0, 1, 0), limits=(-0.4, 1.3, 20, 1.5)))
     parts.append(_link("head_tilt_link", 0.4, [_Visual(b, (0.09, 0.18, 0.07), (-0.01, 0.0, 0.0), "graphite")]))
     parts.append(_joint("head_camera_joint", "fixed", "head_tilt_link", "head_camera_link", (0.05, 0.0, 0.0)))
