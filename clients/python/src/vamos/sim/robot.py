@@ -53,7 +53,7 @@ class _Visual:
 
 
 def _f(v: float) -> str:
-    return f"{v:.6g}"
+    return f"{v:.12g}"
 
 
 def _geometry(v: _Visual) -> str:

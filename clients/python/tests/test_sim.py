@@ -1,0 +1,194 @@
+"""vamos-sim: smoke generation, bag contents, labels, determinism, the URDF."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import subprocess
+from pathlib import Path
+
+import pytest
+
+pytest.importorskip("pybullet")
+pytest.importorskip("mcap")
+pytest.importorskip("mcap_ros2")
+pytest.importorskip("tqdm")
+
+from mcap_ros2.reader import read_ros2_messages  # noqa: E402
+
+from vamos.sim import robot as rb  # noqa: E402
+from vamos.sim.cli import main, plan_episodes  # noqa: E402
+from vamos.sim.episode import ANOMALY_TYPES, EPOCH_NS, EpisodeSpec, generate_episode  # noqa: E402
+
+pytestmark = pytest.mark.sim
+
+TOPICS = {"/camera/image_raw", "/camera/camera_info", "/joint_states", "/robot_description"}
+
+
+def _read(path: Path) -> dict[str, list]:
+    out: dict[str, list] = {}
+    for m in read_ros2_messages(str(path)):
+        out.setdefault(m.channel.topic, []).append(m)
+    return out
+
+
+def _stamp_ns(msg) -> int:
+    return msg.ros_msg.header.stamp.sec * 1_000_000_000 + msg.ros_msg.header.stamp.nanosec
+
+
+@pytest.fixture(scope="module")
+def smoke(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("smoke")
+    assert main(["generate", "--out", str(out), "--smoke", "--seed", "5", "--workers", "2", "--no-progress"]) == 0
+    return out
+
+
+def test_urdf_asset_is_the_generator_output_and_loads_in_pybullet() -> None:
+    import pybullet as pb
+
+    assert rb.asset_path().read_text() == rb.urdf_text()
+    client = pb.connect(pb.DIRECT)
+    try:
+        body = pb.loadURDF(str(rb.asset_path()), useFixedBase=True, physicsClientId=client)
+        infos = [pb.getJointInfo(body, i, physicsClientId=client) for i in range(pb.getNumJoints(body, physicsClientId=client))]
+        movable = [i[1].decode() for i in infos if i[2] != pb.JOINT_FIXED]
+        assert movable == list(rb.MOVABLE_JOINTS)
+        links = [i[12].decode() for i in infos]
+        assert rb.CAMERA_FRAME in links and rb.TOOL_LINK in links
+        # The optical frame looks along the camera link's x axis (z forward, y down).
+        cam = links.index(rb.CAMERA_FRAME)
+        _, orn = pb.getLinkState(body, cam, computeForwardKinematics=True, physicsClientId=client)[4:6]
+        m = pb.getMatrixFromQuaternion(orn)
+        z_axis = (m[2], m[5], m[8])
+        y_axis = (m[1], m[4], m[7])
+        # Head at zero: camera looks along +x, image y points down (-z).
+        assert z_axis == pytest.approx((1.0, 0.0, 0.0), abs=1e-6)
+        assert y_axis == pytest.approx((0.0, 0.0, -1.0), abs=1e-6)
+    finally:
+        pb.disconnect(client)
+
+
+def test_smoke_dataset_layout(smoke: Path) -> None:
+    ds = json.loads((smoke / "dataset.json").read_text())
+    assert ds["seed"] == 5 and ds["counts"] == {"train": 2, "val": 0, "test": 3}
+    assert (smoke / "robot" / "vamos_arm.urdf").read_text() == rb.urdf_text()
+    cam = json.loads((smoke / "camera.json").read_text())
+    f = 60.0 / math.tan(math.radians(25.0))  # 120 px high, 50 degrees vertical field of view
+    assert cam == {"frame": rb.CAMERA_FRAME, "convention": "optical", "width": 160, "height": 120,
+                   "fx": pytest.approx(f), "fy": pytest.approx(f), "cx": 79.5, "cy": 59.5}
+    assert [e["anomaly_type"] for e in ds["episodes"]] == [None, None, None, "book_falls", "book_slips"]
+    for e in ds["episodes"]:
+        assert (smoke / e["path"]).is_file()
+        assert 2.0 < e["duration_s"] < 6.0
+
+
+def test_bags_topics_rates_stamps(smoke: Path) -> None:
+    cam = json.loads((smoke / "camera.json").read_text())
+    for bag in sorted(smoke.glob("*/*.mcap")):
+        msgs = _read(bag)
+        assert set(msgs) == TOPICS, bag
+        assert len(msgs["/robot_description"]) == 1
+        assert msgs["/robot_description"][0].ros_msg.data == rb.urdf_text()
+        images = msgs["/camera/image_raw"]
+        stamps = [_stamp_ns(m) for m in images]
+        assert stamps[0] == EPOCH_NS
+        assert all(b - a == 100_000_000 for a, b in zip(stamps, stamps[1:]))  # 10 Hz exactly
+        js = [_stamp_ns(m) for m in msgs["/joint_states"]]
+        assert all(b - a == 20_000_000 for a, b in zip(js, js[1:]))  # 50 Hz
+        assert js[0] == EPOCH_NS and js[-1] >= stamps[-1]
+        assert [m.log_time_ns for m in images] == stamps
+        for m in images[:3]:
+            r = m.ros_msg
+            assert (r.width, r.height, r.encoding, r.step) == (160, 120, "rgb8", 480)
+            assert len(r.data) == 160 * 120 * 3
+            assert r.header.frame_id == rb.CAMERA_FRAME
+        infos = msgs["/camera/camera_info"]
+        assert [_stamp_ns(m) for m in infos] == stamps
+        k = list(infos[0].ros_msg.k)
+        assert k == pytest.approx([cam["fx"], 0, cam["cx"], 0, cam["fy"], cam["cy"], 0, 0, 1])
+        assert infos[0].ros_msg.distortion_model == "plumb_bob" and list(infos[0].ros_msg.d) == [0.0] * 5
+        j = msgs["/joint_states"][len(js) // 2].ros_msg
+        assert list(j.name) == list(rb.MOVABLE_JOINTS)
+        assert len(j.position) == len(j.velocity) == len(j.effort) == len(rb.MOVABLE_JOINTS)
+
+
+def test_head_moves_during_the_task(smoke: Path) -> None:
+    msgs = _read(smoke / "train" / "train_0000.mcap")["/joint_states"]
+    pans = [m.ros_msg.position[rb.MOVABLE_JOINTS.index("head_pan_joint")] for m in msgs]
+    tilts = [m.ros_msg.position[rb.MOVABLE_JOINTS.index("head_tilt_joint")] for m in msgs]
+    assert max(pans) - min(pans) > 0.03
+    assert max(tilts) - min(tilts) > 0.01
+    # Fingers open, close on the book, open again.
+    left = [m.ros_msg.position[rb.MOVABLE_JOINTS.index("finger_left_joint")] for m in msgs]
+    assert left[0] > 0.045 and min(left) < 0.03 and left[-1] > 0.045
+
+
+def test_labels_match_the_episodes(smoke: Path) -> None:
+    for labels_path in sorted(smoke.glob("*/*.labels.json")):
+        labels = json.loads(labels_path.read_text())
+        name = labels_path.name.removesuffix(".labels.json")
+        assert labels["episode"] == name
+        stamps = [_stamp_ns(m) for m in _read(labels_path.with_name(f"{name}.mcap"))["/camera/image_raw"]]
+        if labels["anomaly_type"] is None:
+            assert labels == {"episode": name, "anomalous": False, "anomaly_type": None, "intervals_ns": []}
+            continue
+        assert labels["anomalous"] is True and name.endswith(labels["anomaly_type"])
+        [[start, end]] = labels["intervals_ns"]
+        assert stamps[0] <= start <= end <= stamps[-1]
+        assert any(start <= s <= end for s in stamps)
+
+
+def test_same_seed_same_episode(smoke: Path, tmp_path: Path) -> None:
+    spec = next(s for s in plan_episodes(5, 2, 0, 1, 2, list(ANOMALY_TYPES), 160, 120, 10, True)
+                if s.anomaly == "book_falls")
+    generate_episode(spec, tmp_path)
+    a = smoke / "test" / f"{spec.name}.labels.json"
+    b = tmp_path / f"{spec.name}.labels.json"
+    assert a.read_bytes() == b.read_bytes()
+    ia = [bytes(m.ros_msg.data) for m in _read(smoke / "test" / f"{spec.name}.mcap")["/camera/image_raw"]]
+    ib = [bytes(m.ros_msg.data) for m in _read(tmp_path / f"{spec.name}.mcap")["/camera/image_raw"]]
+    assert ia == ib
+    # Another seed gives another episode.
+    other = EpisodeSpec(spec.name, spec.split, spec.index, spec.anomaly, 6, 160, 120, 10, True)
+    generate_episode(other, tmp_path / "other")
+    ic = [bytes(m.ros_msg.data) for m in _read(tmp_path / "other" / f"{spec.name}.mcap")["/camera/image_raw"]]
+    assert ic[0] != ia[0]
+
+
+@pytest.mark.parametrize("kind", [t for t in ANOMALY_TYPES if t not in ("book_falls", "book_slips")])
+def test_each_anomaly_type_is_labelled_inside_its_episode(kind: str, tmp_path: Path) -> None:
+    spec = EpisodeSpec(f"x_{kind}", "test", 3, kind, 11, 64, 48, 10, True)
+    result = generate_episode(spec, tmp_path)
+    labels = json.loads((tmp_path / f"x_{kind}.labels.json").read_text())
+    msgs = _read(tmp_path / f"x_{kind}.mcap")
+    stamps = [_stamp_ns(m) for m in msgs["/camera/image_raw"]]
+    [[start, end]] = labels["intervals_ns"]
+    assert labels["anomaly_type"] == kind and result.intervals_ns == [[start, end]]
+    assert stamps[0] <= start < end <= stamps[-1]
+    if kind == "sensor_fault":
+        js = [m for m in msgs["/joint_states"] if start <= _stamp_ns(m) <= end]
+        positions = [list(m.ros_msg.position[:6]) for m in js]
+        after = [list(m.ros_msg.position[:6]) for m in msgs["/joint_states"] if _stamp_ns(m) > end][:1]
+        if result.details["mode"] == "freeze":
+            assert all(p == positions[0] for p in positions)  # the reported arm does not move
+        else:
+            # The drift disappears at the end of the fault: the reported position jumps back.
+            jump = max(abs(a - b) for a, b in zip(positions[-1], after[0]))
+            assert jump > 0.1
+    if kind == "camera_occluded":
+        images = msgs["/camera/image_raw"]
+        inside = [bytes(m.ros_msg.data) for m in images if start <= _stamp_ns(m) <= end]
+        assert inside, "the occlusion covers at least one frame"
+
+
+def test_vamos_robot_inspect_lists_the_joints(smoke: Path) -> None:
+    vamos_bin = os.environ.get("VAMOS_BIN")
+    if not vamos_bin or not Path(vamos_bin).is_file():
+        pytest.skip("VAMOS_BIN not set")
+    out = subprocess.run([vamos_bin, "robot", "inspect", "--robot", str(smoke / "robot" / "vamos_arm.urdf")],
+                         check=True, capture_output=True, text=True).stdout
+    info = json.loads(out)
+    names = [j["name"] for j in info["joints"] if j["type"] != "fixed"]
+    assert names == list(rb.MOVABLE_JOINTS)
+    assert rb.CAMERA_FRAME in json.dumps(info)
