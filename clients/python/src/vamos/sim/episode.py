@@ -11,7 +11,7 @@ from __future__ import annotations
 import json
 import math
 import tempfile
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -39,6 +39,8 @@ SPLITS = ("train", "val", "test")
 #: Scale of phase durations in short (smoke) episodes: ~3 s instead of ~11 s.
 SHORT_SCALE = 0.28
 _DT = 1.0 / PHYSICS_HZ
+_MAX_ATTEMPTS = 8
+_OCCLUDER_HALF_M = 0.12
 _DT_NS = 1_000_000_000 // PHYSICS_HZ
 # Rest detection of objects set moving by an anomaly.
 _MOVING_LIN_MPS = 0.03
@@ -50,7 +52,11 @@ _PHASES = (("idle", 0.6), ("reach", 1.6), ("descend", 0.8), ("close", 0.5), ("li
 
 
 class SimError(Exception):
-    """A simulation set-up that cannot be run (bad rates, unreachable pose)."""
+    """A simulation set-up that cannot be run (bad rates, unknown anomaly type)."""
+
+
+class UnreachableError(SimError):
+    """A drawn pose the arm cannot reach (the episode is drawn again)."""
 
 
 @dataclass(frozen=True)
@@ -66,10 +72,13 @@ class EpisodeSpec:
     height: int = 480
     fps: int = 10
     short: bool = False
+    #: Draw number: a draw whose poses the arm cannot reach is replaced by the next one.
+    attempt: int = 0
 
     def rng(self) -> np.random.Generator:
-        """The episode's generator, from (seed, split, index)."""
-        return np.random.default_rng(np.random.SeedSequence([self.seed, SPLITS.index(self.split), self.index]))
+        """The episode's generator, from (seed, split, index, attempt)."""
+        return np.random.default_rng(
+            np.random.SeedSequence([self.seed, SPLITS.index(self.split), self.index, self.attempt]))
 
 
 @dataclass
@@ -211,10 +220,10 @@ class Episode:
         self._load_robot()
 
     # ----- scene -----------------------------------------------------------------------
-    def _texture(self, kind: str, rgb: tuple[float, float, float], size: int = 256) -> int:
+    def _texture(self, kind: str, rgb: tuple[float, float, float], size: int = 256, scale: int = 1) -> int:
         path = self.tex_dir / f"tex_{self._tex_count:03d}.png"
         self._tex_count += 1
-        write_png(path, make_texture(self.rng, kind, rgb, size))
+        write_png(path, make_texture(self.rng, kind, rgb, size, scale))
         return int(self.p.loadTexture(str(path)))
 
     def _box(self, half: tuple[float, float, float], pos: tuple[float, float, float], tex: int,
@@ -242,11 +251,12 @@ class Episode:
         r = self.rng
         floor_kind = str(r.choice(["checker", "noise", "wood"]))
         floor_rgb = tuple(float(x) for x in r.uniform(0.45, 0.8, 3))
-        self._box((3.0, 3.0, 0.01), (0.5, 0.0, -0.01), self._texture(floor_kind, floor_rgb, 512))
+        self._box((3.0, 3.0, 0.01), (0.5, 0.0, -0.01), self._texture(floor_kind, floor_rgb, 512, scale=12))
         wall_rgb = tuple(float(x) for x in r.uniform(0.55, 0.9, 3))
         wall_kind = str(r.choice(["plaster", "noise", "stripes"]))
-        self._box((0.02, 3.0, 1.5), (1.25, 0.0, 1.5), self._texture(wall_kind, wall_rgb, 512))
-        self._box((3.0, 0.02, 1.5), (0.5, 1.6, 1.5), self._texture(wall_kind, wall_rgb, 512))
+        wall_tex = self._texture(wall_kind, wall_rgb, 512, scale=8)
+        self._box((0.02, 3.0, 1.5), (1.25, 0.0, 1.5), wall_tex)
+        self._box((3.0, 0.02, 1.5), (0.5, 1.6, 1.5), wall_tex)
         wood = self._texture("wood", tuple(float(x) for x in r.uniform([0.45, 0.3, 0.15], [0.75, 0.55, 0.35])))
         # Table for the book to pick.
         self.table_top_z = float(r.uniform(0.38, 0.42))
@@ -359,7 +369,7 @@ class Episode:
             if err < 1e-3:
                 break
         if best_err > 0.01:
-            raise SimError(f"tool position {pos.round(3).tolist()} unreachable (IK error {best_err:.3f} m)")
+            raise UnreachableError(f"tool position {pos.round(3).tolist()} unreachable (IK error {best_err:.3f} m)")
         return best
 
     def _duration(self, nominal: float) -> float:
@@ -404,22 +414,21 @@ class Episode:
         plan.add("lift", durations["lift"], q_lift, closed)
         self.events: dict[str, float] = {}
         self.anomaly_info: dict[str, Any] = {}
-        if kind == "books_knocked_over":
-            # A detour through the row of standing books before carrying on to the slot.
-            z = self.board_z + 0.08 + hang
-            a = np.array([self.row_x, self.row_y[0] - 0.05, z + 0.2])
-            b = np.array([self.row_x, self.row_y[0] - 0.05, z])
-            c = np.array([self.row_x + float(r.uniform(-0.02, 0.02)), self.row_y[1] - 0.04, z])
-            q_a = self._ik(a, 0.0, q_lift)
-            q_b = self._ik(b, 0.0, q_a)
-            q_c = self._ik(c, 0.0, q_b)
-            seg = plan.add("detour_over", self._duration(1.4), q_a, closed)
-            plan.add("detour_down", self._duration(0.6), q_b, closed)
-            sweep = plan.add("sweep", self._duration(0.9), q_c, closed)
-            plan.add("detour_up", self._duration(0.6), self._ik(c + [-0.05, -0.1, 0.08], 0.0, q_c), closed)
-            self.anomaly_info = {"onset": seg.t0 + 0.3 * (seg.t1 - seg.t0), "motion_end": sweep.t1,
-                                 "watch": list(self.row_books)}
         plan.add("carry", durations["carry"], q_pre_place, closed)
+        if kind == "books_knocked_over":
+            # A detour from above the slot: down beside the row of standing books, a sweep
+            # along the row (the held book pushes them over), up, back above the slot.
+            z = self.board_z + float(r.uniform(0.06, 0.1)) + hang
+            b = np.array([self.row_x, self.slot_y, z])
+            c = np.array([self.row_x + float(r.uniform(-0.015, 0.015)), self.row_y[1] - 0.03, z])
+            q_b = self._ik(b, place_yaw, q_pre_place)
+            q_c = self._ik(c, place_yaw, q_b)
+            q_up = self._ik(c + [-0.03, -0.08, 0.14], place_yaw, q_c)
+            down = plan.add("detour_down", self._duration(0.7), q_b, closed)
+            sweep = plan.add("sweep", self._duration(1.0), q_c, closed)
+            plan.add("detour_up", self._duration(0.7), q_up, closed)
+            plan.add("detour_back", self._duration(1.0), q_pre_place, closed)
+            self.anomaly_info = {"onset": down.t0, "motion_end": sweep.t1, "watch": list(self.row_books)}
         plan.add("lower", durations["lower"], q_place, closed)
         opening = plan.add("open", durations["open"], q_place, op)
         plan.add("retract", durations["retract"], q_retract, op)
@@ -450,9 +459,9 @@ class Episode:
             self.anomaly_info = {"onset": t0, "motion_end": t0 + t_in + hold + t_out, "t_in": t_in, "hold": hold,
                                  "t_out": t_out, "full": full, "side": float(r.choice([-1.0, 1.0])),
                                  "cover": float(r.uniform(0.35, 0.7)), "watch": []}
-            tex = self._texture(str(r.choice(["noise", "stripes"])), tuple(float(x) for x in r.uniform(0.3, 0.9, 3)),
-                                128)
-            vis = self.p.createVisualShape(pb.GEOM_BOX, halfExtents=[0.25, 0.25, 0.004])
+            tex = self._texture(str(r.choice(["noise", "stripes", "checker"])),
+                                tuple(float(x) for x in r.uniform(0.3, 0.9, 3)), 256, scale=8)
+            vis = self.p.createVisualShape(pb.GEOM_BOX, halfExtents=[_OCCLUDER_HALF_M, _OCCLUDER_HALF_M, 0.002])
             self.occluder = int(self.p.createMultiBody(0, -1, vis, [0, 0, -5]))
             self.p.changeVisualShape(self.occluder, -1, textureUniqueId=tex)
         elif kind == "external_push":
@@ -500,8 +509,8 @@ class Episode:
         depth = 0.12
         half_w = depth * math.tan(math.radians(VFOV_DEG) / 2) * self.spec.width / self.spec.height
         # Out of view at k = 0; at k = 1 covering everything (full) or a `cover` fraction.
-        final = 0.0 if a["full"] else a["side"] * (0.25 + half_w - 2 * a["cover"] * half_w)
-        start = a["side"] * (0.25 + half_w + 0.02)
+        final = 0.0 if a["full"] else a["side"] * (_OCCLUDER_HALF_M + half_w - 2 * a["cover"] * half_w)
+        start = a["side"] * (_OCCLUDER_HALF_M + half_w + 0.02)
         x = start + k * (final - start)
         centre = pos + rot @ np.array([x, 0.02 * math.sin(3 * t), depth])
         self.p.resetBasePositionAndOrientation(self.occluder, centre.tolist(), _quat_from_matrix(rot))
@@ -669,11 +678,20 @@ def generate_episode(spec: EpisodeSpec, out_dir: Path) -> EpisodeResult:
 
     start = time.perf_counter()
     out_dir.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory(prefix="vamos-sim-") as tmp:
-        ep = Episode(spec, Path(tmp))
-        try:
-            result = ep.run(out_dir)
-        finally:
-            ep.close()
-    result.seconds = time.perf_counter() - start
-    return result
+    attempt = 0
+    while True:
+        drawn = replace(spec, attempt=attempt)
+        with tempfile.TemporaryDirectory(prefix="vamos-sim-") as tmp:
+            ep = Episode(drawn, Path(tmp))
+            try:
+                result = ep.run(out_dir)  # plans first: nothing is written for an unreachable draw
+            except UnreachableError:
+                attempt += 1
+                if attempt == _MAX_ATTEMPTS:
+                    raise
+                continue
+            finally:
+                ep.close()
+        result.seconds = time.perf_counter() - start
+        result.details["attempt"] = attempt
+        return result

@@ -33,12 +33,13 @@ def write_png(path: Path, rgb: np.ndarray) -> None:
     Path(path).write_bytes(png)
 
 
-def _value_noise(rng: np.random.Generator, size: int, octaves: int = 5) -> np.ndarray:
-    """Fractal value noise in [0, 1], tileable (periodic grid), size x size."""
+def _value_noise(rng: np.random.Generator, size: int, octaves: int = 5, base_cells: int = 4) -> np.ndarray:
+    """Fractal value noise in [0, 1], tileable (periodic grid), size x size; the coarsest
+    octave has `base_cells` cells across."""
     out = np.zeros((size, size))
     amp, total = 1.0, 0.0
     for o in range(octaves):
-        cells = 4 * 2**o
+        cells = min(base_cells * 2**o, size)
         grid = rng.random((cells, cells))
         t = np.arange(size) * cells / size
         i0 = np.floor(t).astype(int)
@@ -55,26 +56,28 @@ def _value_noise(rng: np.random.Generator, size: int, octaves: int = 5) -> np.nd
 
 
 def make_texture(rng: np.random.Generator, kind: str, base_rgb: tuple[float, float, float],
-                 size: int = 256) -> np.ndarray:
-    """A size x size x 3 uint8 texture of `kind` around the colour `base_rgb` (0..1)."""
+                 size: int = 256, scale: int = 1) -> np.ndarray:
+    """A size x size x 3 uint8 texture of `kind` around the colour `base_rgb` (0..1);
+    `scale` > 1 repeats the pattern's features that many times more densely (for large
+    surfaces such as the floor and walls)."""
     base = np.asarray(base_rgb, dtype=float)
-    n = _value_noise(rng, size)
+    n = _value_noise(rng, size, base_cells=4 * scale)
     yy, xx = np.mgrid[0:size, 0:size] / size
     if kind == "noise":
         shade = 0.55 + 0.9 * (n - 0.5) * 1.6
     elif kind == "plaster":
-        fine = _value_noise(rng, size, octaves=7)
-        shade = 0.8 + 0.5 * (fine - 0.5)
+        fine = _value_noise(rng, size, octaves=6, base_cells=8 * scale)
+        shade = 0.78 + 0.9 * (fine - 0.5) + 0.3 * (n - 0.5)
     elif kind == "wood":
-        freq = rng.uniform(8, 16)
+        freq = rng.uniform(8, 16) * scale
         rings = np.sin(2 * np.pi * (freq * yy + 3.0 * n))
         shade = 0.75 + 0.18 * rings + 0.25 * (n - 0.5)
     elif kind == "checker":
-        cells = int(rng.integers(4, 9))
+        cells = int(rng.integers(4, 9)) * scale
         check = ((np.floor(xx * cells) + np.floor(yy * cells)) % 2) * 2 - 1
         shade = 0.75 + 0.2 * check + 0.3 * (n - 0.5)
     elif kind == "stripes":
-        freq = int(rng.integers(3, 9))
+        freq = int(rng.integers(3, 9)) * scale
         angle = rng.uniform(0, np.pi)
         s = np.sin(2 * np.pi * freq * (np.cos(angle) * xx + np.sin(angle) * yy))
         shade = 0.7 + 0.25 * np.sign(s) * np.abs(s) ** 0.3 + 0.3 * (n - 0.5)
