@@ -51,7 +51,8 @@ def test_urdf_asset_is_the_generator_output_and_loads_in_pybullet() -> None:
     client = pb.connect(pb.DIRECT)
     try:
         body = pb.loadURDF(str(rb.asset_path()), useFixedBase=True, physicsClientId=client)
-        infos = [pb.getJointInfo(body, i, physicsClientId=client) for i in range(pb.getNumJoints(body, physicsClientId=client))]
+        count = pb.getNumJoints(body, physicsClientId=client)
+        infos = [pb.getJointInfo(body, i, physicsClientId=client) for i in range(count)]
         movable = [i[1].decode() for i in infos if i[2] != pb.JOINT_FIXED]
         assert movable == list(rb.MOVABLE_JOINTS)
         links = [i[12].decode() for i in infos]
@@ -93,9 +94,9 @@ def test_bags_topics_rates_stamps(smoke: Path) -> None:
         images = msgs["/camera/image_raw"]
         stamps = [_stamp_ns(m) for m in images]
         assert stamps[0] == EPOCH_NS
-        assert all(b - a == 100_000_000 for a, b in zip(stamps, stamps[1:]))  # 10 Hz exactly
+        assert all(b - a == 100_000_000 for a, b in zip(stamps[:-1], stamps[1:], strict=True))  # 10 Hz exactly
         js = [_stamp_ns(m) for m in msgs["/joint_states"]]
-        assert all(b - a == 20_000_000 for a, b in zip(js, js[1:]))  # 50 Hz
+        assert all(b - a == 20_000_000 for a, b in zip(js[:-1], js[1:], strict=True))  # 50 Hz
         assert js[0] == EPOCH_NS and js[-1] >= stamps[-1]
         assert [m.log_time_ns for m in images] == stamps
         for m in images[:3]:
@@ -146,6 +147,8 @@ def test_same_seed_same_episode(smoke: Path, tmp_path: Path) -> None:
     a = smoke / "test" / f"{spec.name}.labels.json"
     b = tmp_path / f"{spec.name}.labels.json"
     assert a.read_bytes() == b.read_bytes()
+    # The whole bag is byte-identical (same messages, same chunking and compression).
+    assert (smoke / "test" / f"{spec.name}.mcap").read_bytes() == (tmp_path / f"{spec.name}.mcap").read_bytes()
     ia = [bytes(m.ros_msg.data) for m in _read(smoke / "test" / f"{spec.name}.mcap")["/camera/image_raw"]]
     ib = [bytes(m.ros_msg.data) for m in _read(tmp_path / f"{spec.name}.mcap")["/camera/image_raw"]]
     assert ia == ib
@@ -174,7 +177,7 @@ def test_each_anomaly_type_is_labelled_inside_its_episode(kind: str, tmp_path: P
             assert all(p == positions[0] for p in positions)  # the reported arm does not move
         else:
             # The drift disappears at the end of the fault: the reported position jumps back.
-            jump = max(abs(a - b) for a, b in zip(positions[-1], after[0]))
+            jump = max(abs(a - b) for a, b in zip(positions[-1], after[0], strict=True))
             assert jump > 0.1
     if kind == "camera_occluded":
         images = msgs["/camera/image_raw"]

@@ -19,6 +19,7 @@ import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 from vamos.sim import robot as rb
 from vamos.sim.episode import ANOMALY_TYPES, EpisodeResult, EpisodeSpec, SimError, camera_spec, generate_episode
@@ -65,7 +66,8 @@ def _work(job: tuple[EpisodeSpec, str]) -> EpisodeResult:
     return generate_episode(spec, Path(out) / spec.split)
 
 
-def generate(out: Path, specs: list[EpisodeSpec], seed: int, workers: int, progress: bool = True) -> dict:
+def generate(out: Path, specs: list[EpisodeSpec], seed: int, workers: int,
+             progress: bool = True) -> dict[str, Any]:
     """Generates every episode (in `workers` processes), the robot package, camera.json and
     dataset.json; returns the dataset description."""
     from tqdm import tqdm
@@ -111,7 +113,8 @@ def generate(out: Path, specs: list[EpisodeSpec], seed: int, workers: int, progr
     (out / "dataset.json").write_text(json.dumps(dataset, indent=2) + "\n")
     elapsed = time.perf_counter() - start
     per = [r.seconds for r in results]
-    dataset["_timing"] = {"total_s": elapsed, "per_episode_s": per}
+    dataset["_timing"] = {"total_s": elapsed, "per_episode_s": per, "cpu_s": [r.cpu_seconds for r in results],
+                          "media_s": [r.duration_s for r in results]}
     return dataset
 
 
@@ -159,9 +162,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 1
     timing = dataset.pop("_timing")
     per = timing["per_episode_s"]
-    mean = sum(per) / len(per) if per else 0.0
-    print(f"wrote {len(per)} episodes to {args.out} in {timing['total_s']:.1f} s "
-          f"({mean:.1f} s per episode and worker, {width}x{height})")
+    n = max(len(per), 1)
+    print(f"wrote {len(per)} episodes ({sum(timing['media_s']):.1f} s of recording, {width}x{height}) to {args.out} "
+          f"in {timing['total_s']:.1f} s; per episode: {sum(per) / n:.1f} s wall, "
+          f"{sum(timing['cpu_s']) / n:.1f} s CPU")
     return 0
 
 

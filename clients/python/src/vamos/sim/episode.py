@@ -13,6 +13,7 @@ import math
 import tempfile
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -93,6 +94,7 @@ class EpisodeResult:
     joint_states: int
     intervals_ns: list[list[int]]
     seconds: float = 0.0
+    cpu_seconds: float = 0.0
     details: dict[str, Any] = field(default_factory=dict)
 
 
@@ -129,7 +131,8 @@ def _rot_z(a: float) -> np.ndarray:
 def _rot_axis(axis: np.ndarray, angle: float) -> np.ndarray:
     axis = axis / np.linalg.norm(axis)
     k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
-    return np.eye(3) + math.sin(angle) * k + (1 - math.cos(angle)) * (k @ k)
+    out: np.ndarray = np.eye(3) + math.sin(angle) * k + (1 - math.cos(angle)) * (k @ k)
+    return out
 
 
 def _quat_from_matrix(m: np.ndarray) -> list[float]:
@@ -216,11 +219,12 @@ class Episode:
         p.setGravity(0, 0, -9.81)
         p.setPhysicsEngineParameter(fixedTimeStep=_DT, numSolverIterations=60, deterministicOverlappingPairs=1)
         self._tex_count = 0
+        self._frozen: tuple[list[float], list[float], list[float]] | None = None
         self._build_scene()
         self._load_robot()
 
     # ----- scene -----------------------------------------------------------------------
-    def _texture(self, kind: str, rgb: tuple[float, float, float], size: int = 256, scale: int = 1) -> int:
+    def _texture(self, kind: str, rgb: Sequence[float], size: int = 256, scale: int = 1) -> int:
         path = self.tex_dir / f"tex_{self._tex_count:03d}.png"
         self._tex_count += 1
         write_png(path, make_texture(self.rng, kind, rgb, size, scale))
@@ -354,13 +358,13 @@ class Episode:
         q = np.array(seed, dtype=float)
         best, best_err = q, float("inf")
         for _ in range(6):
-            for j, v in zip(self.arm, q):
+            for j, v in zip(self.arm, q, strict=True):
                 p.resetJointState(self.robot, j, float(v))
             sol = p.calculateInverseKinematics(self.robot, self.tool, [float(x) for x in pos], orn,
                                                lowerLimits=lower, upperLimits=upper, jointRanges=ranges,
                                                restPoses=rest, maxNumIterations=200, residualThreshold=1e-6)
             q = np.array(sol[:6])
-            for j, v in zip(self.arm, q):
+            for j, v in zip(self.arm, q, strict=True):
                 p.resetJointState(self.robot, j, float(v))
             got = np.array(p.getLinkState(self.robot, self.tool, computeForwardKinematics=True)[4])
             err = float(np.linalg.norm(got - pos))
@@ -536,7 +540,8 @@ class Episode:
         tilt = math.atan2(-d[2], math.hypot(d[0], d[1]))
         return pan, tilt
 
-    def _reported(self, t: float, pos: list[float], vel: list[float], eff: list[float]) -> tuple[list, list, list]:
+    def _reported(self, t: float, pos: list[float], vel: list[float],
+                  eff: list[float]) -> tuple[list[float], list[float], list[float]]:
         a = self.anomaly_info
         if self.spec.anomaly != "sensor_fault" or not (a["onset"] <= t <= a["motion_end"]):
             return pos, vel, eff
@@ -545,7 +550,7 @@ class Episode:
                 self._frozen = (list(pos), [0.0] * len(vel), list(eff))
             return self._frozen
         pos, vel = list(pos), list(vel)
-        for j, rate in zip(a["joints"], a["rates_radps"]):
+        for j, rate in zip(a["joints"], a["rates_radps"], strict=True):
             pos[j] += rate * (t - a["onset"])
             vel[j] += rate
         return pos, vel, eff
@@ -559,7 +564,7 @@ class Episode:
         self._frozen = None
         # Initial state.
         q0, _, g0 = self.plan_.at(0.0)
-        for j, v in zip(self.arm, q0):
+        for j, v in zip(self.arm, q0, strict=True):
             p.resetJointState(self.robot, j, float(v))
         for j in self.fingers:
             p.resetJointState(self.robot, j, g0)
@@ -676,7 +681,7 @@ def generate_episode(spec: EpisodeSpec, out_dir: Path) -> EpisodeResult:
     """Makes one episode in a fresh pybullet client (textures in a temporary folder)."""
     import time
 
-    start = time.perf_counter()
+    start, start_cpu = time.perf_counter(), time.process_time()
     out_dir.mkdir(parents=True, exist_ok=True)
     attempt = 0
     while True:
@@ -693,5 +698,6 @@ def generate_episode(spec: EpisodeSpec, out_dir: Path) -> EpisodeResult:
             finally:
                 ep.close()
         result.seconds = time.perf_counter() - start
+        result.cpu_seconds = time.process_time() - start_cpu
         result.details["attempt"] = attempt
         return result

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import struct
 import zlib
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -55,7 +56,7 @@ def _value_noise(rng: np.random.Generator, size: int, octaves: int = 5, base_cel
     return out / total
 
 
-def make_texture(rng: np.random.Generator, kind: str, base_rgb: tuple[float, float, float],
+def make_texture(rng: np.random.Generator, kind: str, base_rgb: Sequence[float],
                  size: int = 256, scale: int = 1) -> np.ndarray:
     """A size x size x 3 uint8 texture of `kind` around the colour `base_rgb` (0..1);
     `scale` > 1 repeats the pattern's features that many times more densely (for large
@@ -84,4 +85,5 @@ def make_texture(rng: np.random.Generator, kind: str, base_rgb: tuple[float, flo
     else:
         raise ValueError(f"unknown texture kind {kind!r}; known: {', '.join(KINDS)}")
     img = np.clip(shade[..., None] * base[None, None, :], 0.0, 1.0)
-    return (img * 255.0 + 0.5).astype(np.uint8)
+    out: np.ndarray = (img * 255.0 + 0.5).astype(np.uint8)
+    return out
