@@ -95,6 +95,7 @@ class EpisodeResult:
     intervals_ns: list[list[int]]
     seconds: float = 0.0
     cpu_seconds: float = 0.0
+    attempt: int = 0
     details: dict[str, Any] = field(default_factory=dict)
 
 
@@ -654,7 +655,9 @@ class Episode:
             end = max(a["motion_end"], last_moving or onset)
             end = min(end, last_image_t)
             intervals = [[EPOCH_NS + round(onset * 1e9), EPOCH_NS + round(end * 1e9)]]
-            details = {k: v for k, v in a.items() if k not in ("watch",) and not isinstance(v, np.ndarray)}
+            details = {k: v for k, v in a.items() if k != "watch"}
+            if spec.anomaly == "collision_with_shelf":
+                details["contact"] = contact_t is not None
         labels = {"episode": spec.name, "anomalous": spec.anomaly is not None, "anomaly_type": spec.anomaly,
                   "intervals_ns": intervals}
         (out_dir / f"{spec.name}.labels.json").write_text(json.dumps(labels, indent=2) + "\n")
@@ -699,5 +702,5 @@ def generate_episode(spec: EpisodeSpec, out_dir: Path) -> EpisodeResult:
                 ep.close()
         result.seconds = time.perf_counter() - start
         result.cpu_seconds = time.process_time() - start_cpu
-        result.details["attempt"] = attempt
+        result.attempt = attempt
         return result
