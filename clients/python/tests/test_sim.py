@@ -5,11 +5,14 @@ from __future__ import annotations
 import json
 import math
 import os
+import struct
 import subprocess
+import zlib
 from pathlib import Path
 
 import pytest
 
+np = pytest.importorskip("numpy")
 pytest.importorskip("pybullet")
 pytest.importorskip("mcap")
 pytest.importorskip("mcap_ros2")
@@ -195,3 +198,109 @@ def test_vamos_robot_inspect_lists_the_joints(smoke: Path) -> None:
     names = [j["name"] for j in info["joints"] if j["type"] != "fixed"]
     assert names == list(rb.MOVABLE_JOINTS)
     assert rb.CAMERA_FRAME in json.dumps(info)
+
+
+def _read_png(path: Path) -> np.ndarray:
+    """A minimal PNG decoder (8-bit grey, RGB or RGBA, not interlaced) for vamos's output."""
+    data = path.read_bytes()
+    assert data[:8] == b"\x89PNG\r\n\x1a\n"
+    pos, idat, header = 8, b"", None
+    while pos < len(data):
+        (length,) = struct.unpack(">I", data[pos:pos + 4])
+        tag, body = data[pos + 4:pos + 8], data[pos + 8:pos + 8 + length]
+        if tag == b"IHDR":
+            header = struct.unpack(">IIBBBBB", body)
+        elif tag == b"IDAT":
+            idat += body
+        pos += 12 + length
+    assert header is not None
+    width, height, depth, colour, _, _, interlace = header
+    assert depth == 8 and interlace == 0 and colour in (0, 2, 6)
+    channels = {0: 1, 2: 3, 6: 4}[colour]
+    raw = np.frombuffer(zlib.decompress(idat), dtype=np.uint8)
+    stride = width * channels
+    out = np.zeros((height, stride), dtype=np.int32)
+    prev = np.zeros(stride, dtype=np.int32)
+    for y in range(height):
+        kind = raw[y * (stride + 1)]
+        line = raw[y * (stride + 1) + 1:(y + 1) * (stride + 1)].astype(np.int32)
+        cur = np.zeros(stride, dtype=np.int32)
+        for x in range(stride):  # the filters depend on already decoded bytes of the row
+            a = cur[x - channels] if x >= channels else 0
+            b = prev[x]
+            c = prev[x - channels] if x >= channels else 0
+            if kind == 0:
+                pred = 0
+            elif kind == 1:
+                pred = a
+            elif kind == 2:
+                pred = b
+            elif kind == 3:
+                pred = (a + b) // 2
+            else:
+                pa, pb_, pc = abs(b - c), abs(a - c), abs(a + b - 2 * c)
+                pred = a if pa <= pb_ and pa <= pc else (b if pb_ <= pc else c)
+            cur[x] = (line[x] + pred) & 0xFF
+        out[y] = cur
+        prev = cur
+    return out.reshape(height, width, channels).astype(np.uint8)
+
+
+def _dilate(mask: np.ndarray) -> np.ndarray:
+    out = mask.copy()
+    padded = np.pad(mask, 1)
+    for dy in (0, 1, 2):
+        for dx in (0, 1, 2):
+            out |= padded[dy:dy + mask.shape[0], dx:dx + mask.shape[1]]
+    return out
+
+
+def test_vamos_render_matches_the_simulated_camera(smoke: Path, tmp_path: Path) -> None:
+    """vamos renders the robot from the URDF, camera.json and the bag's joint states; its mask
+    must coincide with pybullet's own segmentation of the robot for the same joints."""
+    import pybullet as pb
+
+    from vamos.sim.episode import FAR_M, NEAR_M, VFOV_DEG
+
+    vamos_bin = os.environ.get("VAMOS_BIN")
+    if not vamos_bin or not Path(vamos_bin).is_file():
+        pytest.skip("VAMOS_BIN not set")
+    msgs = _read(smoke / "train" / "train_0000.mcap")
+    image = msgs["/camera/image_raw"][len(msgs["/camera/image_raw"]) // 2]
+    stamp = _stamp_ns(image)
+    joints = next(m.ros_msg for m in msgs["/joint_states"] if _stamp_ns(m) == stamp)
+    positions = dict(zip(joints.name, joints.position, strict=True))
+    (tmp_path / "joints.json").write_text(json.dumps(positions))
+    subprocess.run([vamos_bin, "render", "--robot", str(smoke / "robot"), "--joints", str(tmp_path / "joints.json"),
+                    "--camera", str(smoke / "camera.json"), "-o", str(tmp_path / "render.png")],
+                   check=True, capture_output=True)
+    panels = _read_png(tmp_path / "render.png")
+    width, height = image.ros_msg.width, image.ros_msg.height
+    assert panels.shape[:2] == (height, 3 * width)
+    vamos_mask = panels[:, width:2 * width].max(axis=2) > 0  # the depth panel: robot pixels non-zero
+    client = pb.connect(pb.DIRECT)
+    try:
+        body = pb.loadURDF(str(smoke / "robot" / "vamos_arm.urdf"), useFixedBase=True, physicsClientId=client)
+        index = {}
+        for i in range(pb.getNumJoints(body, physicsClientId=client)):
+            info = pb.getJointInfo(body, i, physicsClientId=client)
+            index[info[1].decode()] = i
+            index[info[12].decode()] = i
+        for name, q in positions.items():
+            pb.resetJointState(body, index[name], q, physicsClientId=client)
+        st = pb.getLinkState(body, index[rb.CAMERA_FRAME], computeForwardKinematics=True, physicsClientId=client)
+        eye = np.array(st[4])
+        rot = np.array(pb.getMatrixFromQuaternion(st[5])).reshape(3, 3)
+        view = pb.computeViewMatrix(eye.tolist(), (eye + rot[:, 2]).tolist(), (-rot[:, 1]).tolist())
+        proj = pb.computeProjectionMatrixFOV(VFOV_DEG, width / height, NEAR_M, FAR_M)
+        seg = pb.getCameraImage(width, height, view, proj, renderer=pb.ER_TINY_RENDERER,
+                                physicsClientId=client)[4]
+    finally:
+        pb.disconnect(client)
+    bullet_mask = np.asarray(seg).reshape(height, width) == body
+    assert bullet_mask.sum() > 200  # the arm is in view
+    iou = (bullet_mask & vamos_mask).sum() / (bullet_mask | vamos_mask).sum()
+    assert iou > 0.85, iou
+    # Every pixel the two disagree on lies on the other's boundary (within one pixel).
+    assert not (bullet_mask & ~_dilate(vamos_mask)).any()
+    assert not (vamos_mask & ~_dilate(bullet_mask)).any()
