@@ -85,6 +85,9 @@ def test_smoke_dataset_layout(smoke: Path) -> None:
     for e in ds["episodes"]:
         assert (smoke / e["path"]).is_file()
         assert 2.0 < e["duration_s"] < 6.0
+        # The task: nominal episodes leave the book standing in its slot; a book that falls
+        # off the shelf or slips from the gripper does not end there.
+        assert e["task"]["placed"] is (e["anomaly_type"] is None), e
 
 
 def test_bags_topics_rates_stamps(smoke: Path) -> None:

@@ -109,7 +109,7 @@ def generate(out: Path, specs: list[EpisodeSpec], seed: int, workers: int,
         "episodes": [{"name": r.name, "split": r.split, "path": f"{r.split}/{r.name}.mcap",
                       "anomaly_type": r.anomaly, "duration_s": r.duration_s, "images": r.images,
                       "joint_states": r.joint_states, "intervals_ns": r.intervals_ns,
-                      "draw": r.attempt, "anomaly_params": r.details} for r in results],
+                      "draw": r.attempt, "anomaly_params": r.details, "task": r.task} for r in results],
     }
     (out / "dataset.json").write_text(json.dumps(dataset, indent=2) + "\n")
     elapsed = time.perf_counter() - start

@@ -41,6 +41,7 @@ SPLITS = ("train", "val", "test")
 SHORT_SCALE = 0.28
 _DT = 1.0 / PHYSICS_HZ
 _MAX_ATTEMPTS = 8
+_CARRY_VIA = 8
 _OCCLUDER_HALF_M = 0.12
 _DT_NS = 1_000_000_000 // PHYSICS_HZ
 # Rest detection of objects set moving by an anomaly.
@@ -96,6 +97,8 @@ class EpisodeResult:
     seconds: float = 0.0
     cpu_seconds: float = 0.0
     attempt: int = 0
+    #: Where the book ended and whether it stands in its slot (``placed``).
+    task: dict[str, Any] = field(default_factory=dict)
     details: dict[str, Any] = field(default_factory=dict)
 
 
@@ -156,7 +159,9 @@ def _quat_from_matrix(m: np.ndarray) -> list[float]:
 
 @dataclass
 class _Segment:
-    """Arm motion from q0 to q1 over [t0, t1] (minimum jerk); fingers likewise."""
+    """Arm motion from q0 to q1 over [t0, t1] (minimum jerk); fingers likewise. With `via`
+    (joint positions at evenly spaced points of a Cartesian path) the arm follows the
+    piecewise-linear joint path q0 -> via... -> q1 under the same minimum-jerk timing."""
 
     name: str
     t0: float
@@ -165,19 +170,30 @@ class _Segment:
     q1: np.ndarray
     g0: float
     g1: float
+    via: list[np.ndarray] = field(default_factory=list)
+
+    def path(self, k: float) -> tuple[np.ndarray, np.ndarray]:
+        """Joint position and d(position)/dk at path parameter k in [0, 1]."""
+        points = [self.q0, *self.via, self.q1]
+        n = len(points) - 1
+        i = min(int(k * n), n - 1)
+        local = k * n - i
+        step = points[i + 1] - points[i]
+        return points[i] + local * step, step * n
 
 
 class _Plan:
     def __init__(self) -> None:
         self.segments: list[_Segment] = []
 
-    def add(self, name: str, duration: float, q1: np.ndarray, g1: float) -> _Segment:
+    def add(self, name: str, duration: float, q1: np.ndarray, g1: float,
+            via: list[np.ndarray] | None = None) -> _Segment:
         if self.segments:
             last = self.segments[-1]
             t0, q0, g0 = last.t1, last.q1, last.g1
         else:
             t0, q0, g0 = 0.0, q1, g1
-        seg = _Segment(name, t0, t0 + duration, q0, q1, g0, g1)
+        seg = _Segment(name, t0, t0 + duration, q0, q1, g0, g1, via or [])
         self.segments.append(seg)
         return seg
 
@@ -198,8 +214,8 @@ class _Plan:
         dur = seg.t1 - seg.t0
         u = (t - seg.t0) / dur if dur > 0 else 1.0
         k = _min_jerk(u)
-        q = seg.q0 + k * (seg.q1 - seg.q0)
-        qd = (seg.q1 - seg.q0) * (_min_jerk_rate(u) / dur if dur > 0 else 0.0)
+        q, dq_dk = seg.path(k)
+        qd = dq_dk * (_min_jerk_rate(u) / dur if dur > 0 else 0.0)
         return q, qd, seg.g0 + k * (seg.g1 - seg.g0)
 
 
@@ -406,7 +422,15 @@ class Episode:
         q_pre = self._ik(grasp + [0, 0, 0.12], yaw_book, home)
         q_grasp = self._ik(grasp, yaw_book, q_pre)
         q_lift = self._ik(grasp + [0, 0, lift_h], yaw_book, q_grasp)
-        q_pre_place = self._ik(place + [0, 0, 0.13], place_yaw, q_lift)
+        # Carry along the straight line from above the table to above the slot (a joint-space
+        # arc would swing the book into the shelf's back panel).
+        lift_pos, pre_place_pos = grasp + [0, 0, lift_h], place + [0, 0, 0.13]
+        via, q_via = [], q_lift
+        for k in range(1, _CARRY_VIA):
+            f = k / _CARRY_VIA
+            q_via = self._ik(lift_pos + f * (pre_place_pos - lift_pos), yaw_book + f * (place_yaw - yaw_book), q_via)
+            via.append(q_via)
+        q_pre_place = self._ik(place + [0, 0, 0.13], place_yaw, q_via)
         q_place = self._ik(place, place_yaw, q_pre_place)
         q_retract = self._ik(place + [0, 0, 0.14], place_yaw, q_place)
         closed = max(self.book_t / 2 - 0.002, 0.0)
@@ -419,7 +443,7 @@ class Episode:
         plan.add("lift", durations["lift"], q_lift, closed)
         self.events: dict[str, float] = {}
         self.anomaly_info: dict[str, Any] = {}
-        plan.add("carry", durations["carry"], q_pre_place, closed)
+        plan.add("carry", durations["carry"], q_pre_place, closed, via=via)
         if kind == "books_knocked_over":
             # A detour from above the slot: down beside the row of standing books, a sweep
             # along the row (the held book pushes them over), up, back above the slot.
@@ -661,8 +685,16 @@ class Episode:
         labels = {"episode": spec.name, "anomalous": spec.anomaly is not None, "anomaly_type": spec.anomaly,
                   "intervals_ns": intervals}
         (out_dir / f"{spec.name}.labels.json").write_text(json.dumps(labels, indent=2) + "\n")
+        # Where the book ended: standing in the slot on the board (the task done) or not.
+        book_pos, book_orn = p.getBasePositionAndOrientation(self.book)
+        up = np.array(p.getMatrixFromQuaternion(book_orn)).reshape(3, 3)[:, 2]
+        target = np.array([self.row_x, self.slot_y, self.board_z + self.book_h / 2])
+        placed = bool(np.linalg.norm(np.array(book_pos[:2]) - target[:2]) < 0.06
+                      and abs(book_pos[2] - target[2]) < 0.02 and up[2] > math.cos(math.radians(15)))
+        task = {"book_final_m": [round(float(x), 4) for x in book_pos],
+                "slot_m": [round(float(x), 4) for x in target], "placed": placed}
         return EpisodeResult(spec.name, spec.split, spec.anomaly, round(last_image_t, 6), n_images, n_js,
-                             intervals, details=details)
+                             intervals, details=details, task=task)
 
     def _attach(self) -> int:
         p = self.p
