@@ -46,18 +46,19 @@ def _count(text: str) -> int:
 
 
 def plan_episodes(seed: int, train: int, val: int, test_nominal: int, test_anomalous: int, types: Sequence[str],
-                  width: int, height: int, fps: int, short: bool) -> list[EpisodeSpec]:
+                  width: int, height: int, fps: int, short: bool, robot: str = "primitive") -> list[EpisodeSpec]:
     """The episodes of a dataset: nominal train/val/test, then anomalous test episodes
     cycling through `types`."""
     specs: list[EpisodeSpec] = []
     for split, n in (("train", train), ("val", val)):
-        specs += [EpisodeSpec(f"{split}_{i:04d}", split, i, None, seed, width, height, fps, short) for i in range(n)]
-    specs += [EpisodeSpec(f"test_{i:04d}", "test", i, None, seed, width, height, fps, short)
+        specs += [EpisodeSpec(f"{split}_{i:04d}", split, i, None, seed, width, height, fps, short, robot)
+                  for i in range(n)]
+    specs += [EpisodeSpec(f"test_{i:04d}", "test", i, None, seed, width, height, fps, short, robot)
               for i in range(test_nominal)]
     for k in range(test_anomalous):
         i = test_nominal + k
         kind = types[k % len(types)]
-        specs.append(EpisodeSpec(f"test_{i:04d}_{kind}", "test", i, kind, seed, width, height, fps, short))
+        specs.append(EpisodeSpec(f"test_{i:04d}_{kind}", "test", i, kind, seed, width, height, fps, short, robot))
     return specs
 
 
@@ -73,7 +74,8 @@ def generate(out: Path, specs: list[EpisodeSpec], seed: int, workers: int,
     from tqdm import tqdm
 
     out.mkdir(parents=True, exist_ok=True)
-    rb.write_robot_package(out / "robot")
+    model = rb.ROBOTS[specs[0].robot if specs else "primitive"]
+    model.write_package(out / "robot")
     if specs:
         (out / "camera.json").write_text(json.dumps(camera_spec(specs[0].width, specs[0].height), indent=2) + "\n")
     start = time.perf_counter()
@@ -102,7 +104,7 @@ def generate(out: Path, specs: list[EpisodeSpec], seed: int, workers: int,
         "height": first.height if first else None,
         "fps": first.fps if first else None,
         "short": first.short if first else False,
-        "robot": f"robot/{rb.ROBOT_NAME}.urdf",
+        "robot": f"robot/{model.name}.urdf",
         "camera": "camera.json",
         "counts": {split: sum(1 for s in specs if s.split == split) for split in ("train", "val", "test")},
         "anomalous": sum(1 for s in specs if s.anomaly),
@@ -137,6 +139,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="parallel worker processes (default: CPU count)")
     g.add_argument("--width", type=int, default=None, help="image width (default 640; smoke 160)")
     g.add_argument("--height", type=int, default=None, help="image height (default 480; smoke 120)")
+    g.add_argument("--robot", choices=sorted(rb.ROBOTS), default="primitive",
+                   help="primitive: the URDF-primitive 6-DoF arm (default); panda: pybullet_data's franka_panda "
+                        "(7 DoF, meshes copied into DIR/robot/meshes), same head and camera")
     g.add_argument("--fps", type=int, default=10, help="image rate, Hz; must divide 200 (default 10)")
     g.add_argument("--smoke", action="store_true",
                    help="a handful of short (~3 s), small (160x120) episodes: 2 train, 1 nominal and 2 anomalous test")
@@ -155,7 +160,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print("error: --width and --height must be positive", file=sys.stderr)
         return 2
     specs = plan_episodes(args.seed, counts["train"], counts["val"], counts["test_nominal"], counts["test_anomalous"],
-                          args.types, width, height, args.fps, args.smoke)
+                          args.types, width, height, args.fps, args.smoke, args.robot)
     try:
         dataset = generate(args.out, specs, args.seed, args.workers, progress=not args.no_progress)
     except SimError as err:

@@ -74,6 +74,8 @@ class EpisodeSpec:
     height: int = 480
     fps: int = 10
     short: bool = False
+    #: Robot: "primitive" (the URDF-primitive arm) or "panda" (pybullet_data's franka_panda).
+    robot: str = "primitive"
     #: Draw number: a draw whose poses the arm cannot reach is replaced by the next one.
     attempt: int = 0
 
@@ -225,6 +227,8 @@ class Episode:
     def __init__(self, spec: EpisodeSpec, texture_dir: Path) -> None:
         if spec.fps <= 0 or PHYSICS_HZ % spec.fps != 0:
             raise SimError(f"--fps {spec.fps} must divide the physics rate {PHYSICS_HZ} Hz")
+        if spec.robot not in rb.ROBOTS:
+            raise SimError(f"unknown robot {spec.robot!r}; known: {', '.join(rb.ROBOTS)}")
         if spec.anomaly is not None and spec.anomaly not in ANOMALY_TYPES:
             raise SimError(f"unknown anomaly type {spec.anomaly!r}; known: {', '.join(ANOMALY_TYPES)}")
         self.spec = spec
@@ -341,9 +345,9 @@ class Episode:
 
     def _load_robot(self) -> None:
         p = self.p
-        self.urdf = rb.urdf_text()
-        path = self.tex_dir / f"{rb.ROBOT_NAME}.urdf"
-        path.write_text(self.urdf)
+        self.model = rb.ROBOTS[self.spec.robot]
+        path = self.model.write_package(self.tex_dir / "robot")
+        self.urdf = path.read_text()
         self.robot = int(p.loadURDF(str(path), useFixedBase=True, flags=pb.URDF_USE_INERTIA_FROM_FILE))
         self.joint = {}
         self.link = {}
@@ -351,16 +355,17 @@ class Episode:
             info = p.getJointInfo(self.robot, i)
             self.joint[info[1].decode()] = i
             self.link[info[12].decode()] = i
-        self.arm = [self.joint[n] for n in rb.ARM_JOINTS]
-        self.fingers = [self.joint[n] for n in rb.FINGER_JOINTS]
+        self.arm = [self.joint[n] for n in self.model.arm_joints]
+        self.fingers = [self.joint[n] for n in self.model.finger_joints]
         self.head = [self.joint[n] for n in rb.HEAD_JOINTS]
-        self.movable = [self.joint[n] for n in rb.MOVABLE_JOINTS]
-        self.tool = self.link[rb.TOOL_LINK]
+        self.movable = [self.joint[n] for n in self.model.movable_joints]
+        self.n_arm = len(self.arm)
+        self.tool = self.link[self.model.tool_link]
         self.camera = self.link[rb.CAMERA_FRAME]
         self.limits = [p.getJointInfo(self.robot, j)[8:10] for j in self.movable]
         self.efforts = [p.getJointInfo(self.robot, j)[10] for j in self.movable]
         # The grasped book never collides with the gripper (the fixed-constraint grasp).
-        for link in ("gripper_base", "finger_left_link", "finger_right_link", "arm_link_6"):
+        for link in self.model.gripper_links:
             p.setCollisionFilterPair(self.robot, self.book, self.link[link], -1, 0)
 
     # ----- planning --------------------------------------------------------------------
@@ -371,16 +376,16 @@ class Episode:
         lower = [lo for lo, _ in self.limits]
         upper = [hi for _, hi in self.limits]
         ranges = [hi - lo for lo, hi in self.limits]
-        rest = list(seed) + [0.0] * 4
+        rest = list(seed) + [0.0] * (len(self.movable) - self.n_arm)
         q = np.array(seed, dtype=float)
         best, best_err = q, float("inf")
-        for _ in range(6):
+        for _ in range(8):
             for j, v in zip(self.arm, q, strict=True):
                 p.resetJointState(self.robot, j, float(v))
             sol = p.calculateInverseKinematics(self.robot, self.tool, [float(x) for x in pos], orn,
                                                lowerLimits=lower, upperLimits=upper, jointRanges=ranges,
                                                restPoses=rest, maxNumIterations=200, residualThreshold=1e-6)
-            q = np.array(sol[:6])
+            q = np.array(sol[:self.n_arm])
             for j, v in zip(self.arm, q, strict=True):
                 p.resetJointState(self.robot, j, float(v))
             got = np.array(p.getLinkState(self.robot, self.tool, computeForwardKinematics=True)[4])
@@ -401,7 +406,7 @@ class Episode:
         r = self.rng
         kind = self.spec.anomaly
         durations = {name: self._duration(d) for name, d in _PHASES}
-        home = np.array([0.0, 0.25, 1.75, 0.0, 1.1, 0.0]) + r.uniform(-0.05, 0.05, 6)
+        home = np.array(self.model.home) + r.uniform(-0.05, 0.05, self.n_arm)
         grasp_depth = float(r.uniform(0.03, 0.045))
         top = self.book_pos + np.array([0, 0, self.book_h / 2])
         grasp = top - np.array([0, 0, grasp_depth])
@@ -434,7 +439,7 @@ class Episode:
         q_place = self._ik(place, place_yaw, q_pre_place)
         q_retract = self._ik(place + [0, 0, 0.14], place_yaw, q_place)
         closed = max(self.book_t / 2 - 0.002, 0.0)
-        op = rb.FINGER_OPEN_M
+        op = self.model.finger_open_m
         plan = _Plan()
         plan.add("idle", durations["idle"], home, op)
         plan.add("reach", durations["reach"], q_pre, op)
@@ -504,7 +509,7 @@ class Episode:
             t0 = float(r.uniform(motion0, motion1 - 3.0 * self.scale))
             dur = self._duration(2.2)
             mode = str(r.choice(["freeze", "drift"]))
-            joints = sorted(int(j) for j in r.choice(6, size=int(r.integers(1, 4)), replace=False))
+            joints = sorted(int(j) for j in r.choice(self.n_arm, size=int(r.integers(1, 4)), replace=False))
             rates = [float(r.choice([-1, 1]) * r.uniform(0.25, 0.5)) / max(self.scale, 0.5) for _ in joints]
             self.anomaly_info = {"onset": t0, "motion_end": t0 + dur, "mode": mode, "joints": joints,
                                  "rates_radps": rates, "watch": []}
@@ -609,7 +614,7 @@ class Episode:
         bag = BagWriter(bag_path)
         fx, fy, cx, cy = intrinsics(spec.width, spec.height)
         bag.robot_description(EPOCH_NS, self.urdf)
-        names = list(rb.MOVABLE_JOINTS)
+        names = list(self.model.movable_joints)
         constraint: int | None = None
         released = False
         watch = self.anomaly_info.get("watch", [])
@@ -627,14 +632,15 @@ class Episode:
                     break
             q, qd, g = self.plan_.at(t)
             p.setJointMotorControlArray(self.robot, self.arm, pb.POSITION_CONTROL, targetPositions=q.tolist(),
-                                        targetVelocities=qd.tolist(), forces=self.efforts[:6],
-                                        positionGains=[0.2] * 6, velocityGains=[1.0] * 6)
+                                        targetVelocities=qd.tolist(), forces=self.efforts[:self.n_arm],
+                                        positionGains=[0.2] * self.n_arm, velocityGains=[1.0] * self.n_arm)
             p.setJointMotorControlArray(self.robot, self.fingers, pb.POSITION_CONTROL, targetPositions=[g, g],
-                                        forces=self.efforts[6:8])
+                                        forces=self.efforts[self.n_arm:self.n_arm + 2])
             target = np.array(self._head_target(tool_pos, t))
             head_filtered += (target - head_filtered) * min(1.0, _DT / 0.5)
             p.setJointMotorControlArray(self.robot, self.head, pb.POSITION_CONTROL,
-                                        targetPositions=head_filtered.tolist(), forces=self.efforts[8:10])
+                                        targetPositions=head_filtered.tolist(),
+                                        forces=self.efforts[self.n_arm + 2:self.n_arm + 4])
             if constraint is None and not released and t >= self.events["attach"]:
                 constraint = self._attach()
             if constraint is not None and t >= self.events["release"]:

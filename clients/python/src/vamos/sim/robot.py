@@ -10,6 +10,7 @@ frame (z forward, x right, y down), the frame the images are rendered from.
 from __future__ import annotations
 
 import math
+import shutil
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
@@ -112,20 +113,47 @@ def _joint(name: str, kind: str, parent: str, child: str, xyz: tuple[float, floa
     return "".join(s)
 
 
-def urdf_text() -> str:
-    """The robot's URDF (deterministic text)."""
+def _header(name: str) -> list[str]:
+    parts = [f'<?xml version="1.0"?>\n<robot name="{name}">\n']
+    for colour, rgba in _COLOURS.items():
+        parts.append(f'  <material name="{colour}"><color rgba="{" ".join(_f(x) for x in rgba)}"/></material>\n')
+    return parts
+
+
+def _base() -> str:
+    """Floor plate, pedestal for the arm (top at z = 0.6 m), mast for the head."""
     b, c = "box", "cylinder"
-    parts = [f'<?xml version="1.0"?>\n<robot name="{ROBOT_NAME}">\n']
-    for name, rgba in _COLOURS.items():
-        parts.append(f'  <material name="{name}"><color rgba="{" ".join(_f(x) for x in rgba)}"/></material>\n')
-    # Base: floor plate, pedestal for the arm, mast for the head (behind the arm).
-    parts.append(_link("base_link", 0.0, [
+    return _link("base_link", 0.0, [
         _Visual(b, (0.34, 0.34, 0.04), (0.0, 0.0, 0.02), "graphite"),
         _Visual(c, (0.07, 0.56), (0.0, 0.0, 0.32), "steel"),
         _Visual(b, (0.14, 0.14, 0.04), (HEAD_PAN_XYZ[0], HEAD_PAN_XYZ[1], 0.02), "graphite"),
         _Visual(c, (0.03, HEAD_PAN_XYZ[2] - 0.04), (HEAD_PAN_XYZ[0], HEAD_PAN_XYZ[1], HEAD_PAN_XYZ[2] / 2 + 0.02),
                 "steel"),
-    ]))
+    ])
+
+
+def _head() -> str:
+    """Pan about z on top of the mast, tilt about y (positive looks down), the camera frames."""
+    b, c = "box", "cylinder"
+    parts = [_joint("head_pan_joint", "revolute", "base_link", "head_pan_link", HEAD_PAN_XYZ,
+                    axis=(0, 0, 1), limits=(-1.2, 1.2, 20, 1.5))]
+    parts.append(_link("head_pan_link", 0.3, [_Visual(c, (0.045, 0.06), (0.0, 0.0, 0.03), "graphite")]))
+    parts.append(_joint("head_tilt_joint", "revolute", "head_pan_link", "head_tilt_link", (0.0, 0.0, HEAD_TILT_DZ),
+                        axis=(0, 1, 0), limits=(-0.4, 1.3, 20, 1.5)))
+    parts.append(_link("head_tilt_link", 0.4, [_Visual(b, (0.09, 0.18, 0.07), (-0.01, 0.0, 0.0), "graphite")]))
+    parts.append(_joint("head_camera_joint", "fixed", "head_tilt_link", "head_camera_link", (0.05, 0.0, 0.0)))
+    parts.append(_link("head_camera_link", 0.0, []))
+    parts.append(_joint("head_camera_optical_joint", "fixed", "head_camera_link", CAMERA_FRAME, (0.0, 0.0, 0.0),
+                        rpy=(-math.pi / 2, 0.0, -math.pi / 2)))
+    parts.append(_link(CAMERA_FRAME, 0.0, []))
+    return "".join(parts)
+
+
+def urdf_text() -> str:
+    """The robot's URDF (deterministic text)."""
+    b, c = "box", "cylinder"
+    parts = _header(ROBOT_NAME)
+    parts.append(_base())
     arm = [
         # (link, mass, visuals, joint origin in parent, axis, limits)
         ("arm_link_1", 3.0, [_Visual(c, (0.075, 0.12), (0.0, 0.0, 0.06), "orange")],
@@ -157,20 +185,85 @@ def urdf_text() -> str:
                            [_Visual(b, (0.02, 0.015, 0.075), (0.0, sign * 0.0075, 0.0375), "black")]))
     parts.append(_joint("tool_joint", "fixed", "gripper_base", TOOL_LINK, (0.0, 0.0, 0.085)))
     parts.append(_link(TOOL_LINK, 0.0, []))
-    # Head: pan about z on top of the mast, tilt about y (positive looks down).
-    parts.append(_joint("head_pan_joint", "revolute", "base_link", "head_pan_link", HEAD_PAN_XYZ,
-                        axis=(0, 0, 1), limits=(-1.2, 1.2, 20, 1.5)))
-    parts.append(_link("head_pan_link", 0.3, [_Visual(c, (0.045, 0.06), (0.0, 0.0, 0.03), "graphite")]))
-    parts.append(_joint("head_tilt_joint", "revolute", "head_pan_link", "head_tilt_link", (0.0, 0.0, HEAD_TILT_DZ),
-                        axis=(0, 1, 0), limits=(-0.4, 1.3, 20, 1.5)))
-    parts.append(_link("head_tilt_link", 0.4, [_Visual(b, (0.09, 0.18, 0.07), (-0.01, 0.0, 0.0), "graphite")]))
-    parts.append(_joint("head_camera_joint", "fixed", "head_tilt_link", "head_camera_link", (0.05, 0.0, 0.0)))
-    parts.append(_link("head_camera_link", 0.0, []))
-    parts.append(_joint("head_camera_optical_joint", "fixed", "head_camera_link", CAMERA_FRAME, (0.0, 0.0, 0.0),
-                        rpy=(-math.pi / 2, 0.0, -math.pi / 2)))
-    parts.append(_link(CAMERA_FRAME, 0.0, []))
+    parts.append(_head())
     parts.append("</robot>\n")
     return "".join(parts)
+
+
+def _panda_source() -> Path:
+    import pybullet_data
+
+    return Path(pybullet_data.getDataPath()) / "franka_panda"
+
+
+def panda_urdf_text() -> str:
+    """The franka_panda arm of pybullet_data (meshes, ``package://meshes/...``) on the same
+    pedestal, with the same pan-tilt head and camera."""
+    text = (_panda_source() / "panda.urdf").read_text()
+    body = text[text.index(">", text.index("<robot")) + 1:text.rindex("</robot>")]
+    parts = _header(PANDA_NAME)
+    parts.append(_base())
+    parts.append(_joint("panda_mount_joint", "fixed", "base_link", "panda_link0", (0.0, 0.0, 0.6)))
+    parts.append(body)
+    parts.append(_head())
+    parts.append("</robot>\n")
+    return "".join(parts)
+
+
+@dataclass(frozen=True)
+class RobotModel:
+    """What the simulation needs to know about a robot."""
+
+    #: URDF robot name and file stem.
+    name: str
+    #: Arm joints, base to wrist.
+    arm_joints: tuple[str, ...]
+    #: Prismatic finger joints (0 = closed).
+    finger_joints: tuple[str, str]
+    #: Grasp-point link (z along the fingers, fingers closing along y).
+    tool_link: str
+    #: Links the held book never collides with.
+    gripper_links: tuple[str, ...]
+    #: Finger opening per finger, metres.
+    finger_open_m: float
+    #: Arm posture at rest (tool above the workspace, pointing down).
+    home: tuple[float, ...]
+
+    @property
+    def movable_joints(self) -> tuple[str, ...]:
+        """Every movable joint, in the order of the published joint states (the URDF order)."""
+        return self.arm_joints + self.finger_joints + HEAD_JOINTS
+
+    def urdf_text(self) -> str:
+        """The URDF text."""
+        return panda_urdf_text() if self.name == PANDA_NAME else urdf_text()
+
+    def write_package(self, folder: Path) -> Path:
+        """Writes the robot package folder (URDF, and meshes + licence for the panda);
+        returns the URDF path."""
+        folder.mkdir(parents=True, exist_ok=True)
+        path = folder / f"{self.name}.urdf"
+        path.write_text(self.urdf_text())
+        if self.name == PANDA_NAME:
+            src = _panda_source()
+            shutil.copytree(src / "meshes", folder / "meshes", dirs_exist_ok=True)
+            shutil.copy(src / "LICENSE.txt", folder / "LICENSE.panda-meshes.txt")
+        return path
+
+
+#: Name of the franka_panda variant.
+PANDA_NAME = "vamos_panda"
+#: The primitive robot (default).
+VAMOS_ARM = RobotModel(ROBOT_NAME, ARM_JOINTS, FINGER_JOINTS, TOOL_LINK,
+                       ("gripper_base", "finger_left_link", "finger_right_link", "arm_link_6"), FINGER_OPEN_M,
+                       (0.0, 0.25, 1.75, 0.0, 1.1, 0.0))
+#: The franka_panda arm from pybullet_data (meshes), 7 DoF.
+PANDA = RobotModel(PANDA_NAME, tuple(f"panda_joint{i}" for i in range(1, 8)),
+                   ("panda_finger_joint1", "panda_finger_joint2"), "panda_grasptarget",
+                   ("panda_hand", "panda_leftfinger", "panda_rightfinger", "panda_link7", "panda_link8"), 0.04,
+                   (0.0, -0.2, 0.0, -2.3, 0.0, 2.1, 0.785))
+#: Robots by the name ``--robot`` takes.
+ROBOTS = {"primitive": VAMOS_ARM, "panda": PANDA}
 
 
 def asset_path() -> Path:
