@@ -22,7 +22,15 @@ from pathlib import Path
 from typing import Any
 
 from vamos.sim import robot as rb
-from vamos.sim.episode import ANOMALY_TYPES, EpisodeResult, EpisodeSpec, SimError, camera_spec, generate_episode
+from vamos.sim.episode import (
+    ANOMALY_TYPES,
+    PHYSICS_HZ,
+    EpisodeResult,
+    EpisodeSpec,
+    SimError,
+    camera_spec,
+    generate_episode,
+)
 
 #: Generator version, recorded in dataset.json (bump when episodes change for a seed).
 GENERATOR_VERSION = "1"
@@ -158,6 +166,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     height = args.height or (SMOKE_SIZE[1] if args.smoke else 480)
     if width <= 0 or height <= 0:
         print("error: --width and --height must be positive", file=sys.stderr)
+        return 2
+    if args.fps <= 0 or PHYSICS_HZ % args.fps != 0:
+        print(f"error: --fps {args.fps} must divide the physics rate, {PHYSICS_HZ} Hz (e.g. 5, 10, 20, 25, 40, 50)",
+              file=sys.stderr)
+        return 2
+    if args.workers < 1:
+        print("error: --workers must be at least 1", file=sys.stderr)
         return 2
     specs = plan_episodes(args.seed, counts["train"], counts["val"], counts["test_nominal"], counts["test_anomalous"],
                           args.types, width, height, args.fps, args.smoke, args.robot)
