@@ -333,3 +333,46 @@ def test_panda_variant_with_meshes(tmp_path: Path) -> None:
                                          check=True, capture_output=True, text=True).stdout)
         assert [j["name"] for j in info["joints"] if j["type"] != "fixed"] == names
         assert info["warnings"] == [] and info["triangles"] > 50_000  # the meshes were loaded
+
+
+@pytest.mark.parametrize("kind", ["camera_occluded", "external_push", "sensor_fault"])
+def test_anomaly_against_its_nominal_twin(kind: str, tmp_path: Path) -> None:
+    """These anomalies leave the physics alone: the nominal episode of the same seed, split and
+    index moves identically, and the bags differ exactly where the labels say."""
+    anomalous = EpisodeSpec("a", "test", 4, kind, 13, 64, 48, 10, True)
+    generate_episode(anomalous, tmp_path)
+    generate_episode(EpisodeSpec("n", "test", 4, None, 13, 64, 48, 10, True), tmp_path)
+    [[start, end]] = json.loads((tmp_path / "a.labels.json").read_text())["intervals_ns"]
+    a, n = _read(tmp_path / "a.mcap"), _read(tmp_path / "n.mcap")
+
+    def split(msgs: list, data) -> tuple[list, list]:
+        inside = [data(m) for m in msgs if start <= _stamp_ns(m) <= end]
+        outside = [data(m) for m in msgs if not start <= _stamp_ns(m) <= end]
+        return inside, outside
+
+    def image(m) -> bytes:
+        return bytes(m.ros_msg.data)
+
+    def joints(m) -> list[float]:
+        return list(m.ros_msg.position)
+
+    img_a_in, img_a_out = split(a["/camera/image_raw"], image)
+    img_n_in, img_n_out = split(n["/camera/image_raw"], image)
+    js_a_in, js_a_out = split(a["/joint_states"], joints)
+    js_n_in, js_n_out = split(n["/joint_states"], joints)
+    assert img_a_in and js_a_in
+    assert img_a_out == img_n_out and js_a_out == js_n_out  # identical outside the interval
+    if kind == "sensor_fault":
+        assert img_a_in == img_n_in  # the camera sees the true motion
+        assert sum(x != y for x, y in zip(js_a_in, js_n_in, strict=True)) > len(js_a_in) // 2
+    else:
+        assert js_a_in == js_n_in  # the joint states do not show it
+        assert sum(x != y for x, y in zip(img_a_in, img_n_in, strict=True)) > len(img_a_in) // 2
+
+
+def test_bad_arguments_are_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["generate", "--out", str(tmp_path / "x"), "--smoke", "--fps", "7"]) == 2
+    assert "--fps 7" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["generate", "--out", str(tmp_path / "x"), "--types", "book_falls,nope"])
+    assert not (tmp_path / "x").exists()

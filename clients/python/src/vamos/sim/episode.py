@@ -405,6 +405,11 @@ class Episode:
         """The arm's motion, the grasp/release times and the anomaly's parameters."""
         r = self.rng
         kind = self.spec.anomaly
+        # Every nominal draw comes before any anomaly-specific one, so an episode whose
+        # anomaly does not change the physics (camera_occluded, external_push, sensor_fault)
+        # has a nominal twin (same seed, split, index; no anomaly) with the same motion.
+        self.head_sway = float(r.uniform(0.03, 0.08))
+        self.head_period = float(r.uniform(4.0, 8.0)) * self.scale
         durations = {name: self._duration(d) for name, d in _PHASES}
         home = np.array(self.model.home) + r.uniform(-0.05, 0.05, self.n_arm)
         grasp_depth = float(r.uniform(0.03, 0.045))
@@ -589,8 +594,6 @@ class Episode:
         """Simulates, writes ``<name>.mcap`` and ``<name>.labels.json``; returns the summary."""
         p, spec = self.p, self.spec
         self.plan()
-        self.head_sway = float(self.rng.uniform(0.03, 0.08))
-        self.head_period = float(self.rng.uniform(4.0, 8.0)) * self.scale
         self._frozen = None
         # Initial state.
         q0, _, g0 = self.plan_.at(0.0)
