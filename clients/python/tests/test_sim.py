@@ -88,6 +88,7 @@ def test_smoke_dataset_layout(smoke: Path) -> None:
         # The task: nominal episodes leave the book standing in its slot; a book that falls
         # off the shelf or slips from the gripper does not end there.
         assert e["task"]["placed"] is (e["anomaly_type"] is None), e
+        assert e["task"]["shelf_books_fallen"] == 0
 
 
 def test_bags_topics_rates_stamps(smoke: Path) -> None:
@@ -175,6 +176,12 @@ def test_each_anomaly_type_is_labelled_inside_its_episode(kind: str, tmp_path: P
     [[start, end]] = labels["intervals_ns"]
     assert labels["anomaly_type"] == kind and result.intervals_ns == [[start, end]]
     assert stamps[0] <= start < end <= stamps[-1]
+    if kind == "books_knocked_over":
+        assert result.task["shelf_books_fallen"] >= 1, result.task
+    else:
+        assert result.task["shelf_books_fallen"] == 0, result.task
+    if kind in ("camera_occluded", "external_push", "sensor_fault", "books_knocked_over"):
+        assert result.task["placed"], result.task  # the task itself still succeeds
     if kind == "sensor_fault":
         js = [m for m in msgs["/joint_states"] if start <= _stamp_ns(m) <= end]
         positions = [list(m.ros_msg.position[:6]) for m in js]

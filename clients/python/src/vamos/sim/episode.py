@@ -99,7 +99,8 @@ class EpisodeResult:
     seconds: float = 0.0
     cpu_seconds: float = 0.0
     attempt: int = 0
-    #: Where the book ended and whether it stands in its slot (``placed``).
+    #: Where the book ended, whether it stands in its slot (``placed``), how many of the
+    #: shelf's standing books lie tilted by more than 30 degrees at the end.
     task: dict[str, Any] = field(default_factory=dict)
     details: dict[str, Any] = field(default_factory=dict)
 
@@ -325,7 +326,7 @@ class Episode:
         y = self.slot_y + self.book_t / 2 + float(r.uniform(0.025, 0.035))
         self.row_books: list[int] = []
         self.row_y = (y, y)
-        for _ in range(int(r.integers(5, 8))):
+        for _ in range(int(r.integers(4, 7))):
             t, w, h = self._book_dims()
             self.row_books.append(self._box((w / 2, t / 2, h / 2), (self.row_x, y + t / 2, self.board_z + h / 2),
                                             self._texture("stripes", self._book_colour(), 128),
@@ -457,14 +458,14 @@ class Episode:
         if kind == "books_knocked_over":
             # A detour from above the slot: down beside the row of standing books, a sweep
             # along the row (the held book pushes them over), up, back above the slot.
-            z = self.board_z + float(r.uniform(0.06, 0.1)) + hang
+            z = self.board_z + float(r.uniform(0.1, 0.13)) + hang
             b = np.array([self.row_x, self.slot_y, z])
-            c = np.array([self.row_x + float(r.uniform(-0.015, 0.015)), self.row_y[1] - 0.03, z])
+            c = np.array([self.row_x + float(r.uniform(-0.015, 0.015)), self.row_y[1] + 0.03, z])
             q_b = self._ik(b, place_yaw, q_pre_place)
             q_c = self._ik(c, place_yaw, q_b)
             q_up = self._ik(c + [-0.03, -0.08, 0.14], place_yaw, q_c)
             down = plan.add("detour_down", self._duration(0.7), q_b, closed)
-            sweep = plan.add("sweep", self._duration(1.0), q_c, closed)
+            sweep = plan.add("sweep", self._duration(0.7), q_c, closed)
             plan.add("detour_up", self._duration(0.7), q_up, closed)
             plan.add("detour_back", self._duration(1.0), q_pre_place, closed)
             self.anomaly_info = {"onset": down.t0, "motion_end": sweep.t1, "watch": list(self.row_books)}
@@ -700,8 +701,13 @@ class Episode:
         target = np.array([self.row_x, self.slot_y, self.board_z + self.book_h / 2])
         placed = bool(np.linalg.norm(np.array(book_pos[:2]) - target[:2]) < 0.06
                       and abs(book_pos[2] - target[2]) < 0.02 and up[2] > math.cos(math.radians(15)))
+        fallen = 0
+        for body in self.row_books:
+            orn = p.getBasePositionAndOrientation(body)[1]
+            fallen += int(np.array(p.getMatrixFromQuaternion(orn))[8] < math.cos(math.radians(30)))
         task = {"book_final_m": [round(float(x), 4) for x in book_pos],
-                "slot_m": [round(float(x), 4) for x in target], "placed": placed}
+                "slot_m": [round(float(x), 4) for x in target], "placed": placed,
+                "shelf_books_fallen": fallen, "shelf_books": len(self.row_books)}
         return EpisodeResult(spec.name, spec.split, spec.anomaly, round(last_image_t, 6), n_images, n_js,
                              intervals, details=details, task=task)
 
