@@ -2,8 +2,10 @@
 
 Physics runs at 200 Hz; joint states are published at 50 Hz and images (with camera info)
 at ``fps``, all stamped with the simulation time in nanoseconds after :data:`EPOCH_NS`.
-Everything is drawn from one ``numpy`` generator seeded by ``(seed, split, index)``, so an
-episode is the same whichever worker makes it.
+Everything is drawn from one ``numpy`` generator seeded by ``(seed, split, index, draw)``, so
+an episode is the same whichever worker makes it (``draw`` moves on when a drawn pose is
+out of the arm's reach). Nominal draws come first: an anomaly that leaves the physics alone
+(occlusion, camera shake, sensor fault) has a nominal twin with identical motion.
 """
 
 from __future__ import annotations
@@ -11,9 +13,9 @@ from __future__ import annotations
 import json
 import math
 import tempfile
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -32,10 +34,12 @@ PHYSICS_HZ = 200
 JOINT_STATE_HZ = 50
 #: Vertical field of view of the head camera, degrees.
 VFOV_DEG = 50.0
+#: Near and far clipping planes of the render, metres.
 NEAR_M, FAR_M = 0.03, 6.0
 #: The anomaly types the simulator produces.
 ANOMALY_TYPES = ("book_falls", "book_slips", "camera_occluded", "external_push", "books_knocked_over",
                  "sensor_fault", "collision_with_shelf")
+#: Dataset splits (their index is part of every episode's seed).
 SPLITS = ("train", "val", "test")
 #: Scale of phase durations in short (smoke) episodes: ~3 s instead of ~11 s.
 SHORT_SCALE = 0.28

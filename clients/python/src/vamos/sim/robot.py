@@ -269,11 +269,3 @@ ROBOTS = {"primitive": VAMOS_ARM, "panda": PANDA}
 def asset_path() -> Path:
     """The packaged URDF file (``vamos/sim/assets/vamos_arm.urdf``)."""
     return Path(str(resources.files("vamos.sim") / "assets" / f"{ROBOT_NAME}.urdf"))
-
-
-def write_robot_package(folder: Path) -> Path:
-    """Writes the robot package folder (the URDF); returns the URDF path."""
-    folder.mkdir(parents=True, exist_ok=True)
-    path = folder / f"{ROBOT_NAME}.urdf"
-    path.write_text(urdf_text())
-    return path
