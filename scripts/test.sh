@@ -4,7 +4,7 @@
 #     load ONNX Runtime; when it is not found (ORT_DYLIB_PATH, the vamos cache, Python's
 #     onnxruntime) vamos downloads the PyPI wheel into its cache with pip.
 #  2. Python (clients/python): a virtual environment in .venv with the package and its
-#     `train` + `test` extras (torch from PyPI: ~3 GB on the first run), then pytest,
+#     `train` + `sim` + `test` extras (torch from PyPI: ~3 GB on the first run), then pytest,
 #     including the end-to-end test that runs the Rust binary built in step 1.
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
@@ -22,7 +22,7 @@ if [ ! -x .venv/bin/python ]; then
     fi
 fi
 .venv/bin/python -m pip install --quiet --upgrade pip
-.venv/bin/python -m pip install --quiet './clients/python[train,test]'
+.venv/bin/python -m pip install --quiet './clients/python[train,sim,test]'
 
 echo "== Python tests"
 VAMOS_BIN="$PWD/target/release/vamos" .venv/bin/python -m pytest clients/python/tests -q
