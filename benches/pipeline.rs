@@ -11,6 +11,8 @@
 
 // criterion_group! generates undocumented items.
 #![allow(missing_docs)]
+// A bench set-up failure is a bench failure.
+#![allow(clippy::expect_used)]
 
 use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
 use nalgebra::{Isometry3, Translation3, UnitQuaternion};
@@ -55,7 +57,11 @@ fn robot_setup() -> RobotSetup {
 fn stream() -> (Vec<GrayImage>, Vec<String>, Vec<Vec<f64>>) {
     let texture = Texture::random(9);
     let images = (0..FRAMES)
-        .map(|k| GrayImage::from_fn(640, 480, |x, y| texture.eval(x as f64 - k as f64, y as f64) as f32))
+        .map(|k| {
+            GrayImage::from_fn(640, 480, |x, y| {
+                texture.eval(x as f64 - k as f64, y as f64) as f32
+            })
+        })
         .collect();
     let names: Vec<String> = (1..=7).map(|i| format!("panda_joint{i}")).collect();
     let joints = (0..FRAMES)
@@ -94,7 +100,8 @@ fn scorer(setup: &RobotSetup, model: &Arc<FlowModel>, w: usize, h: usize, preset
 
 fn mean_stages(t: &[StageTimings]) -> String {
     let n = t.len().max(1) as f64;
-    let ms = |f: &dyn Fn(&StageTimings) -> u64| t.iter().map(|s| f(s) as f64).sum::<f64>() / n / 1e3;
+    let ms =
+        |f: &dyn Fn(&StageTimings) -> u64| t.iter().map(|s| f(s) as f64).sum::<f64>() / n / 1e3;
     format!(
         "kinematics {:.2} ms, render {:.2}, resize+equalise {:.2}, registration {:.2}, flow {:.2}, \
          network input {:.2}, e_c {:.2}, e_b {:.2}, model {:.2}; total {:.2} ms",
@@ -124,7 +131,8 @@ fn bench_pipeline(c: &mut Criterion) {
         }
     };
     let sizes = std::env::var("VAMOS_BENCH_SIZES").unwrap_or_else(|_| "320x240,640x480".into());
-    let presets = std::env::var("VAMOS_BENCH_PRESETS").unwrap_or_else(|_| "default,realtime".into());
+    let presets =
+        std::env::var("VAMOS_BENCH_PRESETS").unwrap_or_else(|_| "default,realtime".into());
     let setup = robot_setup();
     let (images, names, joints) = stream();
     eprintln!(

@@ -48,7 +48,10 @@ pub fn run(settings: &Settings, opts: CalibrateOptions) -> Result<()> {
         None,
     )?;
     let component = |f: fn(&vamos::pipeline::FrameScore) -> Option<f64>| -> Vec<f64> {
-        train.iter().flat_map(|e| e.frames.iter().filter_map(f)).collect()
+        train
+            .iter()
+            .flat_map(|e| e.frames.iter().filter_map(f))
+            .collect()
     };
     let thresholds = Thresholds {
         e_c: max_threshold(&component(|f| f.e_c)),
@@ -65,14 +68,7 @@ pub fn run(settings: &Settings, opts: CalibrateOptions) -> Result<()> {
         None
     } else {
         eprintln!("scoring {} held-out episodes", holdout.len());
-        let held = setup.score_all(
-            &holdout,
-            thresholds,
-            f64::INFINITY,
-            None,
-            None,
-            None,
-        )?;
+        let held = setup.score_all(&holdout, thresholds, f64::INFINITY, None, None, None)?;
         let maxima: Vec<f64> = held.iter().map(episode_max).collect();
         match conformal_threshold(&maxima, opts.alpha) {
             Ok(c) => Some(c),
@@ -110,6 +106,8 @@ fn names(e: &[EpisodeScores]) -> Vec<String> {
 }
 
 fn stem(p: &Path) -> String {
-    p.file_stem()
-        .map_or_else(|| p.display().to_string(), |s| s.to_string_lossy().into_owned())
+    p.file_stem().map_or_else(
+        || p.display().to_string(),
+        |s| s.to_string_lossy().into_owned(),
+    )
 }

@@ -7,8 +7,8 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use vamos::config::Settings;
-use vamos::eval::ablation::{AblationTable, AucPair, FusionLevel};
 use vamos::eval::plot::{PlotOptions, plot_episode, plot_pr, plot_roc};
+use vamos::eval::{AblationTable, AucPair, FusionLevel};
 use vamos::eval::{
     ScoredFrame, Thresholds, average_precision, evaluate, fuse, pr_curve, roc_auc, roc_curve,
 };
@@ -74,7 +74,8 @@ pub fn run(settings: &Settings, opts: EvalOptions) -> Result<()> {
     let text = serde_json::to_string_pretty(&report)?;
     println!("{text}");
     if let Some(path) = &opts.json {
-        std::fs::write(path, text + "\n").with_context(|| format!("cannot write {}", path.display()))?;
+        std::fs::write(path, text + "\n")
+            .with_context(|| format!("cannot write {}", path.display()))?;
     }
     if let Some(dir) = &opts.plots {
         write_plots(dir, &results, &frames, alarm)?;
@@ -144,7 +145,11 @@ fn write_plots(
 /// The paper's table: per flow variant one pipeline run (its own model), then the three
 /// detector combinations fused from the same per-frame errors with the profile's
 /// calibrated thresholds.
-fn ablation(setup: &Setup, episodes: &[PathBuf], variant_models: &[String]) -> Result<AblationTable> {
+fn ablation(
+    setup: &Setup,
+    episodes: &[PathBuf],
+    variant_models: &[String],
+) -> Result<AblationTable> {
     let calibrated = setup.profile.thresholds();
     let mut models: BTreeMap<String, Arc<FlowModel>> = BTreeMap::new();
     for spec in variant_models {

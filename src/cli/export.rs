@@ -162,9 +162,14 @@ pub fn run(settings: &Settings, opts: ExportOptions) -> Result<usize> {
         if dir.extension().is_some_and(|x| x == "mcap") {
             let episode = McapEpisode::open(dir, &settings.episode)
                 .with_context(|| format!("episode {}", dir.display()))?;
-            let (records, rows, images) =
-                export_bag(&mut processor, &episode, stride, masker.as_mut(), max_gap_ns)
-                    .with_context(|| format!("episode {}", dir.display()))?;
+            let (records, rows, images) = export_bag(
+                &mut processor,
+                &episode,
+                stride,
+                masker.as_mut(),
+                max_gap_ns,
+            )
+            .with_context(|| format!("episode {}", dir.display()))?;
             eprintln!(
                 "{}: {} images -> {} frames",
                 episode.name(),
@@ -311,7 +316,7 @@ fn export_bag(
             }
         };
         images += 1;
-        if (images - 1) % stride != 0 {
+        if !(images - 1).is_multiple_of(stride) {
             continue;
         }
         let mask = match (masker.as_mut(), mapper.as_mut()) {

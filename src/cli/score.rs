@@ -201,10 +201,12 @@ fn write_outputs(
     episode: &McapEpisode,
     o: &OutputOptions,
 ) -> Result<EpisodeScores> {
-    std::fs::create_dir_all(&o.dir).with_context(|| format!("cannot create {}", o.dir.display()))?;
+    std::fs::create_dir_all(&o.dir)
+        .with_context(|| format!("cannot create {}", o.dir.display()))?;
     let jsonl = o.dir.join(format!("{}.scores.jsonl", episode.name()));
     let mut lines = std::io::BufWriter::new(
-        std::fs::File::create(&jsonl).with_context(|| format!("cannot create {}", jsonl.display()))?,
+        std::fs::File::create(&jsonl)
+            .with_context(|| format!("cannot create {}", jsonl.display()))?,
     );
     let mut bag = if o.mcap {
         let path = o.dir.join(format!("{}.scored.mcap", episode.name()));
@@ -267,7 +269,13 @@ pub fn heatmap_rgb(map: &[f32]) -> Vec<u8> {
 }
 
 /// `vamos score`: prints one JSON summary line per episode on stdout.
-pub fn run(settings: &Settings, profile: &Path, episodes: &[PathBuf], out: Option<PathBuf>, mcap: bool) -> Result<()> {
+pub fn run(
+    settings: &Settings,
+    profile: &Path,
+    episodes: &[PathBuf],
+    out: Option<PathBuf>,
+    mcap: bool,
+) -> Result<()> {
     if mcap && out.is_none() {
         bail!("--mcap writes into the --out folder: give --out");
     }
@@ -292,7 +300,11 @@ pub fn run(settings: &Settings, profile: &Path, episodes: &[PathBuf], out: Optio
         let alarms = r.frames.iter().filter(|f| f.anomaly).count();
         let first_alarm_ns = r.frames.iter().find(|f| f.anomaly).map(|f| f.stamp_ns);
         let max_score = r.frames.iter().map(|f| f.score).fold(f64::NAN, f64::max);
-        let mean_ms = r.frames.iter().map(|f| f.timings.total_us as f64).sum::<f64>()
+        let mean_ms = r
+            .frames
+            .iter()
+            .map(|f| f.timings.total_us as f64)
+            .sum::<f64>()
             / r.frames.len().max(1) as f64
             / 1e3;
         println!(

@@ -13,6 +13,7 @@
 
 pub mod dataset;
 pub mod frames;
+pub mod offline;
 pub mod profile;
 pub mod scorer;
 
@@ -22,8 +23,7 @@ pub use frames::{
 };
 pub use profile::{AlarmRule, Calibration, Profile, ProfileError};
 pub use scorer::{
-    FrameInput, FrameScore, JointInput, RobotSetup, Scorer, ScorerError, ScorerParts,
-    StageTimings,
+    FrameInput, FrameScore, JointInput, RobotSetup, Scorer, ScorerError, ScorerParts, StageTimings,
 };
 
 use crate::robot::camera_motion::{CameraErrorWeights, CameraMotionParams};

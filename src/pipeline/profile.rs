@@ -146,14 +146,12 @@ impl Profile {
             }
         }
         let camera = match &file.camera {
-            Some(c) => Some(
-                serde_json::from_str::<CameraSpec>(&read(c)?).map_err(|e| {
-                    ProfileError::Invalid {
-                        path: c.clone(),
-                        reason: format!("not a camera description: {e}"),
-                    }
-                })?,
-            ),
+            Some(c) => Some(serde_json::from_str::<CameraSpec>(&read(c)?).map_err(|e| {
+                ProfileError::Invalid {
+                    path: c.clone(),
+                    reason: format!("not a camera description: {e}"),
+                }
+            })?),
             None => None,
         };
         let cal_path = Self::calibration_path_for(path);
@@ -252,7 +250,10 @@ mod tests {
         )
         .unwrap();
         let mut p = Profile::load(&path).unwrap();
-        assert_eq!(p.file.robot.as_deref(), Some(dir.path().join("r.urdf").as_path()));
+        assert_eq!(
+            p.file.robot.as_deref(),
+            Some(dir.path().join("r.urdf").as_path())
+        );
         assert_eq!(p.camera.as_ref().unwrap().width, 320);
         assert_eq!(p.file.pipeline.as_ref().unwrap().stride, 3);
         assert!(p.calibration.is_none());
@@ -274,7 +275,11 @@ mod tests {
         assert_eq!(saved, dir.path().join("p.calibration.json"));
         let again = Profile::load(&path).unwrap();
         assert_eq!(again.calibration.as_ref(), Some(&cal));
-        assert_eq!(again.alarm_threshold(), 0.5f64.next_up(), "max rule, and conformal absent");
+        assert_eq!(
+            again.alarm_threshold(),
+            0.5f64.next_up(),
+            "max rule, and conformal absent"
+        );
         assert_eq!(again.thresholds().e_c, Some(2.0));
     }
 

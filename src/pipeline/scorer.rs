@@ -55,7 +55,9 @@ pub enum ScorerError {
     #[error("flow predictor: {0}")]
     Model(#[from] ModelError),
     /// Image stamps must increase.
-    #[error("image {index} has stamp {stamp_ns} ns, not after the previous image's {previous_ns} ns")]
+    #[error(
+        "image {index} has stamp {stamp_ns} ns, not after the previous image's {previous_ns} ns"
+    )]
     StampNotIncreasing {
         /// Index of the refused image in the stream.
         index: u64,
@@ -345,7 +347,7 @@ impl Scorer {
             });
         }
         self.last_stamp_ns = Some(input.stamp_ns);
-        if index % self.config.stride as u64 != 0 {
+        if !index.is_multiple_of(self.config.stride as u64) {
             return Ok(None);
         }
         let mut timings = StageTimings::default();
@@ -523,10 +525,8 @@ impl Scorer {
         };
         let p = predictor.params();
         let history = predictor.frames_seen();
-        let prediction = predictor.push(
-            &processed.network_input,
-            processed.network_valid.as_deref(),
-        )?;
+        let prediction =
+            predictor.push(&processed.network_input, processed.network_valid.as_deref())?;
         let full_history = history >= (p.a + p.b) as u64;
         Ok(match prediction {
             Prediction::Scored(s) if full_history => (
@@ -568,8 +568,8 @@ impl BodyState {
 
 /// Whether the model was trained on the flow variant the pipeline computes.
 fn same_variant(model: crate::model::FlowVariant, pipeline: super::FlowVariant) -> bool {
-    use crate::model::FlowVariant as M;
     use super::FlowVariant as P;
+    use crate::model::FlowVariant as M;
     matches!(
         (model, pipeline),
         (M::Plain, P::Plain)

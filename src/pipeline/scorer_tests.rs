@@ -45,8 +45,10 @@ fn setup() -> RobotSetup {
 }
 
 fn scorer(robot: Option<RobotSetup>, thresholds: Thresholds, stride: usize) -> Scorer {
-    let mut config = PipelineConfig::default();
-    config.stride = stride;
+    let mut config = PipelineConfig {
+        stride,
+        ..PipelineConfig::default()
+    };
     config.frames.width = W;
     config.frames.height = H;
     Scorer::new(ScorerParts {
@@ -64,7 +66,7 @@ fn scorer(robot: Option<RobotSetup>, thresholds: Thresholds, stride: usize) -> S
         seed: 0,
         thresholds,
         // Alarm on any triggered frame.
-        alarm_threshold: crate::eval::fuse::TRIGGER_BASE,
+        alarm_threshold: crate::eval::TRIGGER_BASE,
         heatmaps: false,
     })
     .unwrap()
@@ -151,7 +153,10 @@ fn nominal_pan_gives_small_errors_and_no_trigger() {
     assert_eq!(scores.len(), 5);
     assert!(scores[0].warming_up && scores[0].e_c.is_none());
     let (sx, _) = expected_shift(&setup, 0.0, step);
-    assert!(sx.abs() > 1.0, "the pan moves the image by {sx} px per frame");
+    assert!(
+        sx.abs() > 1.0,
+        "the pan moves the image by {sx} px per frame"
+    );
     for f in &scores[1..] {
         let e_c = f.e_c.unwrap();
         assert!(e_c < 0.3, "nominal e_c {e_c} (frame {})", f.frame);
@@ -204,7 +209,10 @@ fn stride_stamps_and_missing_joints() {
     };
     let first = s.push(&input(0)).unwrap().unwrap();
     assert_eq!((first.index, first.frame), (0, 0));
-    assert!(s.push(&input(10)).unwrap().is_none(), "skipped by the stride");
+    assert!(
+        s.push(&input(10)).unwrap().is_none(),
+        "skipped by the stride"
+    );
     let e = s.push(&input(10)).unwrap_err();
     assert!(
         matches!(e, ScorerError::StampNotIncreasing { index: 2, .. }),

@@ -14,5 +14,5 @@ mod model;
 mod model_trained;
 mod registration_accuracy;
 mod render_cli;
-mod scorer_model;
 mod robot_fk;
+mod scorer_model;
