@@ -539,6 +539,14 @@ impl McapEpisode {
             if lo == u64::MAX {
                 lo = 0;
             }
+            // Nothing readable at all: say where it broke rather than "no topics".
+            if let (Some((offset, reason)), true) = (&broke, topics.is_empty()) {
+                return Err(EpisodeError::Truncated {
+                    path: path.display().to_string(),
+                    offset: *offset,
+                    reason: reason.clone(),
+                });
+            }
             (start_ns, end_ns, damage) = (lo, hi, broke);
         }
         let topics: Vec<TopicInfo> = topics.into_values().collect();
