@@ -3,6 +3,8 @@
 
 // criterion_group! generates undocumented items.
 #![allow(missing_docs)]
+// Bench set-up may unwrap: a failure is a bench failure.
+#![allow(clippy::unwrap_used)]
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use std::hint::black_box;

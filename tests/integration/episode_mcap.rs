@@ -34,10 +34,10 @@ fn read_all(ep: &McapEpisode) -> (Vec<EpisodeFrame>, Vec<EpisodeError>) {
 
 /// Pixel tolerance: raw encodings are converted with the same formula in f32 (Python uses
 /// f64), so 1e-3 grey levels; JPEG goes through a different decoder here (the `image`
-/// crate) than in Python (libjpeg via Pillow), whose IDCT and chroma upsampling differ
-/// by a few levels.
+/// crate) than in Python (libjpeg via Pillow), whose IDCT and chroma upsampling differ:
+/// measured up to ~1.4 grey levels on these fixtures (quality 95), so 2.
 fn pixel_tolerance(encoding: &str) -> f64 {
-    if encoding == "jpeg" { 6.0 } else { 1e-3 }
+    if encoding == "jpeg" { 2.0 } else { 1e-3 }
 }
 
 fn check_frame(bag: &str, encoding: &str, got: &EpisodeFrame, want: &Value) {
