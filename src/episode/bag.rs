@@ -283,6 +283,8 @@ enum MessageSource {
         channels: HashMap<u16, ChannelMeta>,
         buf: Vec<u8>,
         file_len: u64,
+        /// Offset of the chunk requested last (where an index-based read breaks).
+        last_chunk: u64,
     },
     Linear(Box<LinearScan>),
 }
@@ -422,6 +424,7 @@ impl MessageSource {
                 channels,
                 buf,
                 file_len,
+                last_chunk,
             } => {
                 let mut f = f;
                 loop {
@@ -429,7 +432,7 @@ impl MessageSource {
                         Err(e) => {
                             return Some(Err(EpisodeError::Truncated {
                                 path: path.display().to_string(),
-                                offset: 0,
+                                offset: *last_chunk,
                                 reason: e.to_string(),
                             }));
                         }
@@ -448,6 +451,7 @@ impl MessageSource {
                             (offset, length)
                         }
                     };
+                    *last_chunk = offset;
                     let broken = |reason: String| {
                         Some(Err(EpisodeError::Truncated {
                             path: path.display().to_string(),
@@ -538,6 +542,14 @@ impl McapEpisode {
             }
             if lo == u64::MAX {
                 lo = 0;
+            }
+            // Nothing readable at all: say where it broke rather than "no topics".
+            if let (Some((offset, reason)), true) = (&broke, topics.is_empty()) {
+                return Err(EpisodeError::Truncated {
+                    path: path.display().to_string(),
+                    offset: *offset,
+                    reason: reason.clone(),
+                });
             }
             (start_ns, end_ns, damage) = (lo, hi, broke);
         }
@@ -631,6 +643,7 @@ impl McapEpisode {
                     channels,
                     buf: Vec::new(),
                     file_len,
+                    last_chunk: 0,
                 })
             }
             None => Ok(MessageSource::Linear(Box::new(LinearScan::new(

@@ -9,6 +9,7 @@
 //! - [`writer`]: [`ScoreBagWriter`], MCAP output with images and score topics.
 //! - [`cdr`], [`ros`]: the CDR encoding and the ROS 2 messages vamos reads and writes.
 //! - [`labels`]: evaluation labels (`<stem>.labels.json` or a label topic).
+//! - [`synthetic`]: synthetic bags (images, joint states, URDF) for tests and benches.
 //!
 //! Typical use:
 //! ```no_run
@@ -33,6 +34,7 @@ pub mod folder;
 pub mod joints;
 pub mod labels;
 pub mod ros;
+pub mod synthetic;
 pub mod writer;
 
 pub use bag::{

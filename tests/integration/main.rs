@@ -6,6 +6,7 @@
 mod architecture;
 mod camera_motion;
 mod cli;
+mod episode_mcap;
 mod eval_metrics;
 mod export_dataset;
 mod flow_accuracy;
