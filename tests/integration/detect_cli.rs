@@ -1,0 +1,307 @@
+//! `vamos score`, `vamos calibrate` and `vamos eval` end to end on simulated episodes
+//! (tests/fixtures/sim, made by `vamos-sim`; see make_fixture.sh): the robot from its
+//! URDF, the camera from camera.json, the real MCAP bags with labels.
+
+use serde_json::Value;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use vamos::episode::{EpisodeConfig, Labels, McapEpisode};
+
+const PROFILE: &str = r#"name = "sim-arm"
+robot = "robot/vamos_arm.urdf"
+camera = "camera.json"
+flow_preset = "realtime"
+alarm = "max"
+[pipeline]
+stride = 1
+[pipeline.frames]
+width = 160
+height = 120
+variant = "masked"
+"#;
+
+fn fixture() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/sim")
+}
+
+/// The fixture copied into a temporary folder (calibration is written beside the profile).
+fn workspace() -> tempfile::TempDir {
+    let dir = tempfile::tempdir().unwrap();
+    copy_dir(&fixture(), dir.path());
+    std::fs::write(dir.path().join("profile.toml"), PROFILE).unwrap();
+    dir
+}
+
+fn copy_dir(from: &Path, to: &Path) {
+    for entry in std::fs::read_dir(from).unwrap() {
+        let entry = entry.unwrap();
+        let target = to.join(entry.file_name());
+        if entry.file_type().unwrap().is_dir() {
+            std::fs::create_dir_all(&target).unwrap();
+            copy_dir(&entry.path(), &target);
+        } else {
+            std::fs::copy(entry.path(), target).unwrap();
+        }
+    }
+}
+
+fn vamos(dir: &Path, args: &[&str]) -> (String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_vamos"))
+        .current_dir(dir)
+        .args(args)
+        .env("VAMOS_LOG__LEVEL", "warn")
+        .output()
+        .unwrap();
+    let (stdout, stderr) = (
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    );
+    assert!(out.status.success(), "vamos {args:?} failed:\n{stderr}");
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    (stdout, stderr)
+}
+
+fn jsonl(path: &Path) -> Vec<Value> {
+    std::fs::read_to_string(path)
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect()
+}
+
+fn max_of(frames: &[Value], key: &str) -> f64 {
+    frames
+        .iter()
+        .filter_map(|f| f[key].as_f64())
+        .fold(f64::NEG_INFINITY, f64::max)
+}
+
+#[test]
+fn score_calibrate_eval_on_simulated_episodes() {
+    let ws = workspace();
+    let dir = ws.path();
+
+    // 1. Uncalibrated scores of the training episodes: no thresholds, no alarms.
+    let (stdout, _) = vamos(
+        dir,
+        &[
+            "score",
+            "--profile",
+            "profile.toml",
+            "train",
+            "-o",
+            "train_scores",
+        ],
+    );
+    let summaries: Vec<Value> = stdout
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    assert_eq!(summaries.len(), 2);
+    let mut train_frames = Vec::new();
+    for s in &summaries {
+        assert_eq!(s["alarms"], 0);
+        assert_eq!(s["no_joint_states"], false);
+        let frames = jsonl(&dir.join(format!(
+            "train_scores/{}.scores.jsonl",
+            s["episode"].as_str().unwrap()
+        )));
+        assert_eq!(frames.len() as u64, s["frames"].as_u64().unwrap());
+        assert!(frames.len() > 20);
+        // Every frame after the first has e_c and (the arm is in view) e_b.
+        assert!(
+            frames[1..]
+                .iter()
+                .all(|f| f["e_c"].is_f64() && f["e_b"].is_f64())
+        );
+        train_frames.extend(frames);
+    }
+
+    // 2. Calibration: the e_c and e_b thresholds are the training maxima (checked against
+    // the scores above); the conformal threshold from one held-out episode at alpha 0.5
+    // is just above that episode's largest fused score.
+    let (stdout, _) = vamos(
+        dir,
+        &[
+            "calibrate",
+            "--profile",
+            "profile.toml",
+            "train",
+            "--holdout",
+            "test/test_0000.mcap",
+            "--alpha",
+            "0.5",
+        ],
+    );
+    let cal: Value = serde_json::from_str(&stdout).unwrap();
+    let e_c = cal["thresholds"]["e_c"].as_f64().unwrap();
+    let e_b = cal["thresholds"]["e_b"].as_f64().unwrap();
+    assert_eq!(e_c, max_of(&train_frames, "e_c"));
+    assert_eq!(e_b, max_of(&train_frames, "e_b"));
+    assert_eq!(
+        cal["training_frames"].as_u64().unwrap(),
+        train_frames.len() as u64
+    );
+    let saved: Value = serde_json::from_str(
+        &std::fs::read_to_string(dir.join("profile.calibration.json")).unwrap(),
+    )
+    .unwrap();
+    assert_eq!(saved, cal);
+    let conformal = &cal["conformal"];
+    assert_eq!(conformal["n"], 1);
+    assert_eq!(conformal["rank_k"], 1);
+
+    // 3. Calibrated scores of the nominal held-out episode, with a scored bag.
+    let (stdout, _) = vamos(
+        dir,
+        &[
+            "score",
+            "--profile",
+            "profile.toml",
+            "test/test_0000.mcap",
+            "-o",
+            "out",
+            "--mcap",
+        ],
+    );
+    let summary: Value = serde_json::from_str(stdout.trim()).unwrap();
+    let nominal = jsonl(&dir.join("out/test_0000.scores.jsonl"));
+    let nominal_max = max_of(&nominal, "score");
+    assert_eq!(conformal["order_statistic"].as_f64().unwrap(), nominal_max);
+    assert!(conformal["threshold"].as_f64().unwrap() > nominal_max);
+    // The scored bag: the input images and one score per frame, readable by the reader.
+    let bag = McapEpisode::open(
+        &dir.join("out/test_0000.scored.mcap"),
+        &EpisodeConfig::default(),
+    )
+    .unwrap();
+    let info = bag.info();
+    let count = |topic: &str| {
+        info.topics
+            .iter()
+            .find(|t| t.name == topic)
+            .map_or(0, |t| t.message_count)
+    };
+    assert_eq!(
+        count("/vamos/score") as u64,
+        summary["frames"].as_u64().unwrap()
+    );
+    assert_eq!(count("/vamos/anomaly"), count("/vamos/score"));
+    assert_eq!(count("/camera/image_raw"), count("/vamos/score"));
+
+    // 4. Evaluation on the labelled test episodes.
+    let (stdout, _) = vamos(
+        dir,
+        &[
+            "eval",
+            "--profile",
+            "profile.toml",
+            "--episodes",
+            "test",
+            "--json",
+            "report.json",
+            "--plots",
+            "plots",
+        ],
+    );
+    let report: Value = serde_json::from_str(&stdout).unwrap();
+    let file: Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("report.json")).unwrap()).unwrap();
+    assert_eq!(report, file);
+    for key in [
+        "auc_roc",
+        "auc_pr",
+        "frames",
+        "anomalous_frames",
+        "episode_false_alarm_rate",
+        "median_detection_delay_s",
+        "per_type",
+    ] {
+        assert!(report.get(key).is_some(), "report lacks {key}");
+    }
+    // Frame counts, checked against the labels and the per-frame stamps.
+    let (stdout, _) = vamos(
+        dir,
+        &[
+            "score",
+            "--profile",
+            "profile.toml",
+            "test",
+            "-o",
+            "test_scores",
+        ],
+    );
+    let mut frames = 0;
+    let mut anomalous = 0;
+    for line in stdout.lines() {
+        let s: Value = serde_json::from_str(line).unwrap();
+        let name = s["episode"].as_str().unwrap();
+        let labels = Labels::load_for(&dir.join(format!("test/{name}.mcap")))
+            .unwrap()
+            .unwrap();
+        for f in jsonl(&dir.join(format!("test_scores/{name}.scores.jsonl"))) {
+            frames += 1;
+            if labels.is_anomalous(f["stamp_ns"].as_i64().unwrap()) {
+                anomalous += 1;
+            }
+        }
+    }
+    assert_eq!(report["frames"], frames);
+    assert_eq!(report["anomalous_frames"], anomalous);
+    assert!(anomalous > 5);
+    // The push shakes the camera while the joint states stay calm: the camera detector
+    // finds it and ranks its frames high.
+    let push = &report["per_type"]["external_push"];
+    assert_eq!(push["detection_rate"], 1.0);
+    assert!(push["auc_roc"].as_f64().unwrap() > 0.8, "{push}");
+    for png in ["roc.png", "pr.png", "test_0001_external_push.png"] {
+        let img = image::open(dir.join("plots").join(png)).unwrap();
+        assert!(img.width() >= 64 && img.height() >= 64);
+    }
+}
+
+#[test]
+fn bad_profiles_and_missing_labels_are_clear_errors() {
+    let ws = workspace();
+    let dir = ws.path();
+    let run = |args: &[&str]| {
+        let out = Command::new(env!("CARGO_BIN_EXE_vamos"))
+            .current_dir(dir)
+            .args(args)
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+        assert!(!out.status.success());
+        assert!(!stderr.contains("panicked"), "{stderr}");
+        stderr
+    };
+    std::fs::write(
+        dir.join("bad.toml"),
+        "name = \"x\"\nrobot = \"robot/vamos_arm.urdf\"\n",
+    )
+    .unwrap();
+    let e = run(&["score", "--profile", "bad.toml", "test"]);
+    assert!(e.contains("no camera"), "{e}");
+    std::fs::write(dir.join("typo.toml"), "name = \"x\"\nmodle = \"m.vamos\"\n").unwrap();
+    let e = run(&["score", "--profile", "typo.toml", "test"]);
+    assert!(e.contains("modle"), "{e}");
+    // Episodes without labels cannot be evaluated.
+    std::fs::remove_file(dir.join("test/test_0000.labels.json")).unwrap();
+    let e = run(&[
+        "eval",
+        "--profile",
+        "profile.toml",
+        "--episodes",
+        "test/test_0000.mcap",
+    ]);
+    assert!(e.contains("no labels"), "{e}");
+    let e = run(&[
+        "score",
+        "--profile",
+        "profile.toml",
+        "empty_dir_does_not_exist.mcap",
+    ]);
+    assert!(e.contains("empty_dir_does_not_exist"), "{e}");
+    let e = run(&["score", "--profile", "profile.toml", "test", "--mcap"]);
+    assert!(e.contains("--out"), "{e}");
+}
