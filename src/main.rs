@@ -172,6 +172,10 @@ enum Command {
         /// Output folder.
         #[arg(short, long)]
         out: PathBuf,
+        /// Take the robot, camera, pipeline parameters, TV-L1 preset and topics from this
+        /// profile (the flags below still override).
+        #[arg(long)]
+        profile: Option<PathBuf>,
         /// Flow variant: plain, registered, masked or masked_registered (default:
         /// `pipeline.frames.variant`). Masked variants need --robot and --camera.
         #[arg(long)]
@@ -374,9 +378,10 @@ fn run(cli: Cli) -> Result<()> {
         Command::ExportDataset {
             episodes,
             out,
+            profile,
             variant,
-            robot,
-            camera,
+            mut robot,
+            mut camera,
             max_joint_gap_ms,
             stride,
             fps,
@@ -384,6 +389,21 @@ fn run(cli: Cli) -> Result<()> {
             threads,
         } => {
             let threads = resolve_threads(threads.unwrap_or(settings.vision.threads));
+            let mut settings = settings.clone();
+            if let Some(path) = &profile {
+                let p = vamos::pipeline::Profile::load(path)?;
+                if let Some(pipeline) = p.file.pipeline {
+                    settings.pipeline = pipeline;
+                }
+                if let Some(preset) = &p.file.flow_preset {
+                    settings.vision.flow = vamos::vision::flow::FlowParams::preset(preset)?;
+                }
+                if let Some(topics) = p.file.topics {
+                    settings.episode.topics = topics;
+                }
+                robot = robot.or(p.file.robot);
+                camera = camera.or(p.file.camera);
+            }
             let opts = cli::export::ExportOptions {
                 episodes,
                 out,

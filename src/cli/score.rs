@@ -7,7 +7,7 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use vamos::config::Settings;
-use vamos::episode::{EpisodeFrame, ImageData, McapEpisode, ScoreBagWriter};
+use vamos::episode::{EpisodeConfig, EpisodeFrame, ImageData, McapEpisode, ScoreBagWriter};
 use vamos::eval::Thresholds;
 use vamos::model::FlowModel;
 use vamos::pipeline::offline::{EpisodeScores, score_episode};
@@ -29,6 +29,9 @@ pub struct Setup {
     pub robot: Option<RobotSetup>,
     /// The model, if the profile has one.
     pub model: Option<Arc<FlowModel>>,
+    /// How bags are read (the settings' `[episode]`, topics from the profile if it has
+    /// them).
+    pub episode: EpisodeConfig,
 }
 
 impl Setup {
@@ -72,8 +75,13 @@ impl Setup {
             )),
             None => None,
         };
+        let mut episode = settings.episode.clone();
+        if let Some(topics) = &profile.file.topics {
+            episode.topics = topics.clone();
+        }
         Ok(Self {
             settings: settings.clone(),
+            episode,
             profile,
             config,
             flow,
@@ -125,7 +133,7 @@ impl Setup {
         let results: Vec<Result<EpisodeScores>> = episodes
             .par_iter()
             .map(|path| {
-                let episode = McapEpisode::open(path, &self.settings.episode)
+                let episode = McapEpisode::open(path, &self.episode)
                     .with_context(|| format!("episode {}", path.display()))?;
                 let heatmaps = output.is_some_and(|o| o.mcap);
                 let mut scorer = self.scorer(

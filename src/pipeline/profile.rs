@@ -11,12 +11,15 @@
 //! alarm = "conformal"             # which calibrated threshold sets the anomaly flag
 //! [pipeline]                      # optional; absent = the settings' [pipeline]
 //! stride = 1
+//! [topics]                        # optional; absent = the settings' [episode.topics]
+//! image = "/head_camera/image_raw"
 //! ```
 //!
 //! `vamos calibrate` writes the thresholds beside it, as `<stem>.calibration.json`
 //! ([`Calibration`]), which [`Profile::load`] reads back when present.
 
 use super::PipelineConfig;
+use crate::episode::EpisodeTopics;
 use crate::eval::{ConformalThreshold, Thresholds};
 use crate::robot::CameraSpec;
 use serde::{Deserialize, Serialize};
@@ -80,6 +83,9 @@ pub struct ProfileFile {
     /// Pipeline parameters.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub pipeline: Option<PipelineConfig>,
+    /// Topic names of this robot's bags (absent: the settings' `[episode.topics]`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub topics: Option<EpisodeTopics>,
 }
 
 /// Thresholds and how they were obtained (`<profile>.calibration.json`).
@@ -246,7 +252,7 @@ mod tests {
         std::fs::write(
             &path,
             "name = \"p\"\nrobot = \"r.urdf\"\ncamera = \"camera.json\"\nalarm = \"max\"\n\
-             [pipeline]\nstride = 3\n",
+             [pipeline]\nstride = 3\n[topics]\nimage = \"/head/image\"\n",
         )
         .unwrap();
         let mut p = Profile::load(&path).unwrap();
@@ -256,6 +262,8 @@ mod tests {
         );
         assert_eq!(p.camera.as_ref().unwrap().width, 320);
         assert_eq!(p.file.pipeline.as_ref().unwrap().stride, 3);
+        let topics = p.file.topics.as_ref().unwrap();
+        assert_eq!(topics.image.as_deref(), Some("/head/image"));
         assert!(p.calibration.is_none());
         assert_eq!(p.alarm_threshold(), f64::INFINITY);
         let cal = Calibration {

@@ -182,10 +182,7 @@ fn score_calibrate_eval_on_simulated_episodes() {
             .find(|t| t.name == topic)
             .map_or(0, |t| t.message_count)
     };
-    assert_eq!(
-        count("/vamos/score") as u64,
-        summary["frames"].as_u64().unwrap()
-    );
+    assert_eq!(count("/vamos/score"), summary["frames"].as_u64().unwrap());
     assert_eq!(count("/vamos/anomaly"), count("/vamos/score"));
     assert_eq!(count("/camera/image_raw"), count("/vamos/score"));
 
