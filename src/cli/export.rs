@@ -1,6 +1,7 @@
 //! `vamos export-dataset`: the flow predictor's training data, made by the same front end
 //! the detector runs (docs/model-bundle.md).
 
+use super::score::mcap_files_in;
 use anyhow::{Context, Result, bail};
 use std::path::{Path, PathBuf};
 use vamos::config::Settings;
@@ -60,8 +61,7 @@ impl BodyMasker {
         let spec: CameraSpec = serde_json::from_str(&text)
             .with_context(|| format!("{} must be a camera description", camera.display()))?;
         let intrinsics = spec.intrinsics()?.scaled_to(width as u32, height as u32)?;
-        let mut mount = robot.camera(&spec.frame, spec.convention)?;
-        mount.link_from_optical = spec.frame_from_camera() * mount.link_from_optical;
+        let mount = robot.camera_for(&spec)?;
         let mut renderer = create_renderer(&settings.render)?;
         renderer.prepare(robot.link_meshes())?;
         Ok(Self {
@@ -270,19 +270,16 @@ fn export_episode(
 fn expand_bags(paths: &[PathBuf]) -> Result<Vec<PathBuf>> {
     let mut out = Vec::new();
     for p in paths {
-        if p.is_dir() {
-            let mut bags: Vec<PathBuf> = std::fs::read_dir(p)
-                .with_context(|| format!("cannot list {}", p.display()))?
-                .filter_map(|e| e.ok().map(|e| e.path()))
-                .filter(|f| f.extension().is_some_and(|x| x == "mcap"))
-                .collect();
-            if !bags.is_empty() {
-                bags.sort();
-                out.extend(bags);
-                continue;
-            }
+        let bags = if p.is_dir() {
+            mcap_files_in(p)?
+        } else {
+            Vec::new()
+        };
+        if bags.is_empty() {
+            out.push(p.clone());
+        } else {
+            out.extend(bags);
         }
-        out.push(p.clone());
     }
     Ok(out)
 }

@@ -53,10 +53,9 @@ pub fn run(
         });
         k = k.scaled_to(w, h)?;
     }
-    let mut mount = robot
-        .camera(&spec.frame, spec.convention)
+    let mount = robot
+        .camera_for(&spec)
         .with_context(|| format!("camera link {:?}", spec.frame))?;
-    mount.link_from_optical = spec.frame_from_camera() * mount.link_from_optical;
     let mut mapper = robot.joint_mapper();
     let mut pose_of = |path: &Path| -> Result<_> {
         let given: Map<String, Value> = read_json(path, "a JSON object of joint name -> position")?;

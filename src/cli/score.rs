@@ -54,8 +54,7 @@ impl Setup {
                 for w in robot.warnings() {
                     tracing::warn!(robot = %path.display(), "{w}");
                 }
-                let mut mount = robot.camera(&spec.frame, spec.convention)?;
-                mount.link_from_optical = spec.frame_from_camera() * mount.link_from_optical;
+                let mount = robot.camera_for(spec)?;
                 Some(RobotSetup {
                     robot: Arc::new(robot),
                     mount,
@@ -183,12 +182,7 @@ pub fn expand_episodes(paths: &[PathBuf]) -> Result<Vec<PathBuf>> {
     let mut out = Vec::new();
     for p in paths {
         if p.is_dir() {
-            let mut found: Vec<PathBuf> = std::fs::read_dir(p)
-                .with_context(|| format!("cannot list {}", p.display()))?
-                .filter_map(|e| e.ok().map(|e| e.path()))
-                .filter(|f| f.extension().is_some_and(|x| x == "mcap"))
-                .collect();
-            found.sort();
+            let found = mcap_files_in(p)?;
             if found.is_empty() {
                 bail!("{} holds no .mcap episodes", p.display());
             }
@@ -201,6 +195,17 @@ pub fn expand_episodes(paths: &[PathBuf]) -> Result<Vec<PathBuf>> {
         bail!("no episodes given");
     }
     Ok(out)
+}
+
+/// The `.mcap` files directly inside `dir`, sorted.
+pub fn mcap_files_in(dir: &Path) -> Result<Vec<PathBuf>> {
+    let mut found: Vec<PathBuf> = std::fs::read_dir(dir)
+        .with_context(|| format!("cannot list {}", dir.display()))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|f| f.extension().is_some_and(|x| x == "mcap"))
+        .collect();
+    found.sort();
+    Ok(found)
 }
 
 /// Scores one episode writing `<name>.scores.jsonl` and, if asked, `<name>.scored.mcap`.

@@ -12,7 +12,7 @@
 //! A mesh that cannot be found, read or parsed, or is over a cap, is left out with a
 //! warning naming it ([`Robot::warnings`]); the robot still loads.
 
-use super::camera::CameraConvention;
+use super::camera::{CameraConvention, CameraSpec};
 use super::config::RobotConfig;
 use super::error::RobotError;
 use super::geometry::{LinkMesh, TriMesh};
@@ -337,6 +337,14 @@ impl Robot {
         convention: CameraConvention,
     ) -> Result<CameraMount, RobotError> {
         self.kinematics.camera(frame, convention)
+    }
+
+    /// The mount of the camera a [`CameraSpec`] describes: its frame and convention, with
+    /// the spec's optional offset applied on top.
+    pub fn camera_for(&self, spec: &CameraSpec) -> Result<CameraMount, RobotError> {
+        let mut mount = self.camera(&spec.frame, spec.convention)?;
+        mount.link_from_optical = spec.frame_from_camera() * mount.link_from_optical;
+        Ok(mount)
     }
 
     /// `camera_from_base` (optical frame) of the camera link `frame` at `q`.
