@@ -21,6 +21,8 @@ if [ ! -x .venv/bin/python ]; then
         exit 1
     fi
 fi
+# No pip cache: the wheels would take another ~3 GB beside the installed packages.
+export PIP_NO_CACHE_DIR=1
 .venv/bin/python -m pip install --quiet --upgrade pip
 .venv/bin/python -m pip install --quiet './clients/python[train,sim,test]'
 
