@@ -26,5 +26,7 @@ pub mod eval;
 pub mod model;
 pub mod pipeline;
 pub mod robot;
+pub mod service;
+pub mod setup;
 pub mod telemetry;
 pub mod vision;

@@ -8,7 +8,7 @@
 //!    threshold on their per-episode maximum fused score bounds the episode-level false-
 //!    alarm probability by `alpha` ([`vamos::eval::conformal_threshold`]).
 
-use super::score::{Setup, expand_episodes};
+use super::score::{ScoreAll, Setup, expand_episodes};
 use anyhow::Result;
 use std::path::{Path, PathBuf};
 use std::time::{SystemTime, UNIX_EPOCH};

@@ -1,7 +1,7 @@
 //! `vamos eval`: frame-level AUCs, episode false alarms and detection delays on labelled
 //! episodes, plots, and the paper's ablation table.
 
-use super::score::{Setup, expand_episodes};
+use super::score::{ScoreAll, Setup, expand_episodes};
 use anyhow::{Context, Result, bail};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};

@@ -7,118 +7,30 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use vamos::config::Settings;
-use vamos::episode::{EpisodeConfig, EpisodeFrame, ImageData, McapEpisode, ScoreBagWriter};
+use vamos::episode::{EpisodeFrame, ImageData, McapEpisode, ScoreBagWriter};
 use vamos::eval::Thresholds;
 use vamos::model::FlowModel;
 use vamos::pipeline::offline::{EpisodeScores, score_episode};
-use vamos::pipeline::{FrameScore, PipelineConfig, Profile, RobotSetup, Scorer, ScorerParts};
-use vamos::robot::Robot;
-use vamos::vision::flow::FlowParams;
+use vamos::pipeline::{FrameScore, PipelineConfig, Scorer};
+pub use vamos::setup::Setup;
 
-/// A profile with its robot and model loaded, ready to make scorers.
-pub struct Setup {
-    /// The settings.
-    pub settings: Settings,
-    /// The profile.
-    pub profile: Profile,
-    /// Pipeline parameters in force (the profile's, else the settings').
-    pub config: PipelineConfig,
-    /// TV-L1 parameters in force.
-    pub flow: FlowParams,
-    /// The robot, if the profile has one.
-    pub robot: Option<RobotSetup>,
-    /// The model, if the profile has one.
-    pub model: Option<Arc<FlowModel>>,
-    /// How bags are read (the settings' `[episode]`, topics from the profile if it has
-    /// them).
-    pub episode: EpisodeConfig,
-}
-
-impl Setup {
-    /// Loads `profile` with its robot, camera and model.
-    pub fn load(settings: &Settings, profile: &Path) -> Result<Self> {
-        let profile = Profile::load(profile)?;
-        let config = profile
-            .file
-            .pipeline
-            .clone()
-            .unwrap_or_else(|| settings.pipeline.clone());
-        let flow = match &profile.file.flow_preset {
-            Some(p) => FlowParams::preset(p)?,
-            None => settings.vision.flow.clone(),
-        };
-        let robot = match (&profile.file.robot, &profile.camera) {
-            (Some(path), Some(spec)) => {
-                let robot = Robot::load(path, &settings.robot)
-                    .with_context(|| format!("cannot load robot {}", path.display()))?;
-                for w in robot.warnings() {
-                    tracing::warn!(robot = %path.display(), "{w}");
-                }
-                let mount = robot.camera_for(spec)?;
-                Some(RobotSetup {
-                    robot: Arc::new(robot),
-                    mount,
-                    intrinsics: spec.intrinsics().ok(),
-                })
-            }
-            (Some(_), None) => bail!(
-                "profile {} names a robot but no camera: add `camera = \"camera.json\"`",
-                profile.path.display()
-            ),
-            (None, _) => None,
-        };
-        let model = match &profile.file.model {
-            Some(path) => Some(Arc::new(
-                FlowModel::load(path, &settings.model.load_options())
-                    .with_context(|| format!("cannot load model {}", path.display()))?,
-            )),
-            None => None,
-        };
-        let mut episode = settings.episode.clone();
-        if let Some(topics) = &profile.file.topics {
-            episode.topics = topics.clone();
-        }
-        Ok(Self {
-            settings: settings.clone(),
-            episode,
-            profile,
-            config,
-            flow,
-            robot,
-            model,
-        })
-    }
-
-    /// A scorer for the episode (or session) `key`, with `config` (default: the profile's)
-    /// and `model` (default: the profile's).
-    pub fn scorer(
+/// Scoring many episodes with one profile.
+pub trait ScoreAll {
+    /// Scores `episodes` in parallel (one scorer each), printing progress as each
+    /// finishes. Episodes that cannot be opened are errors.
+    fn score_all(
         &self,
-        key: &str,
+        episodes: &[PathBuf],
         thresholds: Thresholds,
         alarm_threshold: f64,
-        heatmaps: bool,
         config: Option<&PipelineConfig>,
         model: Option<&Arc<FlowModel>>,
-    ) -> Result<Scorer> {
-        Ok(Scorer::new(ScorerParts {
-            config: config.unwrap_or(&self.config).clone(),
-            flow: self.flow.clone(),
-            registration: self.settings.vision.registration.clone(),
-            network: self.settings.vision.network_input.clone(),
-            render: self.settings.render.clone(),
-            robot: self.robot.clone(),
-            model: model.or(self.model.as_ref()).cloned(),
-            samples: self.settings.model.samples,
-            seed: self.settings.model.session_seed(key),
-            thresholds,
-            alarm_threshold,
-            heatmaps,
-        })?)
-    }
+        output: Option<&OutputOptions>,
+    ) -> Result<Vec<EpisodeScores>>;
+}
 
-    /// Scores `episodes` in parallel (one scorer each); `per_episode` runs on each result
-    /// as it finishes (e.g. to print progress). Episodes that cannot be opened are errors.
-    pub fn score_all(
+impl ScoreAll for Setup {
+    fn score_all(
         &self,
         episodes: &[PathBuf],
         thresholds: Thresholds,

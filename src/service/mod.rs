@@ -1,0 +1,3 @@
+//! The service: gRPC streaming sessions, REST administration, metrics.
+
+pub mod proto;
