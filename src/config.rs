@@ -12,6 +12,7 @@ use crate::model::ModelConfig;
 use crate::pipeline::PipelineConfig;
 use crate::robot::RobotConfig;
 use crate::robot::render::RenderConfig;
+use crate::service::ServiceConfig;
 use crate::telemetry::LogConfig;
 use crate::vision::flow::FlowParams;
 use crate::vision::preprocess::NetworkInputParams;
@@ -26,11 +27,17 @@ pub const CONFIG_ENV: &str = "VAMOS_CONFIG";
 
 /// `VAMOS_*` variables that are not settings keys: the settings file, the cache folder and
 /// Python interpreter of the ONNX Runtime look-up (`model::runtime`), test and bench knobs
-/// (`VAMOS_SKIP_*`, `VAMOS_BENCH_*`, `VAMOS_BIN`: the binary the Python tests run).
+/// (`VAMOS_SKIP_*`, `VAMOS_BENCH_*`, `VAMOS_BIN`: the binary the Python tests run), and
+/// the service's plain tokens (`VAMOS_ADMIN_TOKEN`, `VAMOS_ROBOT_TOKEN`).
 pub fn is_reserved_env(name: &str) -> bool {
     matches!(
         name,
-        CONFIG_ENV | "VAMOS_CACHE_DIR" | "VAMOS_PYTHON" | "VAMOS_BIN"
+        CONFIG_ENV
+            | "VAMOS_CACHE_DIR"
+            | "VAMOS_PYTHON"
+            | "VAMOS_BIN"
+            | "VAMOS_ADMIN_TOKEN"
+            | "VAMOS_ROBOT_TOKEN"
     ) || name.starts_with("VAMOS_SKIP_")
         || name.starts_with("VAMOS_BENCH_")
 }
@@ -81,6 +88,8 @@ pub struct Settings {
     pub model: ModelConfig,
     /// Recorded episodes (ROS 2 bags in MCAP): topics, joint-gap warning, size caps.
     pub episode: EpisodeConfig,
+    /// The server (`vamos serve`).
+    pub service: ServiceConfig,
 }
 
 impl Settings {

@@ -99,6 +99,23 @@ enum Command {
         #[arg(long)]
         timing: bool,
     },
+    /// Run the service: gRPC streaming sessions, REST administration, /metrics. Stops
+    /// gracefully on SIGTERM or Ctrl-C.
+    Serve {
+        /// gRPC address (default from the settings: 127.0.0.1:8081).
+        #[arg(long)]
+        grpc_addr: Option<String>,
+        /// REST and /metrics address (default 127.0.0.1:8080); the gRPC address serves
+        /// both on one port.
+        #[arg(long)]
+        rest_addr: Option<String>,
+        /// Data directory (models, robots, profiles, calibrations).
+        #[arg(long)]
+        data_dir: Option<PathBuf>,
+        /// Profile files to serve (TOML, as `vamos score --profile` takes); repeatable.
+        #[arg(long = "profile")]
+        profiles: Vec<PathBuf>,
+    },
     /// Score recorded episodes (ROS 2 bags in MCAP) with a profile: one JSON summary line
     /// per episode; with --out the per-frame scores (JSON lines) and, with --mcap, a bag of
     /// the images plus score topics for Foxglove or `ros2 bag play`.
@@ -335,6 +352,29 @@ fn run(cli: Cli) -> Result<()> {
         },
         Command::Config => {
             print!("{}", toml::to_string_pretty(&settings)?);
+            Ok(())
+        }
+        Command::Serve {
+            grpc_addr,
+            rest_addr,
+            data_dir,
+            profiles,
+        } => {
+            if let Some(a) = grpc_addr {
+                settings.service.grpc_addr = a;
+            }
+            if let Some(a) = rest_addr {
+                settings.service.rest_addr = a;
+            }
+            if let Some(d) = data_dir {
+                settings.service.data_dir = d;
+            }
+            settings.service.profiles.extend(profiles);
+            let runtime = tokio::runtime::Builder::new_multi_thread()
+                .enable_all()
+                .build()
+                .context("cannot start the async runtime")?;
+            runtime.block_on(vamos::service::serve(settings))?;
             Ok(())
         }
         Command::Score {

@@ -120,12 +120,7 @@ impl JointTrack {
 /// Interpolates row-major samples (`rows`: `stamps_ns.len()` rows of `n` values, stamps
 /// ascending, at least one) to `stamp_ns`: linear between the two samples around it, the
 /// nearest sample outside the span; `gap_ns` is the distance to the nearest sample.
-pub(crate) fn interpolate_rows(
-    stamps_ns: &[i64],
-    rows: &[f64],
-    n: usize,
-    stamp_ns: i64,
-) -> JointSample {
+pub fn interpolate_rows(stamps_ns: &[i64], rows: &[f64], n: usize, stamp_ns: i64) -> JointSample {
     let s = stamps_ns;
     let row = |i: usize| &rows[i * n..(i + 1) * n];
     if s.is_empty() {

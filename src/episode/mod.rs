@@ -42,7 +42,7 @@ pub use bag::{
     McapEpisode, SourceMessage, TopicInfo,
 };
 pub use folder::{EpisodeError, ImageSequence, SequenceFrame};
-pub use joints::{JointSample, JointTrack};
+pub use joints::{JointSample, JointTrack, interpolate_rows};
 pub use labels::Labels;
 pub use ros::CameraInfoMsg;
 pub use writer::{ImageData, ScoreBagWriter};

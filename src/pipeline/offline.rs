@@ -142,6 +142,9 @@ fn error_index(e: &EpisodeError) -> Option<usize> {
 }
 
 /// Errors after which the reader cannot go on.
-fn is_fatal(e: &EpisodeError) -> bool {
-    matches!(e, EpisodeError::Io { .. } | EpisodeError::Mcap { .. })
+/// Whether an episode error ends the episode (the file is damaged or unreadable) rather
+/// than one frame.
+pub fn is_fatal(e: &EpisodeError) -> bool {
+    matches!(e, EpisodeError::Truncated { .. })
+        || matches!(e, EpisodeError::Io { .. } | EpisodeError::Mcap { .. })
 }

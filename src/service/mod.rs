@@ -1,3 +1,345 @@
-//! The service: gRPC streaming sessions, REST administration, metrics.
+//! The service (`vamos serve`): gRPC streaming sessions (`vamos.v1.Monitor`), gRPC
+//! health and reflection, REST administration and Prometheus metrics, in one process.
+//!
+//! - [`hub`]: sessions, their joint-state buffers and queues, and the worker pool that
+//!   scores all sessions round-robin.
+//! - [`grpc`]: `Monitor.Stream` and `Monitor.ScoreEpisode`.
+//! - [`rest`]: the HTTP API (health, sessions, metrics, administration).
+//! - [`profiles`]: the profiles sessions are scored with.
+//! - [`auth`], [`metrics`], [`config`].
+//!
+//! [`Server::start`] binds the listeners and serves until [`RunningServer::shutdown`]
+//! (or SIGTERM/SIGINT with [`serve`]): new sessions are refused, queued frames are
+//! scored (up to `shutdown_grace_s`), then every stream closes with UNAVAILABLE.
 
+pub mod auth;
+pub mod config;
+pub mod grpc;
+pub mod hub;
+pub mod metrics;
+pub mod profiles;
 pub mod proto;
+pub mod rest;
+
+use crate::config::Settings;
+use auth::Tokens;
+use hub::Hub;
+use metrics::Metrics;
+use profiles::{ProfileCatalog, ProfileLookupError};
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::AtomicBool;
+use std::time::Duration;
+use tokio::net::TcpListener;
+use tonic::Status;
+
+pub use config::{QueuePolicy, ServiceConfig, TlsConfig};
+
+/// Errors of the service.
+#[derive(Debug, thiserror::Error)]
+pub enum ServiceError {
+    /// An address that does not parse or bind.
+    #[error("cannot listen on {addr}: {reason}")]
+    Listen {
+        /// The address.
+        addr: String,
+        /// Why.
+        reason: String,
+    },
+    /// A refused configuration.
+    #[error("invalid service settings: {0}")]
+    Config(String),
+    /// A profile problem.
+    #[error(transparent)]
+    Profile(#[from] ProfileLookupError),
+    /// I/O on the data directory.
+    #[error("{path}: {source}")]
+    Io {
+        /// The path.
+        path: PathBuf,
+        /// The error.
+        source: std::io::Error,
+    },
+    /// The gRPC transport failed.
+    #[error("gRPC server: {0}")]
+    Transport(String),
+}
+
+impl From<ServiceError> for Status {
+    fn from(e: ServiceError) -> Self {
+        match &e {
+            ServiceError::Profile(ProfileLookupError::NotFound { .. }) => {
+                Status::not_found(e.to_string())
+            }
+            ServiceError::Profile(ProfileLookupError::Load { .. }) => {
+                Status::failed_precondition(e.to_string())
+            }
+            _ => Status::internal(e.to_string()),
+        }
+    }
+}
+
+/// State shared by the gRPC and REST handlers.
+pub struct Shared {
+    /// The settings the server started with.
+    pub settings: Settings,
+    /// Sessions and workers.
+    pub hub: Arc<Hub>,
+    /// Profiles.
+    pub profiles: ProfileCatalog,
+    /// Bearer tokens.
+    pub tokens: Tokens,
+    /// Set once when the server begins to stop.
+    pub stop: tokio::sync::watch::Sender<bool>,
+    /// The server is up (listeners bound, profiles loaded).
+    pub ready: AtomicBool,
+}
+
+impl Shared {
+    /// Where uploads are buffered (inside the data directory, so a rename keeps them).
+    pub fn upload_dir(&self) -> PathBuf {
+        self.settings.service.data_dir.join("tmp")
+    }
+
+    /// The metrics.
+    pub fn metrics(&self) -> &Metrics {
+        self.hub.metrics()
+    }
+}
+
+fn is_loopback(addr: &SocketAddr) -> bool {
+    addr.ip().is_loopback()
+}
+
+async fn bind(addr: &str) -> Result<TcpListener, ServiceError> {
+    TcpListener::bind(addr)
+        .await
+        .map_err(|e| ServiceError::Listen {
+            addr: addr.into(),
+            reason: e.to_string(),
+        })
+}
+
+/// A server that is running.
+pub struct RunningServer {
+    /// The gRPC address bound (an ephemeral port resolved).
+    pub grpc_addr: SocketAddr,
+    /// The REST address bound (the same as `grpc_addr` when shared).
+    pub rest_addr: SocketAddr,
+    /// The shared state.
+    pub shared: Arc<Shared>,
+    tasks: Vec<tokio::task::JoinHandle<Result<(), ServiceError>>>,
+    transport_stop: tokio::sync::watch::Sender<bool>,
+}
+
+impl RunningServer {
+    /// Stops: no new sessions, queued frames scored (up to the grace time), streams
+    /// closed with UNAVAILABLE, listeners closed.
+    pub async fn shutdown(self) -> Result<(), ServiceError> {
+        tracing::info!("shutting down");
+        let _ = self.shared.stop.send(true);
+        let hub = self.shared.hub.clone();
+        let grace = Duration::from_secs_f64(self.shared.settings.service.shutdown_grace_s.max(0.0));
+        let _ = tokio::task::spawn_blocking(move || hub.shutdown(grace)).await;
+        let _ = self.transport_stop.send(true);
+        for t in self.tasks {
+            match t.await {
+                Ok(r) => r?,
+                Err(e) => return Err(ServiceError::Transport(e.to_string())),
+            }
+        }
+        tracing::info!("stopped");
+        Ok(())
+    }
+}
+
+/// Builds and starts servers.
+pub struct Server;
+
+impl Server {
+    /// Binds the gRPC and REST listeners and starts serving `profiles`.
+    pub async fn start(
+        settings: Settings,
+        profiles: ProfileCatalog,
+    ) -> Result<RunningServer, ServiceError> {
+        let cfg = settings.service.clone();
+        let tokens = Tokens::new(
+            &cfg.admin_token_sha256,
+            &cfg.robot_token_sha256,
+            std::env::var("VAMOS_ADMIN_TOKEN").ok().as_deref(),
+            std::env::var("VAMOS_ROBOT_TOKEN").ok().as_deref(),
+        )
+        .map_err(|e| ServiceError::Config(e.to_string()))?;
+        let upload = cfg.data_dir.join("tmp");
+        std::fs::create_dir_all(&upload).map_err(|source| ServiceError::Io {
+            path: upload.clone(),
+            source,
+        })?;
+        let shared_port = cfg.grpc_addr == cfg.rest_addr;
+        let grpc_listener = bind(&cfg.grpc_addr).await?;
+        let grpc_addr = grpc_listener
+            .local_addr()
+            .map_err(|e| ServiceError::Listen {
+                addr: cfg.grpc_addr.clone(),
+                reason: e.to_string(),
+            })?;
+        let rest_listener = if shared_port {
+            None
+        } else {
+            Some(bind(&cfg.rest_addr).await?)
+        };
+        let rest_addr = match &rest_listener {
+            Some(l) => l.local_addr().map_err(|e| ServiceError::Listen {
+                addr: cfg.rest_addr.clone(),
+                reason: e.to_string(),
+            })?,
+            None => grpc_addr,
+        };
+        if !tokens.enabled() {
+            let remote = !is_loopback(&grpc_addr) || !is_loopback(&rest_addr);
+            if remote && !cfg.allow_unauthenticated_remote {
+                return Err(ServiceError::Config(
+                    "no tokens are configured (VAMOS_ADMIN_TOKEN, VAMOS_ROBOT_TOKEN or \
+                     [service] *_token_sha256), so the server listens on loopback only; set \
+                     service.allow_unauthenticated_remote = true to override"
+                        .into(),
+                ));
+            }
+            tracing::warn!(
+                "no tokens configured: every caller is admin (listening on {grpc_addr} and {rest_addr})"
+            );
+        }
+        let metrics = Metrics::new();
+        let hub = Hub::start(cfg.clone(), metrics);
+        let (stop, _) = tokio::sync::watch::channel(false);
+        let shared = Arc::new(Shared {
+            settings,
+            hub,
+            profiles,
+            tokens,
+            stop,
+            ready: AtomicBool::new(false),
+        });
+        let (transport_stop, _) = tokio::sync::watch::channel(false);
+        let mut tasks = Vec::new();
+
+        let (health, health_service) = tonic_health::server::health_reporter();
+        health
+            .set_serving::<proto::monitor_server::MonitorServer<grpc::MonitorService>>()
+            .await;
+        let reflection_v1 = tonic_reflection::server::Builder::configure()
+            .register_encoded_file_descriptor_set(proto::FILE_DESCRIPTOR_SET)
+            .register_encoded_file_descriptor_set(tonic_health::pb::FILE_DESCRIPTOR_SET)
+            .build_v1()
+            .map_err(|e| ServiceError::Config(e.to_string()))?;
+        let reflection_v1alpha = tonic_reflection::server::Builder::configure()
+            .register_encoded_file_descriptor_set(proto::FILE_DESCRIPTOR_SET)
+            .register_encoded_file_descriptor_set(tonic_health::pb::FILE_DESCRIPTOR_SET)
+            .build_v1alpha()
+            .map_err(|e| ServiceError::Config(e.to_string()))?;
+        let monitor =
+            proto::monitor_server::MonitorServer::new(grpc::MonitorService::new(shared.clone()))
+                .max_decoding_message_size(cfg.max_message_bytes)
+                .max_encoding_message_size(cfg.max_message_bytes);
+        let routes = tonic::service::Routes::new(monitor)
+            .add_service(health_service)
+            .add_service(reflection_v1)
+            .add_service(reflection_v1alpha);
+
+        let rest_router = rest::router(shared.clone());
+        let stopped = |mut rx: tokio::sync::watch::Receiver<bool>| async move {
+            let _ = rx.wait_for(|v| *v).await;
+        };
+        if let Some(rest_listener) = rest_listener {
+            let signal = stopped(transport_stop.subscribe());
+            tasks.push(tokio::spawn(async move {
+                axum::serve(rest_listener, rest_router)
+                    .with_graceful_shutdown(signal)
+                    .await
+                    .map_err(|e| ServiceError::Transport(e.to_string()))
+            }));
+            let signal = stopped(transport_stop.subscribe());
+            tasks.push(tokio::spawn(async move {
+                tonic::transport::Server::builder()
+                    .add_routes(routes)
+                    .serve_with_incoming_shutdown(
+                        tokio_stream::wrappers::TcpListenerStream::new(grpc_listener),
+                        signal,
+                    )
+                    .await
+                    .map_err(|e| ServiceError::Transport(e.to_string()))
+            }));
+        } else {
+            // One port: gRPC (HTTP/2, content-type application/grpc) and REST share the
+            // axum router; REST's fallback answers unknown paths.
+            let app = routes
+                .prepare()
+                .into_axum_router()
+                .merge(rest_router)
+                .fallback(rest::not_found);
+            let signal = stopped(transport_stop.subscribe());
+            tasks.push(tokio::spawn(async move {
+                axum::serve(grpc_listener, app)
+                    .with_graceful_shutdown(signal)
+                    .await
+                    .map_err(|e| ServiceError::Transport(e.to_string()))
+            }));
+        }
+        // Images that waited long enough for joint states; detached sessions past their
+        // window; over-age sessions.
+        let sweeper = shared.clone();
+        let mut stop_rx = shared.stop.subscribe();
+        tokio::spawn(async move {
+            let mut tick = tokio::time::interval(Duration::from_millis(50));
+            loop {
+                tokio::select! {
+                    _ = tick.tick() => { sweeper.hub.sweep(); }
+                    _ = stop_rx.changed() => return,
+                }
+            }
+        });
+        shared
+            .ready
+            .store(true, std::sync::atomic::Ordering::SeqCst);
+        tracing::info!(%grpc_addr, %rest_addr, "vamos serving");
+        Ok(RunningServer {
+            grpc_addr,
+            rest_addr,
+            shared,
+            tasks,
+            transport_stop,
+        })
+    }
+}
+
+/// `vamos serve`: serves until SIGTERM or SIGINT, then shuts down gracefully.
+pub async fn serve(settings: Settings) -> Result<(), ServiceError> {
+    let profiles = ProfileCatalog::load(&settings)?;
+    let server = Server::start(settings, profiles).await?;
+    wait_for_signal().await;
+    server.shutdown().await
+}
+
+async fn wait_for_signal() {
+    #[cfg(unix)]
+    {
+        use tokio::signal::unix::{SignalKind, signal};
+        match signal(SignalKind::terminate()) {
+            Ok(mut term) => {
+                tokio::select! {
+                    _ = term.recv() => {}
+                    _ = tokio::signal::ctrl_c() => {}
+                }
+            }
+            Err(e) => {
+                tracing::warn!("cannot watch SIGTERM ({e}); stopping on Ctrl-C only");
+                let _ = tokio::signal::ctrl_c().await;
+            }
+        }
+    }
+    #[cfg(not(unix))]
+    {
+        let _ = tokio::signal::ctrl_c().await;
+    }
+}

@@ -19,3 +19,4 @@ mod registration_accuracy;
 mod render_cli;
 mod robot_fk;
 mod scorer_model;
+mod service;

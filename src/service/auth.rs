@@ -1,0 +1,198 @@
+//! Bearer tokens with two roles. Tokens are kept as sha256 digests only (in the settings
+//! and in memory) and compared in constant time.
+
+use sha2::{Digest, Sha256};
+
+/// What a caller may do.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+pub enum Role {
+    /// Stream sessions and score episodes.
+    Robot,
+    /// Everything, including changes of state (models, robots, profiles, thresholds).
+    Admin,
+}
+
+/// Why a request was refused.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum AuthError {
+    /// No `authorization: Bearer ...` given.
+    #[error("missing bearer token")]
+    Missing,
+    /// The token is not known.
+    #[error("invalid token")]
+    Invalid,
+    /// The token's role may not do this.
+    #[error("this needs the {needed:?} role")]
+    Forbidden {
+        /// The role needed.
+        needed: Role,
+    },
+}
+
+/// A configured token digest is not 64 hex digits.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("token digest {index} of the {role} tokens is not a sha256 hex digest")]
+pub struct BadDigest {
+    /// `admin` or `robot`.
+    pub role: &'static str,
+    /// Position in its list.
+    pub index: usize,
+}
+
+/// The known tokens.
+#[derive(Debug, Clone, Default)]
+pub struct Tokens {
+    admin: Vec<[u8; 32]>,
+    robot: Vec<[u8; 32]>,
+}
+
+/// sha256 of a token.
+pub fn digest(token: &str) -> [u8; 32] {
+    Sha256::digest(token.as_bytes()).into()
+}
+
+fn parse_hex(s: &str) -> Option<[u8; 32]> {
+    let s = s.trim();
+    if s.len() != 64 {
+        return None;
+    }
+    let mut out = [0u8; 32];
+    for (i, o) in out.iter_mut().enumerate() {
+        *o = u8::from_str_radix(s.get(2 * i..2 * i + 2)?, 16).ok()?;
+    }
+    Some(out)
+}
+
+fn constant_time_eq(a: &[u8; 32], b: &[u8; 32]) -> bool {
+    let mut diff = 0u8;
+    for (x, y) in a.iter().zip(b) {
+        diff |= x ^ y;
+    }
+    std::hint::black_box(diff) == 0
+}
+
+impl Tokens {
+    /// Tokens from configured digests and plain comma-separated lists (the
+    /// `VAMOS_ADMIN_TOKEN` / `VAMOS_ROBOT_TOKEN` variables); plain tokens are hashed at
+    /// once and not kept.
+    pub fn new(
+        admin_sha256: &[String],
+        robot_sha256: &[String],
+        admin_plain: Option<&str>,
+        robot_plain: Option<&str>,
+    ) -> Result<Self, BadDigest> {
+        let parse = |list: &[String], role| -> Result<Vec<[u8; 32]>, BadDigest> {
+            list.iter()
+                .enumerate()
+                .map(|(index, s)| parse_hex(s).ok_or(BadDigest { role, index }))
+                .collect()
+        };
+        let plain = |s: Option<&str>| -> Vec<[u8; 32]> {
+            s.unwrap_or("")
+                .split(',')
+                .map(str::trim)
+                .filter(|t| !t.is_empty())
+                .map(digest)
+                .collect()
+        };
+        let mut admin = parse(admin_sha256, "admin")?;
+        admin.extend(plain(admin_plain));
+        let mut robot = parse(robot_sha256, "robot")?;
+        robot.extend(plain(robot_plain));
+        Ok(Self { admin, robot })
+    }
+
+    /// Whether any token is configured (otherwise every caller is admin).
+    pub fn enabled(&self) -> bool {
+        !(self.admin.is_empty() && self.robot.is_empty())
+    }
+
+    /// The role of an `authorization` header value (`Bearer TOKEN`); every caller is
+    /// admin when no token is configured.
+    pub fn role_of(&self, header: Option<&str>) -> Result<Role, AuthError> {
+        if !self.enabled() {
+            return Ok(Role::Admin);
+        }
+        let header = header.ok_or(AuthError::Missing)?;
+        let token = header
+            .strip_prefix("Bearer ")
+            .or_else(|| header.strip_prefix("bearer "))
+            .ok_or(AuthError::Missing)?
+            .trim();
+        let d = digest(token);
+        // Every digest is compared, so the time does not tell which list matched.
+        let mut role = None;
+        for known in &self.robot {
+            if constant_time_eq(known, &d) {
+                role = Some(Role::Robot);
+            }
+        }
+        for known in &self.admin {
+            if constant_time_eq(known, &d) {
+                role = Some(Role::Admin);
+            }
+        }
+        role.ok_or(AuthError::Invalid)
+    }
+
+    /// Checks that the caller has at least `needed`.
+    pub fn require(&self, header: Option<&str>, needed: Role) -> Result<Role, AuthError> {
+        let role = self.role_of(header)?;
+        if role >= needed {
+            Ok(role)
+        } else {
+            Err(AuthError::Forbidden { needed })
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn hex(d: [u8; 32]) -> String {
+        d.iter().map(|b| format!("{b:02x}")).collect()
+    }
+
+    #[test]
+    fn roles_follow_the_lists_and_admin_covers_robot() {
+        let t = Tokens::new(&[hex(digest("adm"))], &[], None, Some("r1, r2")).unwrap();
+        assert!(t.enabled());
+        assert_eq!(t.role_of(Some("Bearer adm")), Ok(Role::Admin));
+        assert_eq!(t.role_of(Some("Bearer r2")), Ok(Role::Robot));
+        assert_eq!(t.role_of(Some("Bearer nope")), Err(AuthError::Invalid));
+        assert_eq!(t.role_of(Some("adm")), Err(AuthError::Missing));
+        assert_eq!(t.role_of(None), Err(AuthError::Missing));
+        assert_eq!(t.require(Some("Bearer adm"), Role::Robot), Ok(Role::Admin));
+        assert_eq!(
+            t.require(Some("Bearer r1"), Role::Admin),
+            Err(AuthError::Forbidden {
+                needed: Role::Admin
+            })
+        );
+    }
+
+    #[test]
+    fn no_tokens_means_everyone_is_admin_and_bad_digests_are_refused() {
+        let t = Tokens::new(&[], &[], None, Some(" , ")).unwrap();
+        assert!(!t.enabled());
+        assert_eq!(t.role_of(None), Ok(Role::Admin));
+        let err = Tokens::new(&[], &["abc".into()], None, None).unwrap_err();
+        assert_eq!(
+            err,
+            BadDigest {
+                role: "robot",
+                index: 0
+            }
+        );
+    }
+
+    #[test]
+    fn digest_is_sha256() {
+        // sha256("abc"), FIPS 180-2 appendix B.1.
+        assert_eq!(
+            hex(digest("abc")),
+            "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad"
+        );
+    }
+}

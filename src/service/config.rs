@@ -1,0 +1,104 @@
+//! The `[service]` settings of `vamos serve`.
+
+use serde::{Deserialize, Serialize};
+use std::path::PathBuf;
+
+/// What a session does when its queue is full (the robot sends faster than it is scored).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum QueuePolicy {
+    /// Drop the oldest waiting image and queue the new one (the score stays current).
+    #[default]
+    DropOldest,
+    /// Refuse the new image (the waiting ones are scored).
+    Reject,
+}
+
+/// TLS for both transports (PEM files).
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TlsConfig {
+    /// Certificate chain, PEM.
+    pub cert: PathBuf,
+    /// Private key, PEM.
+    pub key: PathBuf,
+}
+
+/// The `[service]` section.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ServiceConfig {
+    /// gRPC address (`Monitor`, health, reflection).
+    pub grpc_addr: String,
+    /// REST and `/metrics` address; the same as `grpc_addr` serves both on one port.
+    pub rest_addr: String,
+    /// Data directory: models, robots, profiles, calibrations.
+    pub data_dir: PathBuf,
+    /// Profile files (TOML, as `vamos score --profile` takes) served beside the data
+    /// directory's profiles, under their `name`.
+    pub profiles: Vec<PathBuf>,
+    /// Scoring threads shared by all sessions (0 = one per core).
+    pub workers: usize,
+    /// Sessions open at once (streams and episode uploads).
+    pub max_sessions: usize,
+    /// Images a session may have waiting to be scored.
+    pub queue_depth: usize,
+    /// What happens to an image that finds the queue full.
+    pub queue_policy: QueuePolicy,
+    /// Largest gRPC message, bytes.
+    pub max_message_bytes: usize,
+    /// A session that sends nothing for this long is closed, seconds.
+    pub idle_timeout_s: f64,
+    /// Longest session, seconds.
+    pub max_session_s: f64,
+    /// How long a session with a client-chosen id that lost its stream waits to be
+    /// resumed, seconds.
+    pub resume_window_s: f64,
+    /// How long (in stamp time) an image waits for a joint state at or after its stamp
+    /// before it is scored with the nearest one, milliseconds.
+    pub joint_wait_ms: f64,
+    /// Largest episode upload (gRPC `ScoreEpisode`, REST), bytes.
+    pub max_episode_bytes: u64,
+    /// Largest model bundle upload, bytes.
+    pub max_model_bytes: u64,
+    /// Largest robot package upload, bytes.
+    pub max_robot_bytes: u64,
+    /// sha256 digests (hex) of admin tokens; `VAMOS_ADMIN_TOKEN` adds plain tokens.
+    pub admin_token_sha256: Vec<String>,
+    /// sha256 digests (hex) of robot tokens; `VAMOS_ROBOT_TOKEN` adds plain tokens.
+    pub robot_token_sha256: Vec<String>,
+    /// Without any token, listen on non-loopback addresses anyway.
+    pub allow_unauthenticated_remote: bool,
+    /// TLS for both transports; absent: plain text.
+    pub tls: Option<TlsConfig>,
+    /// Seconds a shutdown waits for in-flight frames before closing streams.
+    pub shutdown_grace_s: f64,
+}
+
+impl Default for ServiceConfig {
+    fn default() -> Self {
+        Self {
+            grpc_addr: "127.0.0.1:8081".into(),
+            rest_addr: "127.0.0.1:8080".into(),
+            data_dir: PathBuf::from("vamos-data"),
+            profiles: Vec::new(),
+            workers: 0,
+            max_sessions: 64,
+            queue_depth: 8,
+            queue_policy: QueuePolicy::DropOldest,
+            max_message_bytes: 16 << 20,
+            idle_timeout_s: 30.0,
+            max_session_s: 4.0 * 3600.0,
+            resume_window_s: 30.0,
+            joint_wait_ms: 200.0,
+            max_episode_bytes: 4 << 30,
+            max_model_bytes: 512 << 20,
+            max_robot_bytes: 512 << 20,
+            admin_token_sha256: Vec::new(),
+            robot_token_sha256: Vec::new(),
+            allow_unauthenticated_remote: false,
+            tls: None,
+            shutdown_grace_s: 10.0,
+        }
+    }
+}

@@ -1,0 +1,175 @@
+//! Prometheus metrics of the service. Labels are bounded: profile, model, stage,
+//! detector, reason; never session or robot ids.
+
+use prometheus::{
+    Encoder, GaugeVec, HistogramOpts, HistogramVec, IntCounterVec, IntGauge, IntGaugeVec, Opts,
+    Registry, TextEncoder,
+};
+
+/// Latency buckets, seconds: 1 ms .. 5 s.
+const LATENCY_BUCKETS: &[f64] = &[
+    0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.075, 0.1, 0.15, 0.25, 0.5, 1.0, 2.5, 5.0,
+];
+
+/// The service's metrics, registered in their own registry.
+#[derive(Clone)]
+pub struct Metrics {
+    registry: Registry,
+    /// Frames scored, by profile.
+    pub frames: IntCounterVec,
+    /// Frames with the anomaly flag, by profile and detector.
+    pub anomalies: IntCounterVec,
+    /// Images not scored, by profile and reason (`queue_full`, `rejected`,
+    /// `bad_message`, `undelivered`).
+    pub drops: IntCounterVec,
+    /// Single messages refused without ending their session, by profile and kind.
+    pub message_errors: IntCounterVec,
+    /// Time per pipeline stage, seconds, by stage.
+    pub stage_seconds: HistogramVec,
+    /// Image arrival to score sent, seconds, by profile.
+    pub latency_seconds: HistogramVec,
+    /// Flow-predictor inference time per frame, seconds, by model.
+    pub inference_seconds: HistogramVec,
+    /// Open sessions, by profile.
+    pub sessions_active: IntGaugeVec,
+    /// Sessions opened, by profile and outcome of the open (`ok`, `refused`).
+    pub sessions_opened: IntCounterVec,
+    /// Images waiting in session queues, all sessions.
+    pub queue_depth: IntGauge,
+    /// Build information (value 1).
+    pub build_info: GaugeVec,
+}
+
+fn must<T>(r: prometheus::Result<T>) -> T {
+    // Metric definitions are constants of this file: an error is a bug caught by the
+    // tests, not a run-time condition.
+    match r {
+        Ok(v) => v,
+        Err(e) => panic!("metric definition: {e}"),
+    }
+}
+
+impl Metrics {
+    /// Creates and registers every metric.
+    #[allow(clippy::new_without_default)]
+    pub fn new() -> Self {
+        let registry = Registry::new();
+        let counter = |name: &str, help: &str, labels: &[&str]| {
+            let c = must(IntCounterVec::new(Opts::new(name, help), labels));
+            must(registry.register(Box::new(c.clone())));
+            c
+        };
+        let histogram = |name: &str, help: &str, labels: &[&str]| {
+            let h = must(HistogramVec::new(
+                HistogramOpts::new(name, help).buckets(LATENCY_BUCKETS.to_vec()),
+                labels,
+            ));
+            must(registry.register(Box::new(h.clone())));
+            h
+        };
+        let frames = counter(
+            "vamos_frames_processed_total",
+            "Frames scored",
+            &["profile"],
+        );
+        let anomalies = counter(
+            "vamos_anomalies_total",
+            "Frames flagged anomalous",
+            &["profile", "detector"],
+        );
+        let drops = counter(
+            "vamos_frames_dropped_total",
+            "Images not scored",
+            &["profile", "reason"],
+        );
+        let message_errors = counter(
+            "vamos_message_errors_total",
+            "Messages refused without ending their session",
+            &["profile", "kind"],
+        );
+        let stage_seconds = histogram("vamos_stage_seconds", "Time per pipeline stage", &["stage"]);
+        let latency_seconds = histogram(
+            "vamos_score_latency_seconds",
+            "Image arrival to score sent",
+            &["profile"],
+        );
+        let inference_seconds = histogram(
+            "vamos_model_inference_seconds",
+            "Flow-predictor inference per frame",
+            &["model"],
+        );
+        let sessions_active = must(IntGaugeVec::new(
+            Opts::new("vamos_sessions_active", "Open sessions"),
+            &["profile"],
+        ));
+        must(registry.register(Box::new(sessions_active.clone())));
+        let sessions_opened = counter(
+            "vamos_sessions_opened_total",
+            "Session opens",
+            &["profile", "outcome"],
+        );
+        let queue_depth = must(IntGauge::new(
+            "vamos_queue_depth",
+            "Images waiting in session queues",
+        ));
+        must(registry.register(Box::new(queue_depth.clone())));
+        let build_info = must(GaugeVec::new(
+            Opts::new("vamos_build_info", "Build information"),
+            &["version"],
+        ));
+        must(registry.register(Box::new(build_info.clone())));
+        build_info
+            .with_label_values(&[env!("CARGO_PKG_VERSION")])
+            .set(1.0);
+        Self {
+            registry,
+            frames,
+            anomalies,
+            drops,
+            message_errors,
+            stage_seconds,
+            latency_seconds,
+            inference_seconds,
+            sessions_active,
+            sessions_opened,
+            queue_depth,
+            build_info,
+        }
+    }
+
+    /// The text exposition format (`text/plain; version=0.0.4`).
+    pub fn render(&self) -> String {
+        let mut buf = Vec::new();
+        if let Err(e) = TextEncoder::new().encode(&self.registry.gather(), &mut buf) {
+            tracing::error!("metrics encoding failed: {e}");
+        }
+        String::from_utf8(buf).unwrap_or_default()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn exposition_has_the_metrics_and_their_labels() {
+        let m = Metrics::new();
+        m.frames.with_label_values(&["arm"]).inc_by(3);
+        m.stage_seconds.with_label_values(&["flow"]).observe(0.02);
+        m.drops.with_label_values(&["arm", "queue_full"]).inc();
+        let text = m.render();
+        assert!(
+            text.contains("vamos_frames_processed_total{profile=\"arm\"} 3"),
+            "{text}"
+        );
+        assert!(text.contains("vamos_stage_seconds_bucket{stage=\"flow\",le=\"0.025\"} 1"));
+        assert!(text.contains("vamos_stage_seconds_bucket{stage=\"flow\",le=\"0.01\"} 0"));
+        assert!(
+            text.contains("vamos_frames_dropped_total{profile=\"arm\",reason=\"queue_full\"} 1")
+        );
+        assert!(text.contains(&format!(
+            "vamos_build_info{{version=\"{}\"}} 1",
+            env!("CARGO_PKG_VERSION")
+        )));
+    }
+}
