@@ -20,6 +20,7 @@ pub mod metrics;
 pub mod profiles;
 pub mod proto;
 pub mod rest;
+pub mod tls;
 
 use crate::config::Settings;
 use auth::Tokens;
@@ -248,43 +249,49 @@ impl Server {
             .add_service(reflection_v1alpha);
 
         let rest_router = rest::router(shared.clone());
-        let stopped = |mut rx: tokio::sync::watch::Receiver<bool>| async move {
-            let _ = rx.wait_for(|v| *v).await;
+        let grpc_router = routes.prepare().into_axum_router();
+        let tls = match &cfg.tls {
+            Some(t) => Some(tls::server_config(t)?),
+            None => None,
         };
-        if let Some(rest_listener) = rest_listener {
-            let signal = stopped(transport_stop.subscribe());
-            tasks.push(tokio::spawn(async move {
-                axum::serve(rest_listener, rest_router)
-                    .with_graceful_shutdown(signal)
-                    .await
-                    .map_err(|e| ServiceError::Transport(e.to_string()))
-            }));
-            let signal = stopped(transport_stop.subscribe());
-            tasks.push(tokio::spawn(async move {
-                tonic::transport::Server::builder()
-                    .add_routes(routes)
-                    .serve_with_incoming_shutdown(
-                        tokio_stream::wrappers::TcpListenerStream::new(grpc_listener),
-                        signal,
-                    )
-                    .await
-                    .map_err(|e| ServiceError::Transport(e.to_string()))
-            }));
-        } else {
-            // One port: gRPC (HTTP/2, content-type application/grpc) and REST share the
-            // axum router; REST's fallback answers unknown paths.
-            let app = routes
-                .prepare()
-                .into_axum_router()
-                .merge(rest_router)
-                .fallback(rest::not_found);
-            let signal = stopped(transport_stop.subscribe());
-            tasks.push(tokio::spawn(async move {
-                axum::serve(grpc_listener, app)
-                    .with_graceful_shutdown(signal)
-                    .await
-                    .map_err(|e| ServiceError::Transport(e.to_string()))
-            }));
+        let mut serve = |listener: TcpListener, app: axum::Router| -> Result<(), ServiceError> {
+            let mut rx = transport_stop.subscribe();
+            let signal = async move {
+                let _ = rx.wait_for(|v| *v).await;
+            };
+            let task = match &tls {
+                Some(config) => {
+                    let l = tls::TlsListener::new(listener, config.clone()).map_err(|e| {
+                        ServiceError::Transport(e.to_string())
+                    })?;
+                    tokio::spawn(async move {
+                        axum::serve(l, app)
+                            .with_graceful_shutdown(signal)
+                            .await
+                            .map_err(|e| ServiceError::Transport(e.to_string()))
+                    })
+                }
+                None => tokio::spawn(async move {
+                    axum::serve(listener, app)
+                        .with_graceful_shutdown(signal)
+                        .await
+                        .map_err(|e| ServiceError::Transport(e.to_string()))
+                }),
+            };
+            tasks.push(task);
+            Ok(())
+        };
+        // gRPC (HTTP/2, content-type application/grpc) and REST are both axum routers;
+        // on one port they are merged. Unknown paths: gRPC UNIMPLEMENTED or REST 404.
+        match rest_listener {
+            Some(rest_listener) => {
+                serve(rest_listener, rest_router.fallback(rest::not_found))?;
+                serve(grpc_listener, grpc_router.fallback(rest::not_found))?;
+            }
+            None => serve(
+                grpc_listener,
+                grpc_router.merge(rest_router).fallback(rest::not_found),
+            )?,
         }
         // Images that waited long enough for joint states; detached sessions past their
         // window; over-age sessions.

@@ -686,3 +686,78 @@ async fn health_reflection_readiness_and_one_port() {
     assert_eq!(unknown.status(), 404);
     server.shutdown().await.unwrap();
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn tls_on_both_transports_with_a_generated_certificate() {
+    let mut f = fixture_setup(4, false);
+    let cert = rcgen::generate_simple_self_signed(vec!["localhost".to_string()]).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let (cert_path, key_path) = (dir.path().join("tls.crt"), dir.path().join("tls.key"));
+    std::fs::write(&cert_path, cert.cert.pem()).unwrap();
+    std::fs::write(&key_path, cert.signing_key.serialize_pem()).unwrap();
+    f.settings.service.tls = Some(vamos::service::TlsConfig {
+        cert: cert_path,
+        key: key_path,
+    });
+    let server = start(&f).await;
+
+    // gRPC over TLS: a session end to end.
+    let tls = tonic::transport::ClientTlsConfig::new()
+        .ca_certificate(tonic::transport::Certificate::from_pem(cert.cert.pem()))
+        .domain_name("localhost");
+    let channel = tonic::transport::Endpoint::from_shared(format!("https://{}", server.grpc_addr))
+        .unwrap()
+        .tls_config(tls)
+        .unwrap()
+        .connect()
+        .await
+        .unwrap();
+    let mut client = MonitorClient::new(channel);
+    let name = "test_0000";
+    let (messages, camera) = episode_messages(&episode(name));
+    let mut requests = vec![proto::StreamRequest {
+        message: Some(open_msg("sim-arm", name, camera)),
+    }];
+    requests.extend(
+        messages
+            .into_iter()
+            .map(|m| proto::StreamRequest { message: Some(m) }),
+    );
+    let mut inbound = client
+        .stream(tokio_stream::iter(requests))
+        .await
+        .unwrap()
+        .into_inner();
+    let mut scores = Vec::new();
+    while let Some(item) = inbound.next().await {
+        if let Some(proto::stream_response::Message::Score(s)) = item.unwrap().message {
+            scores.push(s);
+        }
+    }
+    assert_same_scores(&scores, &offline(&f.setup, &episode(name)));
+
+    // REST over TLS, trusting the generated certificate; plain HTTP is refused.
+    let http = reqwest::Client::builder()
+        .add_root_certificate(reqwest::Certificate::from_pem(cert.cert.pem().as_bytes()).unwrap())
+        .resolve("localhost", server.rest_addr)
+        .build()
+        .unwrap();
+    let r = http
+        .get(format!("https://localhost:{}/healthz", server.rest_addr.port()))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 200);
+    assert!(
+        reqwest::get(format!("http://{}/healthz", server.rest_addr))
+            .await
+            .is_err()
+    );
+    // A client that does not trust the certificate fails the handshake.
+    assert!(
+        reqwest::get(format!("https://localhost:{}/healthz", server.rest_addr.port()))
+            .await
+            .is_err()
+    );
+    server.shutdown().await.unwrap();
+}
