@@ -141,7 +141,8 @@ pub struct ProfileInfo {
     pub alarm_threshold: Option<f64>,
     /// First stored, seconds since the Unix epoch.
     pub created_unix_s: u64,
-    /// Last changed (spec, thresholds or calibration), seconds since the Unix epoch.
+    /// Last change of the spec or its thresholds, seconds since the Unix epoch (the
+    /// calibration has its own `created_unix_s`).
     pub updated_unix_s: u64,
     /// Why it cannot be used, if so (a corrupt calibration).
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -198,8 +199,8 @@ pub struct ResolvedModel {
 }
 
 /// A profile made ready for [`crate::setup::Setup::from_profile`]: its robot and model are
-/// the stored files' paths, its calibration carries the threshold overrides' effect
-/// through [`Profile::thresholds`] and [`Profile::alarm_threshold`].
+/// the stored files' paths, and `file.thresholds` holds the overrides, so
+/// [`Profile::thresholds`] and [`Profile::alarm_threshold`] give the values in force.
 #[derive(Debug, Clone)]
 pub struct ResolvedProfile {
     /// The profile (its `path` is the stored `profile.json`; `file.camera` is `None`,
