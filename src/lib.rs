@@ -17,6 +17,8 @@
 //! - [`eval`]: evaluation and calibration maths (AUC-ROC/PR as scikit-learn defines them,
 //!   episode false alarms and detection delays, max and conformal thresholds, the fused
 //!   score, the ablation table, PNG plots). A leaf: imports no other vamos module.
+//! - [`store`]: the service's data directory: versioned models, robots, profiles and
+//!   calibrations, written atomically with checksums, verified on open. Synchronous.
 //! - [`config`]: service settings composed of each module's `*Config`.
 //! - [`telemetry`]: `tracing` set-up (human or JSON logs).
 
@@ -28,5 +30,6 @@ pub mod pipeline;
 pub mod robot;
 pub mod service;
 pub mod setup;
+pub mod store;
 pub mod telemetry;
 pub mod vision;

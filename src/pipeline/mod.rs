@@ -21,7 +21,7 @@ pub use frames::{
     FlowVariant, FrameProcessor, FrameProcessorParams, FrontEndTimings, PipelineError,
     ProcessedFrame,
 };
-pub use profile::{AlarmRule, Calibration, Profile, ProfileError};
+pub use profile::{AlarmRule, Calibration, Profile, ProfileError, ProfileFile, ThresholdOverrides};
 pub use scorer::{
     FrameInput, FrameScore, JointInput, RobotSetup, Scorer, ScorerError, ScorerParts, StageTimings,
 };

@@ -9,6 +9,9 @@
 //! model = "model.vamos"           # flow-predictor bundle (optional)
 //! flow_preset = "realtime"        # TV-L1 preset (optional; default: the settings' [vision.flow])
 //! alarm = "conformal"             # which calibrated threshold sets the anomaly flag
+//! [thresholds]                    # optional manual overrides of the calibrated thresholds
+//! e_c = 2.5                       # e_c threshold, px (replaces the calibrated one)
+//! alarm = 1000000.0               # fused-score alarm threshold (replaces the alarm rule's)
 //! [pipeline]                      # optional; absent = the settings' [pipeline]
 //! stride = 1
 //! [topics]                        # optional; absent = the settings' [episode.topics]
@@ -16,7 +19,9 @@
 //! ```
 //!
 //! `vamos calibrate` writes the thresholds beside it, as `<stem>.calibration.json`
-//! ([`Calibration`]), which [`Profile::load`] reads back when present.
+//! ([`Calibration`]), which [`Profile::load`] reads back when present. The thresholds in
+//! force ([`Profile::thresholds`], [`Profile::alarm_threshold`]) are the calibrated ones
+//! with the `[thresholds]` overrides on top ([`ThresholdOverrides`]).
 
 use super::PipelineConfig;
 use crate::episode::EpisodeTopics;
@@ -86,6 +91,57 @@ pub struct ProfileFile {
     /// Topic names of this robot's bags (absent: the settings' `[episode.topics]`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub topics: Option<EpisodeTopics>,
+    /// Manual threshold overrides, on top of the calibration.
+    #[serde(default, skip_serializing_if = "ThresholdOverrides::is_empty")]
+    pub thresholds: ThresholdOverrides,
+}
+
+/// Manual thresholds that replace calibrated ones (`[thresholds]` of a profile; the
+/// service's `PATCH` of a profile's thresholds). Each value given replaces its calibrated
+/// counterpart; an absent one leaves the calibration's in force.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ThresholdOverrides {
+    /// Threshold on e_c, pixels at processing resolution.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub e_c: Option<f64>,
+    /// Threshold on e_b, pixels.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub e_b: Option<f64>,
+    /// Fused-score alarm threshold (`score >= alarm` alarms), in place of the alarm rule's.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub alarm: Option<f64>,
+}
+
+impl ThresholdOverrides {
+    /// True when nothing is overridden.
+    pub fn is_empty(&self) -> bool {
+        self.e_c.is_none() && self.e_b.is_none() && self.alarm.is_none()
+    }
+
+    /// The first override that is not a finite number, as `(key, value)`.
+    pub fn non_finite(&self) -> Option<(&'static str, f64)> {
+        [("e_c", self.e_c), ("e_b", self.e_b), ("alarm", self.alarm)]
+            .into_iter()
+            .find_map(|(k, v)| v.filter(|x| !x.is_finite()).map(|x| (k, x)))
+    }
+
+    /// The `e_c`/`e_b` thresholds in force: the calibration's (none without one), each
+    /// replaced by its override when given.
+    pub fn thresholds(&self, calibration: Option<&Calibration>) -> Thresholds {
+        let calibrated = calibration.map(|c| c.thresholds).unwrap_or_default();
+        Thresholds {
+            e_c: self.e_c.or(calibrated.e_c),
+            e_b: self.e_b.or(calibrated.e_b),
+        }
+    }
+
+    /// The fused-score alarm threshold in force: the override, else the calibration's
+    /// under `rule`, else `+inf` (no alarms).
+    pub fn alarm_threshold(&self, calibration: Option<&Calibration>, rule: AlarmRule) -> f64 {
+        self.alarm
+            .unwrap_or_else(|| calibration.map_or(f64::INFINITY, |c| c.alarm_threshold(rule)))
+    }
 }
 
 /// Thresholds and how they were obtained (`<profile>.calibration.json`).
@@ -142,6 +198,12 @@ impl Profile {
             path: path.into(),
             reason: e.to_string(),
         })?;
+        if let Some((key, value)) = file.thresholds.non_finite() {
+            return Err(ProfileError::Invalid {
+                path: path.into(),
+                reason: format!("thresholds.{key} = {value} is not a finite number"),
+            });
+        }
         let dir = path.parent().unwrap_or(Path::new("."));
         for p in [&mut file.robot, &mut file.camera, &mut file.model]
             .into_iter()
@@ -212,20 +274,18 @@ impl Profile {
         Ok(path)
     }
 
-    /// The thresholds in force (none before calibration).
+    /// The thresholds in force: the calibrated ones (none before calibration) with the
+    /// profile's overrides on top.
     pub fn thresholds(&self) -> Thresholds {
-        self.calibration
-            .as_ref()
-            .map(|c| c.thresholds)
-            .unwrap_or_default()
+        self.file.thresholds.thresholds(self.calibration.as_ref())
     }
 
-    /// The fused-score alarm threshold in force (`score >= threshold` alarms; `+inf`
-    /// before calibration).
+    /// The fused-score alarm threshold in force (`score >= threshold` alarms): the
+    /// override, else the calibration's under the profile's alarm rule, else `+inf`.
     pub fn alarm_threshold(&self) -> f64 {
-        self.calibration
-            .as_ref()
-            .map_or(f64::INFINITY, |c| c.alarm_threshold(self.file.alarm))
+        self.file
+            .thresholds
+            .alarm_threshold(self.calibration.as_ref(), self.file.alarm)
     }
 }
 
@@ -289,6 +349,61 @@ mod tests {
             "max rule, and conformal absent"
         );
         assert_eq!(again.thresholds().e_c, Some(2.0));
+    }
+
+    #[test]
+    fn threshold_overrides_replace_calibrated_values_one_by_one() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("p.toml");
+        std::fs::write(
+            &path,
+            "name = \"p\"\nalarm = \"max\"\n[thresholds]\ne_b = 7.5\nalarm = 0.25\n",
+        )
+        .unwrap();
+        let mut p = Profile::load(&path).unwrap();
+        // Before calibration: only the overrides.
+        assert_eq!(
+            p.thresholds(),
+            Thresholds {
+                e_c: None,
+                e_b: Some(7.5)
+            }
+        );
+        assert_eq!(p.alarm_threshold(), 0.25);
+        p.calibration = Some(Calibration {
+            created_unix_s: 1,
+            model_sha256: None,
+            training_episodes: vec![],
+            calibration_episodes: vec![],
+            training_frames: 0,
+            thresholds: Thresholds {
+                e_c: Some(2.0),
+                e_b: Some(3.0),
+            },
+            score_max: 0.5,
+            conformal: None,
+        });
+        assert_eq!(
+            p.thresholds(),
+            Thresholds {
+                e_c: Some(2.0),
+                e_b: Some(7.5)
+            },
+            "e_c calibrated, e_b overridden"
+        );
+        assert_eq!(p.alarm_threshold(), 0.25);
+        p.file.thresholds.alarm = None;
+        assert_eq!(
+            p.alarm_threshold(),
+            0.5f64.next_up(),
+            "back to the max rule"
+        );
+        // Written back, the overrides survive; non-finite ones are refused.
+        let text = toml::to_string(&p.file).unwrap();
+        assert!(text.contains("e_b = 7.5"), "{text}");
+        std::fs::write(&path, "name = \"p\"\n[thresholds]\ne_c = nan\n").unwrap();
+        let e = Profile::load(&path).unwrap_err().to_string();
+        assert!(e.contains("thresholds.e_c"), "{e}");
     }
 
     #[test]
