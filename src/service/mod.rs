@@ -23,6 +23,7 @@ pub mod rest;
 pub mod tls;
 
 use crate::config::Settings;
+use crate::store::{Store, StoreError, StoreLimits};
 use auth::Tokens;
 use hub::Hub;
 use metrics::Metrics;
@@ -62,6 +63,9 @@ pub enum ServiceError {
         /// The error.
         source: std::io::Error,
     },
+    /// The data directory.
+    #[error("data directory: {0}")]
+    Store(#[from] StoreError),
     /// The gRPC transport failed.
     #[error("gRPC server: {0}")]
     Transport(String),
@@ -89,6 +93,8 @@ pub struct Shared {
     pub hub: Arc<Hub>,
     /// Profiles.
     pub profiles: ProfileCatalog,
+    /// The data directory: models, robots, profiles, calibrations.
+    pub store: Store,
     /// Bearer tokens.
     pub tokens: Tokens,
     /// Set once when the server begins to stop.
@@ -98,9 +104,10 @@ pub struct Shared {
 }
 
 impl Shared {
-    /// Where uploads are buffered (inside the data directory, so a rename keeps them).
+    /// Where episode uploads are buffered (the data directory's `tmp/`, emptied when the
+    /// store opens).
     pub fn upload_dir(&self) -> PathBuf {
-        self.settings.service.data_dir.join("tmp")
+        self.store.dir().join("tmp")
     }
 
     /// The metrics.
@@ -172,11 +179,16 @@ impl Server {
             std::env::var("VAMOS_ROBOT_TOKEN").ok().as_deref(),
         )
         .map_err(|e| ServiceError::Config(e.to_string()))?;
-        let upload = cfg.data_dir.join("tmp");
-        std::fs::create_dir_all(&upload).map_err(|source| ServiceError::Io {
-            path: upload.clone(),
-            source,
-        })?;
+        let store = Store::open(
+            &cfg.data_dir,
+            StoreLimits {
+                max_model_bytes: cfg.max_model_bytes,
+                max_robot_bytes: cfg.max_robot_bytes,
+            },
+        )?;
+        for p in store.problems() {
+            tracing::warn!(kind = p.kind, name = %p.name, "data directory: {}", p.reason);
+        }
         let shared_port = cfg.grpc_addr == cfg.rest_addr;
         let grpc_listener = bind(&cfg.grpc_addr).await?;
         let grpc_addr = grpc_listener
@@ -218,6 +230,7 @@ impl Server {
             settings,
             hub,
             profiles,
+            store,
             tokens,
             stop,
             ready: AtomicBool::new(false),
@@ -261,9 +274,8 @@ impl Server {
             };
             let task = match &tls {
                 Some(config) => {
-                    let l = tls::TlsListener::new(listener, config.clone()).map_err(|e| {
-                        ServiceError::Transport(e.to_string())
-                    })?;
+                    let l = tls::TlsListener::new(listener, config.clone())
+                        .map_err(|e| ServiceError::Transport(e.to_string()))?;
                     tokio::spawn(async move {
                         axum::serve(l, app)
                             .with_graceful_shutdown(signal)

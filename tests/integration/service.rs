@@ -743,7 +743,10 @@ async fn tls_on_both_transports_with_a_generated_certificate() {
         .build()
         .unwrap();
     let r = http
-        .get(format!("https://localhost:{}/healthz", server.rest_addr.port()))
+        .get(format!(
+            "https://localhost:{}/healthz",
+            server.rest_addr.port()
+        ))
         .send()
         .await
         .unwrap();
@@ -755,9 +758,12 @@ async fn tls_on_both_transports_with_a_generated_certificate() {
     );
     // A client that does not trust the certificate fails the handshake.
     assert!(
-        reqwest::get(format!("https://localhost:{}/healthz", server.rest_addr.port()))
-            .await
-            .is_err()
+        reqwest::get(format!(
+            "https://localhost:{}/healthz",
+            server.rest_addr.port()
+        ))
+        .await
+        .is_err()
     );
     server.shutdown().await.unwrap();
 }
