@@ -38,6 +38,7 @@ pub fn is_reserved_env(name: &str) -> bool {
             | "VAMOS_BIN"
             | "VAMOS_ADMIN_TOKEN"
             | "VAMOS_ROBOT_TOKEN"
+            | "VAMOS_LOADGEN_TOKEN"
     ) || name.starts_with("VAMOS_SKIP_")
         || name.starts_with("VAMOS_BENCH_")
 }

@@ -116,6 +116,35 @@ enum Command {
         #[arg(long = "profile")]
         profiles: Vec<PathBuf>,
     },
+    /// Replay episodes as N robots streaming to a running server; prints the achieved
+    /// rate, score latency percentiles, drops and the server's CPU and memory (JSON).
+    Loadgen {
+        /// Episodes (MCAP), replayed round-robin.
+        #[arg(required = true)]
+        episodes: Vec<PathBuf>,
+        /// gRPC URL of the server.
+        #[arg(long, default_value = "http://127.0.0.1:8081")]
+        server: String,
+        /// The server's /metrics URL (CPU and memory figures), e.g.
+        /// http://127.0.0.1:8080/metrics.
+        #[arg(long)]
+        metrics: Option<String>,
+        /// Profile the sessions use.
+        #[arg(long)]
+        profile: String,
+        /// Robots streaming at once.
+        #[arg(long, default_value_t = 1)]
+        robots: usize,
+        /// Replay speed (1.0: recorded timing, e.g. 10 Hz images).
+        #[arg(long, default_value_t = 1.0)]
+        speed: f64,
+        /// Run time, seconds.
+        #[arg(long, default_value_t = 30.0)]
+        duration: f64,
+        /// Bearer token (robot role).
+        #[arg(long, env = "VAMOS_LOADGEN_TOKEN")]
+        token: Option<String>,
+    },
     /// Score recorded episodes (ROS 2 bags in MCAP) with a profile: one JSON summary line
     /// per episode; with --out the per-frame scores (JSON lines) and, with --mcap, a bag of
     /// the images plus score topics for Foxglove or `ros2 bag play`.
@@ -353,6 +382,31 @@ fn run(cli: Cli) -> Result<()> {
         Command::Config => {
             print!("{}", toml::to_string_pretty(&settings)?);
             Ok(())
+        }
+        Command::Loadgen {
+            episodes,
+            server,
+            metrics,
+            profile,
+            robots,
+            speed,
+            duration,
+            token,
+        } => {
+            let runtime = tokio::runtime::Builder::new_multi_thread()
+                .enable_all()
+                .build()
+                .context("cannot start the async runtime")?;
+            runtime.block_on(cli::loadgen::run(cli::loadgen::LoadOptions {
+                server,
+                metrics,
+                profile,
+                robots,
+                speed,
+                duration_s: duration,
+                token,
+                episodes,
+            }))
         }
         Command::Serve {
             grpc_addr,

@@ -4,6 +4,7 @@ pub mod calibrate;
 pub mod episode;
 pub mod eval;
 pub mod export;
+pub mod loadgen;
 pub mod model;
 pub mod render;
 pub mod robot;

@@ -121,6 +121,11 @@ impl Metrics {
         build_info
             .with_label_values(&[env!("CARGO_PKG_VERSION")])
             .set(1.0);
+        // process_cpu_seconds_total, process_resident_memory_bytes, ... (Linux).
+        #[cfg(target_os = "linux")]
+        must(registry.register(Box::new(
+            prometheus::process_collector::ProcessCollector::for_self(),
+        )));
         Self {
             registry,
             frames,
@@ -171,5 +176,7 @@ mod tests {
             "vamos_build_info{{version=\"{}\"}} 1",
             env!("CARGO_PKG_VERSION")
         )));
+        #[cfg(target_os = "linux")]
+        assert!(text.contains("process_resident_memory_bytes"));
     }
 }

@@ -1,0 +1,389 @@
+//! `vamos loadgen`: replays recorded episodes as N robots streaming to a running server
+//! and reports the achieved rate, score latency percentiles, drops, and the server's CPU
+//! and memory (scraped from its `/metrics`).
+
+use anyhow::{Context, Result, bail};
+use futures_util::StreamExt;
+use serde_json::json;
+use std::collections::HashMap;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+use tokio::sync::Mutex;
+use tokio_stream::wrappers::ReceiverStream;
+use tonic::metadata::MetadataValue;
+use vamos::episode::McapEpisode;
+use vamos::episode::ros::{CameraInfoMsg, ImageMsg, JointStateMsg};
+use vamos::service::proto::monitor_client::MonitorClient;
+use vamos::service::proto::{self, stream_request::Message as In};
+
+/// Options of `vamos loadgen`.
+pub struct LoadOptions {
+    /// gRPC URL of the server.
+    pub server: String,
+    /// REST base URL (for `/metrics`), if any.
+    pub metrics: Option<String>,
+    /// Profile the sessions use.
+    pub profile: String,
+    /// Robots streaming at once.
+    pub robots: usize,
+    /// Replay speed: 1.0 = recorded timing.
+    pub speed: f64,
+    /// How long to run, seconds.
+    pub duration_s: f64,
+    /// Bearer token.
+    pub token: Option<String>,
+    /// Episodes (MCAP) to replay, round-robin.
+    pub episodes: Vec<PathBuf>,
+}
+
+/// One episode as a robot sends it: messages with their offsets from the first.
+struct Recording {
+    messages: Vec<(Duration, In)>,
+    camera: Option<proto::CameraInfo>,
+}
+
+fn record(path: &std::path::Path) -> Result<Recording> {
+    let ep = McapEpisode::open(path, &Default::default())
+        .with_context(|| format!("episode {}", path.display()))?;
+    let topics: Vec<String> = ep.info().topics.iter().map(|t| t.name.clone()).collect();
+    let mut messages = Vec::new();
+    let mut camera = None;
+    let mut first: Option<u64> = None;
+    let mut error = None;
+    ep.for_each_message(&topics, |_topic, schema, log_time, cdr| {
+        let t0 = *first.get_or_insert(log_time);
+        let at = Duration::from_nanos(log_time.saturating_sub(t0));
+        let msg = match schema {
+            "sensor_msgs/msg/Image" => ImageMsg::decode(cdr).map(|m| {
+                Some(In::Image(proto::Image {
+                    stamp_ns: m.header.stamp_ns(),
+                    encoding: m.encoding.clone(),
+                    width: m.width,
+                    height: m.height,
+                    step: m.step,
+                    big_endian: m.is_bigendian,
+                    data: m.data.to_vec(),
+                }))
+            }),
+            "sensor_msgs/msg/JointState" => JointStateMsg::decode(cdr).map(|m| {
+                Some(In::Joints(proto::JointState {
+                    stamp_ns: m.header.stamp_ns(),
+                    names: m.name,
+                    positions: m.position,
+                    velocities: m.velocity,
+                    efforts: m.effort,
+                }))
+            }),
+            "sensor_msgs/msg/CameraInfo" if camera.is_none() => {
+                CameraInfoMsg::decode(cdr).map(|c| {
+                    camera = Some(proto::CameraInfo {
+                        width: c.width,
+                        height: c.height,
+                        fx: c.k[0],
+                        fy: c.k[4],
+                        cx: c.k[2],
+                        cy: c.k[5],
+                    });
+                    None
+                })
+            }
+            _ => Ok(None),
+        };
+        match msg {
+            Ok(Some(m)) => messages.push((at, m)),
+            Ok(None) => {}
+            Err(e) => error = Some(e.to_string()),
+        }
+    })?;
+    if let Some(e) = error {
+        bail!("{}: {e}", path.display());
+    }
+    Ok(Recording { messages, camera })
+}
+
+#[derive(Default)]
+struct Tally {
+    sessions: u64,
+    images: u64,
+    scores: u64,
+    dropped_events: u64,
+    errors: Vec<String>,
+    latencies_s: Vec<f64>,
+    server_latencies_s: Vec<f64>,
+}
+
+fn percentile(sorted: &[f64], q: f64) -> Option<f64> {
+    if sorted.is_empty() {
+        return None;
+    }
+    let i = ((sorted.len() - 1) as f64 * q).round() as usize;
+    Some(sorted[i.min(sorted.len() - 1)])
+}
+
+async fn one_session(
+    opts: &LoadOptions,
+    robot: usize,
+    n: usize,
+    rec: &Recording,
+    deadline: Instant,
+    tally: &Mutex<Tally>,
+) -> Result<()> {
+    let mut client = MonitorClient::connect(opts.server.clone())
+        .await
+        .with_context(|| format!("cannot connect to {}", opts.server))?
+        .max_decoding_message_size(64 << 20)
+        .max_encoding_message_size(64 << 20);
+    let (tx, rx) = tokio::sync::mpsc::channel(64);
+    let sent_at: Arc<std::sync::Mutex<HashMap<i64, Instant>>> = Arc::default();
+    let open = In::Open(proto::OpenSession {
+        robot_id: format!("loadgen-{robot}"),
+        profile: opts.profile.clone(),
+        camera_info: rec.camera,
+        task: "loadgen".into(),
+        session_id: format!("loadgen-{robot}-{n}"),
+    });
+    let mut request = tonic::Request::new(ReceiverStream::new(rx));
+    if let Some(t) = &opts.token {
+        request.metadata_mut().insert(
+            "authorization",
+            MetadataValue::try_from(format!("Bearer {t}"))?,
+        );
+    }
+    tx.send(proto::StreamRequest {
+        message: Some(open),
+    })
+    .await?;
+    let sender = {
+        let sent_at = sent_at.clone();
+        let messages: Vec<(Duration, In)> = rec.messages.clone();
+        let speed = opts.speed;
+        tokio::spawn(async move {
+            let start = tokio::time::Instant::now();
+            let mut images = 0u64;
+            for (at, m) in messages {
+                if Instant::now() >= deadline {
+                    break;
+                }
+                let due = start + at.div_f64(speed.max(1e-6));
+                tokio::time::sleep_until(due).await;
+                if let In::Image(img) = &m {
+                    images += 1;
+                    if let Ok(mut map) = sent_at.lock() {
+                        map.insert(img.stamp_ns, Instant::now());
+                    }
+                }
+                if tx
+                    .send(proto::StreamRequest { message: Some(m) })
+                    .await
+                    .is_err()
+                {
+                    break;
+                }
+            }
+            images
+        })
+    };
+    let mut inbound = client.stream(request).await?.into_inner();
+    let mut local = Tally::default();
+    while let Some(item) = inbound.next().await {
+        match item {
+            Ok(r) => match r.message {
+                Some(proto::stream_response::Message::Score(s)) => {
+                    local.scores += 1;
+                    local.server_latencies_s.push(s.latency_s);
+                    if let Some(t) = sent_at.lock().ok().and_then(|mut m| m.remove(&s.stamp_ns)) {
+                        local.latencies_s.push(t.elapsed().as_secs_f64());
+                    }
+                }
+                Some(proto::stream_response::Message::Event(e)) => {
+                    if e.kind == proto::session_event::Kind::FramesDropped as i32 {
+                        local.dropped_events = e.count;
+                    } else if e.kind == proto::session_event::Kind::MessageError as i32 {
+                        local.errors.push(e.detail);
+                    }
+                }
+                None => {}
+            },
+            Err(status) => {
+                local.errors.push(format!("stream ended: {status}"));
+                break;
+            }
+        }
+    }
+    local.images = sender.await.unwrap_or(0);
+    let mut t = tally.lock().await;
+    t.sessions += 1;
+    t.images += local.images;
+    t.scores += local.scores;
+    t.dropped_events += local.dropped_events;
+    t.errors.extend(local.errors);
+    t.latencies_s.extend(local.latencies_s);
+    t.server_latencies_s.extend(local.server_latencies_s);
+    Ok(())
+}
+
+/// Sample of the server's process metrics.
+#[derive(Debug, Clone, Copy)]
+struct ProcessSample {
+    cpu_s: f64,
+    rss_bytes: f64,
+}
+
+async fn scrape(url: &str) -> Option<ProcessSample> {
+    let text = http_get(url).await.ok()?;
+    let value = |name: &str| {
+        text.lines()
+            .find(|l| l.starts_with(name) && l[name.len()..].starts_with(' '))
+            .and_then(|l| l.rsplit(' ').next())
+            .and_then(|v| v.parse::<f64>().ok())
+    };
+    Some(ProcessSample {
+        cpu_s: value("process_cpu_seconds_total")?,
+        rss_bytes: value("process_resident_memory_bytes")?,
+    })
+}
+
+/// A plain HTTP/1.1 GET (the load generator needs no HTTP client crate for one scrape).
+async fn http_get(url: &str) -> Result<String> {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let rest = url
+        .strip_prefix("http://")
+        .context("--metrics must be an http:// URL")?;
+    let (host, path) = rest.split_once('/').unwrap_or((rest, ""));
+    let mut conn = tokio::net::TcpStream::connect(host).await?;
+    conn.write_all(
+        format!("GET /{path} HTTP/1.1\r\nHost: {host}\r\nConnection: close\r\n\r\n").as_bytes(),
+    )
+    .await?;
+    let mut buf = Vec::new();
+    conn.read_to_end(&mut buf).await?;
+    let text = String::from_utf8_lossy(&buf).into_owned();
+    let body = text
+        .split_once("\r\n\r\n")
+        .map(|(_, b)| b.to_string())
+        .unwrap_or_default();
+    Ok(body)
+}
+
+/// Runs the load and prints one JSON report.
+pub async fn run(opts: LoadOptions) -> Result<()> {
+    if opts.robots == 0 || opts.episodes.is_empty() {
+        bail!("give at least one robot and one episode");
+    }
+    let recordings: Vec<Recording> = opts
+        .episodes
+        .iter()
+        .map(|p| record(p))
+        .collect::<Result<_>>()?;
+    let image_rate = {
+        let r = &recordings[0];
+        let images: Vec<Duration> = r
+            .messages
+            .iter()
+            .filter(|(_, m)| matches!(m, In::Image(_)))
+            .map(|(t, _)| *t)
+            .collect();
+        match (images.first(), images.last()) {
+            (Some(a), Some(b)) if images.len() > 1 && b > a => {
+                (images.len() - 1) as f64 / (*b - *a).as_secs_f64() * opts.speed
+            }
+            _ => f64::NAN,
+        }
+    };
+    let before = match &opts.metrics {
+        Some(u) => scrape(u).await,
+        None => None,
+    };
+    let started = Instant::now();
+    let deadline = started + Duration::from_secs_f64(opts.duration_s.max(0.0));
+    let tally = Arc::new(Mutex::new(Tally::default()));
+    let opts = Arc::new(opts);
+    let recordings = Arc::new(recordings);
+    let mut tasks = Vec::new();
+    for robot in 0..opts.robots {
+        let (o, recordings, tally) = (opts.clone(), recordings.clone(), tally.clone());
+        tasks.push(tokio::spawn(async move {
+            let mut n = 0;
+            while Instant::now() < deadline {
+                let rec = &recordings[(robot + n) % recordings.len()];
+                if let Err(e) = one_session(&o, robot, n, rec, deadline, &tally).await {
+                    tally
+                        .lock()
+                        .await
+                        .errors
+                        .push(format!("robot {robot}: {e:#}"));
+                    tokio::time::sleep(Duration::from_millis(200)).await;
+                }
+                n += 1;
+            }
+        }));
+        // Stagger the robots over one image period so their frames do not arrive in
+        // lock-step.
+        tokio::time::sleep(Duration::from_millis(100 / opts.robots as u64)).await;
+    }
+    let mut peak_rss = before.map_or(0.0, |s| s.rss_bytes);
+    let mut middle_rss = None;
+    while tasks.iter().any(|t| !t.is_finished()) {
+        tokio::time::sleep(Duration::from_millis(500)).await;
+        if let Some(u) = &opts.metrics
+            && let Some(s) = scrape(u).await
+        {
+            peak_rss = peak_rss.max(s.rss_bytes);
+            if middle_rss.is_none() && started.elapsed().as_secs_f64() >= opts.duration_s / 2.0 {
+                middle_rss = Some(s.rss_bytes);
+            }
+        }
+    }
+    for t in tasks {
+        let _ = t.await;
+    }
+    let elapsed = started.elapsed().as_secs_f64();
+    let after = match &opts.metrics {
+        Some(u) => scrape(u).await,
+        None => None,
+    };
+    let mut t = tally.lock().await;
+    t.latencies_s.sort_by(f64::total_cmp);
+    t.server_latencies_s.sort_by(f64::total_cmp);
+    let mb = |b: f64| (b / (1 << 20) as f64 * 10.0).round() / 10.0;
+    let server = match (before, after) {
+        (Some(b), Some(a)) => json!({
+            "cpu_cores_busy": (a.cpu_s - b.cpu_s) / elapsed,
+            "cpu_s_per_robot_second": (a.cpu_s - b.cpu_s) / elapsed / opts.robots as f64,
+            "rss_mib_start": mb(b.rss_bytes),
+            "rss_mib_middle": middle_rss.map(mb),
+            "rss_mib_end": mb(a.rss_bytes),
+            "rss_mib_peak": mb(peak_rss),
+        }),
+        _ => serde_json::Value::Null,
+    };
+    let ms = |v: Option<f64>| v.map(|s| (s * 1e4).round() / 10.0);
+    let report = json!({
+        "robots": opts.robots,
+        "image_rate_hz_per_robot": image_rate,
+        "duration_s": elapsed,
+        "sessions": t.sessions,
+        "images_sent": t.images,
+        "scores_received": t.scores,
+        "scores_per_s": t.scores as f64 / elapsed,
+        "scores_per_s_per_robot": t.scores as f64 / elapsed / opts.robots as f64,
+        "unscored_images": t.images.saturating_sub(t.scores),
+        "dropped_reported": t.dropped_events,
+        "latency_ms": {
+            "p50": ms(percentile(&t.latencies_s, 0.5)),
+            "p95": ms(percentile(&t.latencies_s, 0.95)),
+            "p99": ms(percentile(&t.latencies_s, 0.99)),
+            "max": ms(t.latencies_s.last().copied()),
+        },
+        "server_latency_ms": {
+            "p50": ms(percentile(&t.server_latencies_s, 0.5)),
+            "p99": ms(percentile(&t.server_latencies_s, 0.99)),
+        },
+        "server": server,
+        "errors": t.errors.iter().take(10).collect::<Vec<_>>(),
+        "error_count": t.errors.len(),
+    });
+    println!("{}", serde_json::to_string_pretty(&report)?);
+    Ok(())
+}
