@@ -767,3 +767,69 @@ async fn tls_on_both_transports_with_a_generated_certificate() {
     );
     server.shutdown().await.unwrap();
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn backpressure_drops_oldest_or_rejects_and_says_so() {
+    for policy in [
+        vamos::service::QueuePolicy::DropOldest,
+        vamos::service::QueuePolicy::Reject,
+    ] {
+        let mut f = fixture_setup(4, false);
+        f.settings.service.queue_depth = 2;
+        f.settings.service.queue_policy = policy;
+        f.settings.service.workers = 1;
+        let server = start(&f).await;
+        let name = "test_0000";
+        let (messages, camera) = episode_messages(&episode(name));
+        let images = messages
+            .iter()
+            .filter(|m| matches!(m, In::Image(_)))
+            .count() as u64;
+        // Everything at once: far faster than one worker scores.
+        let (scores, events) = stream_all(
+            server.grpc_addr,
+            None,
+            open_msg("sim-arm", name, camera),
+            messages,
+        )
+        .await
+        .unwrap();
+        let dropped = events
+            .iter()
+            .filter(|e| e.kind == proto::session_event::Kind::FramesDropped as i32)
+            .map(|e| e.count)
+            .max()
+            .unwrap_or(0);
+        assert!(dropped > 0, "{policy:?}: nothing dropped");
+        assert_eq!(scores.len() as u64 + dropped, images, "{policy:?}");
+        // Scores stay in stamp order.
+        assert!(scores.windows(2).all(|w| w[0].stamp_ns < w[1].stamp_ns));
+        let detail = &events
+            .iter()
+            .find(|e| e.kind == proto::session_event::Kind::FramesDropped as i32)
+            .unwrap()
+            .detail;
+        let reason = match policy {
+            vamos::service::QueuePolicy::DropOldest => "dropped (oldest first)",
+            vamos::service::QueuePolicy::Reject => "rejected",
+        };
+        assert!(detail.contains(reason), "{detail}");
+        let metrics = reqwest::get(format!("http://{}/metrics", server.rest_addr))
+            .await
+            .unwrap()
+            .text()
+            .await
+            .unwrap();
+        let label = match policy {
+            vamos::service::QueuePolicy::DropOldest => "queue_full",
+            vamos::service::QueuePolicy::Reject => "rejected",
+        };
+        assert!(
+            metrics.contains(&format!(
+                "vamos_frames_dropped_total{{profile=\"sim-arm\",reason=\"{label}\"}} {dropped}"
+            )),
+            "{metrics}"
+        );
+        server.shutdown().await.unwrap();
+    }
+}
