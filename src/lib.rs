@@ -9,16 +9,22 @@
 //!   the network-input preprocessing. Synchronous, no I/O beyond image files.
 //! - [`robot`]: URDF robots, kinematics, expected camera motion, rendering and the
 //!   body-motion error. Synchronous.
-//! - [`episode`]: recorded executions, read frame by frame (image folders; MCAP later).
-//! - [`pipeline`]: frame in, scores out (so far: the visual front end that turns images
-//!   into flow, registration and the predictor's input).
+//! - [`episode`]: recorded executions, read frame by frame (ROS 2 bags in MCAP, image
+//!   folders), score bags written.
+//! - [`pipeline`]: frame in, scores out: the visual front end, the per-frame [`Scorer`]
+//!   fusing `e_c`, `e_b` and `e_o`, profiles and calibrations, offline episode scoring.
+//!
+//! [`Scorer`]: pipeline::Scorer
 //! - [`model`]: the ONNX flow predictor: model bundles, ONNX Runtime sessions and the
 //!   per-session prediction error `e_o`. Synchronous.
 //! - [`eval`]: evaluation and calibration maths (AUC-ROC/PR as scikit-learn defines them,
 //!   episode false alarms and detection delays, max and conformal thresholds, the fused
 //!   score, the ablation table, PNG plots). A leaf: imports no other vamos module.
+//! - [`setup`]: a profile with its robot and model loaded, making scorers.
 //! - [`store`]: the service's data directory: versioned models, robots, profiles and
 //!   calibrations, written atomically with checksums, verified on open. Synchronous.
+//! - [`service`]: the server: gRPC sessions and episode scoring, REST, metrics, auth,
+//!   TLS (tokio, tonic, axum; the only async module).
 //! - [`config`]: service settings composed of each module's `*Config`.
 //! - [`telemetry`]: `tracing` set-up (human or JSON logs).
 
