@@ -897,3 +897,49 @@ async fn get_job(
         .map(|j| Json(j).into_response())
         .ok_or_else(|| ApiError::new(StatusCode::NOT_FOUND, format!("no job {id:?}")))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::{Access, OPENAPI_JSON, ROUTES, handler};
+    use std::collections::BTreeSet;
+
+    #[test]
+    fn openapi_describes_exactly_the_routes() {
+        let doc: serde_json::Value = serde_json::from_str(OPENAPI_JSON).unwrap();
+        assert_eq!(doc["openapi"].as_str().map(|v| &v[..2]), Some("3."));
+        let mut described = BTreeSet::new();
+        for (path, ops) in doc["paths"].as_object().unwrap() {
+            for (method, op) in ops.as_object().unwrap() {
+                let method = method.to_ascii_uppercase();
+                // The role in the description is the one enforced.
+                let role = op.get("x-vamos-role").and_then(|r| r.as_str());
+                let access = ROUTES
+                    .iter()
+                    .find(|(m, p, _)| *m == method && p == path)
+                    .map(|r| r.2);
+                let expected = match access {
+                    Some(Access::Open) => None,
+                    Some(Access::Robot) => Some("robot"),
+                    Some(Access::Admin) => Some("admin"),
+                    None => panic!("{method} {path} is described but not routed"),
+                };
+                assert_eq!(role, expected, "{method} {path}");
+                described.insert((method, path.clone()));
+            }
+        }
+        let routed: BTreeSet<(String, String)> = ROUTES
+            .iter()
+            .map(|(m, p, _)| (m.to_string(), p.to_string()))
+            .collect();
+        assert_eq!(routed.len(), ROUTES.len(), "a route is listed twice");
+        assert_eq!(described, routed);
+    }
+
+    #[test]
+    fn every_listed_route_has_a_handler() {
+        for (m, p, _) in ROUTES {
+            assert!(handler(m, p).is_some(), "{m} {p}");
+        }
+        assert!(handler("GET", "/v1/nothing").is_none());
+    }
+}
