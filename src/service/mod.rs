@@ -81,9 +81,7 @@ impl From<ServiceError> for Status {
             }
             ServiceError::Profile(
                 ProfileLookupError::Load { .. } | ProfileLookupError::Store { .. },
-            ) => {
-                Status::failed_precondition(e.to_string())
-            }
+            ) => Status::failed_precondition(e.to_string()),
             _ => Status::internal(e.to_string()),
         }
     }

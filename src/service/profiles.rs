@@ -96,13 +96,16 @@ impl StoredProfiles {
             return Ok(p);
         }
         let generation = self.cache().generation;
-        let resolved = self.store.resolve_profile(name).map_err(|e| match e.kind() {
-            StoreErrorKind::NotFound => ProfileLookupError::NotFound { name: name.into() },
-            _ => ProfileLookupError::Store {
-                name: name.into(),
-                source: Box::new(e),
-            },
-        })?;
+        let resolved = self
+            .store
+            .resolve_profile(name)
+            .map_err(|e| match e.kind() {
+                StoreErrorKind::NotFound => ProfileLookupError::NotFound { name: name.into() },
+                _ => ProfileLookupError::Store {
+                    name: name.into(),
+                    source: Box::new(e),
+                },
+            })?;
         for w in &resolved.warnings {
             tracing::warn!(profile = name, "{w}");
         }

@@ -32,10 +32,10 @@ use axum::http::{HeaderMap, StatusCode, header};
 use axum::middleware::Next;
 use axum::response::{IntoResponse, Response};
 use axum::routing::{MethodRouter, delete, get, patch, post, put};
-use std::path::PathBuf;
 use futures_util::StreamExt;
 use serde_json::json;
 use std::io::Write;
+use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::Ordering;
 
@@ -126,7 +126,11 @@ pub const ROUTES: &[(&str, &str, Access)] = &[
     ("GET", "/v1/models/{name}", Access::Robot),
     ("PUT", "/v1/models/{name}", Access::Admin),
     ("DELETE", "/v1/models/{name}", Access::Admin),
-    ("DELETE", "/v1/models/{name}/versions/{version}", Access::Admin),
+    (
+        "DELETE",
+        "/v1/models/{name}/versions/{version}",
+        Access::Admin,
+    ),
     ("POST", "/v1/models/{name}/active", Access::Admin),
     ("GET", "/v1/robots", Access::Robot),
     ("GET", "/v1/robots/{name}", Access::Robot),
@@ -342,11 +346,16 @@ fn finite(v: f64) -> Option<f64> {
 async fn model_ready(State(s): State<Arc<Shared>>, Path(name): Path<String>) -> Response {
     let loaded = s.profiles.loaded().iter().any(|p| {
         p.setup.model.is_some()
-            && (p.name == name || p.model_label == name || p.model_label.split('@').next() == Some(&name))
+            && (p.name == name
+                || p.model_label == name
+                || p.model_label.split('@').next() == Some(&name))
     });
     let stored = s.store.model(&name).ok().is_some_and(|m| {
-        m.active
-            .is_some_and(|v| m.versions.iter().any(|x| x.version == v && x.problem.is_none()))
+        m.active.is_some_and(|v| {
+            m.versions
+                .iter()
+                .any(|x| x.version == v && x.problem.is_none())
+        })
     });
     if loaded || stored {
         Json(json!({ "name": name, "ready": true })).into_response()
@@ -701,7 +710,9 @@ fn refuse_file_profile(s: &Shared, name: &str) -> Result<(), ApiError> {
     if s.profiles.is_file(name) {
         return Err(ApiError::new(
             StatusCode::CONFLICT,
-            format!("profile {name:?} is a profile file of the server's settings, which takes priority; it cannot be changed through the API"),
+            format!(
+                "profile {name:?} is a profile file of the server's settings, which takes priority; it cannot be changed through the API"
+            ),
         ));
     }
     Ok(())
@@ -711,7 +722,11 @@ async fn get_profile(
     State(s): State<Arc<Shared>>,
     Path(name): Path<String>,
 ) -> Result<Response, ApiError> {
-    if let Some(p) = s.profiles.get_cached(&name).filter(|_| s.profiles.is_file(&name)) {
+    if let Some(p) = s
+        .profiles
+        .get_cached(&name)
+        .filter(|_| s.profiles.is_file(&name))
+    {
         return Ok(Json(file_profile_json(&p)).into_response());
     }
     let store = s.store.clone();
@@ -733,7 +748,12 @@ async fn put_profile(
     let n = name.clone();
     let info = blocking(move || store.put_profile(&n, spec)).await?;
     s.profiles.invalidate_profile(&name);
-    let load_error = s.profiles.get_async(&name).await.err().map(|e| e.to_string());
+    let load_error = s
+        .profiles
+        .get_async(&name)
+        .await
+        .err()
+        .map(|e| e.to_string());
     let mut body = stored_profile_json(&s, &info);
     body["load_error"] = json!(load_error);
     Ok(Json(body).into_response())
@@ -829,14 +849,7 @@ fn run_calibration(
                     let what = |e: &dyn std::fmt::Display| format!("{}: {e}", path.display());
                     let episode = McapEpisode::open(path, &setup.episode).map_err(|e| what(&e))?;
                     let mut scorer = setup
-                        .scorer(
-                            episode.name(),
-                            thresholds,
-                            f64::INFINITY,
-                            false,
-                            None,
-                            None,
-                        )
+                        .scorer(episode.name(), thresholds, f64::INFINITY, false, None, None)
                         .map_err(|e| what(&e))?;
                     score_offline::<EpisodeError>(&mut scorer, &episode, |_, _| Ok(()))
                         .map_err(|e| what(&e))
