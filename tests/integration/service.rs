@@ -432,7 +432,7 @@ async fn tokens_limits_bad_messages_and_disconnects() {
         .unwrap();
     let (tx, rx) = mpsc::channel(16);
     tx.send(proto::StreamRequest {
-        message: Some(open_msg("sim-arm", "held", camera.clone())),
+        message: Some(open_msg("sim-arm", "held", camera)),
     })
     .await
     .unwrap();

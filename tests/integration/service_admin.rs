@@ -282,7 +282,7 @@ async fn stored_profiles_serve_sessions_swap_models_calibrate_and_survive_a_rest
     let (messages, camera_info) = episode_messages(&episode("test_0000"));
     let half = messages.len() / 2;
     let (tx_a, task_a, opened_a) =
-        open_session(server.grpc_addr, "arm-store", "a", camera_info.clone()).await;
+        open_session(server.grpc_addr, "arm-store", "a", camera_info).await;
     assert!(
         opened_a.detail.contains("model tiny@1"),
         "{}",
@@ -305,7 +305,7 @@ async fn stored_profiles_serve_sessions_swap_models_calibrate_and_survive_a_rest
     assert_eq!(status, StatusCode::OK, "{m}");
     assert_eq!(m["active"], 2);
     let (tx_b, task_b, opened_b) =
-        open_session(server.grpc_addr, "arm-store", "b", camera_info.clone()).await;
+        open_session(server.grpc_addr, "arm-store", "b", camera_info).await;
     assert!(
         opened_b.detail.contains("model tiny@2"),
         "{}",
