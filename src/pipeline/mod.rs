@@ -9,8 +9,10 @@
 //!   (`e_c`, `e_b`, `e_o`, thresholds).
 //! - [`profile`]: what binds a robot, a camera, pipeline parameters, a model and the
 //!   calibrated thresholds, as a TOML file plus its calibration.
+//! - [`calibration`]: thresholds from nominal episodes (`vamos calibrate`, service jobs).
 //! - [`dataset`]: the training dataset (`docs/model-bundle.md`) written from processed frames.
 
+pub mod calibration;
 pub mod dataset;
 pub mod frames;
 pub mod offline;

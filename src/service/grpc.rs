@@ -150,7 +150,8 @@ impl Monitor for MonitorService {
         let profile = self
             .shared
             .profiles
-            .get(&open.profile)
+            .get_async(&open.profile)
+            .await
             .map_err(ServiceError::from)?;
         let camera = open.camera_info.as_ref().map(intrinsics_of).transpose()?;
         let (tx, rx) = mpsc::channel(1024);
@@ -231,7 +232,8 @@ impl Monitor for MonitorService {
         let profile = self
             .shared
             .profiles
-            .get(&name)
+            .get_async(&name)
+            .await
             .map_err(ServiceError::from)?;
         let stream =
             score_episode_file(self.shared.hub.clone(), profile, file, episode_name).await?;

@@ -5,7 +5,8 @@
 //!   scores all sessions round-robin.
 //! - [`grpc`]: `Monitor.Stream` and `Monitor.ScoreEpisode`.
 //! - [`rest`]: the HTTP API (health, sessions, metrics, administration).
-//! - [`profiles`]: the profiles sessions are scored with.
+//! - [`profiles`]: the profiles sessions are scored with (files and the data directory).
+//! - [`jobs`]: background calibration jobs started through REST.
 //! - [`auth`], [`metrics`], [`config`].
 //!
 //! [`Server::start`] binds the listeners and serves until [`RunningServer::shutdown`]
@@ -16,6 +17,7 @@ pub mod auth;
 pub mod config;
 pub mod grpc;
 pub mod hub;
+pub mod jobs;
 pub mod metrics;
 pub mod profiles;
 pub mod proto;
@@ -77,9 +79,9 @@ impl From<ServiceError> for Status {
             ServiceError::Profile(ProfileLookupError::NotFound { .. }) => {
                 Status::not_found(e.to_string())
             }
-            ServiceError::Profile(ProfileLookupError::Load { .. }) => {
-                Status::failed_precondition(e.to_string())
-            }
+            ServiceError::Profile(
+                ProfileLookupError::Load { .. } | ProfileLookupError::Store { .. },
+            ) => Status::failed_precondition(e.to_string()),
             _ => Status::internal(e.to_string()),
         }
     }
@@ -95,6 +97,8 @@ pub struct Shared {
     pub profiles: ProfileCatalog,
     /// The data directory: models, robots, profiles, calibrations.
     pub store: Store,
+    /// Calibration jobs (in memory: a restart forgets them).
+    pub jobs: jobs::Jobs,
     /// Bearer tokens.
     pub tokens: Tokens,
     /// Set once when the server begins to stop.
@@ -226,10 +230,12 @@ impl Server {
         let metrics = Metrics::new();
         let hub = Hub::start(cfg.clone(), metrics);
         let (stop, _) = tokio::sync::watch::channel(false);
+        let profiles = profiles.with_store(store.clone(), settings.clone());
         let shared = Arc::new(Shared {
             settings,
             hub,
             profiles,
+            jobs: jobs::Jobs::default(),
             store,
             tokens,
             stop,

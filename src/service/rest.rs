@@ -1,23 +1,41 @@
-//! The HTTP API (axum): health, metrics, sessions, episode scoring.
+//! The HTTP API (axum): health, metrics, sessions, episode scoring, and administration of
+//! the data directory (models, robots, profiles, calibration jobs).
 //!
-//! `/healthz`, `/readyz`, `/v2/health/*` and `/metrics` are open (probes and scrapers);
-//! everything under `/v1` needs a bearer token when tokens are configured: `robot` for
-//! scoring, `admin` for the rest.
+//! Every route is listed once in [`ROUTES`] with who may call it; the router is built
+//! from that list (the access check is a layer of each route) and `GET /openapi.json`
+//! describes the same routes (a test keeps the two equal). `/healthz`, `/readyz`,
+//! `/v2/health/*`, `/v2/models/*/ready`, `/metrics` and `/openapi.json` are open (probes
+//! and scrapers); the rest needs a bearer token when tokens are configured: `robot` for
+//! scoring and reading lists, `admin` for everything that changes state.
+//!
+//! Errors are `{"error": message}` with a status from [`StoreErrorKind`]: 404 unknown,
+//! 400 refused (an upload the validator refused, a bad name or body), 413 too large, 409
+//! in use, 500 internal.
 
 use super::Shared;
 use super::auth::{AuthError, Role};
 use super::grpc::score_episode_file;
 use super::proto;
+use crate::episode::{EpisodeError, McapEpisode};
+use crate::model::FlowModel;
+use crate::pipeline::calibration::calibrate;
+use crate::pipeline::offline::score_episode as score_offline;
+use crate::store::{
+    ProfileSpec, RobotFormat, Store, StoreError, StoreErrorKind, ThresholdsPatch, Upload,
+    UploadKind, model_bundle_summary, robot_summary,
+};
 use axum::Json;
 use axum::Router;
-use axum::body::Body;
-use axum::extract::{Path, State};
+use axum::body::{Body, Bytes};
+use axum::extract::{Path, Request, State};
 use axum::http::{HeaderMap, StatusCode, header};
+use axum::middleware::Next;
 use axum::response::{IntoResponse, Response};
-use axum::routing::{get, post};
+use axum::routing::{MethodRouter, delete, get, patch, post, put};
 use futures_util::StreamExt;
 use serde_json::json;
 use std::io::Write;
+use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::Ordering;
 
@@ -81,18 +99,129 @@ pub fn authorize(shared: &Shared, headers: &HeaderMap, role: Role) -> Result<Rol
     Ok(shared.tokens.require(h, role)?)
 }
 
-/// The REST routes.
+/// Who may call a route.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Access {
+    /// Anyone (probes, scrapers, the API description).
+    Open,
+    /// A robot or admin token.
+    Robot,
+    /// An admin token.
+    Admin,
+}
+
+/// Every REST route: method, path (axum syntax, the same as OpenAPI's) and access. The
+/// router is built from this list and `openapi.json` must describe exactly these.
+pub const ROUTES: &[(&str, &str, Access)] = &[
+    ("GET", "/healthz", Access::Open),
+    ("GET", "/readyz", Access::Open),
+    ("GET", "/v2/health/live", Access::Open),
+    ("GET", "/v2/health/ready", Access::Open),
+    ("GET", "/v2/models/{name}/ready", Access::Open),
+    ("GET", "/metrics", Access::Open),
+    ("GET", "/openapi.json", Access::Open),
+    ("GET", "/v1/sessions", Access::Admin),
+    ("POST", "/v1/episodes:score", Access::Robot),
+    ("GET", "/v1/models", Access::Robot),
+    ("GET", "/v1/models/{name}", Access::Robot),
+    ("PUT", "/v1/models/{name}", Access::Admin),
+    ("DELETE", "/v1/models/{name}", Access::Admin),
+    (
+        "DELETE",
+        "/v1/models/{name}/versions/{version}",
+        Access::Admin,
+    ),
+    ("POST", "/v1/models/{name}/active", Access::Admin),
+    ("GET", "/v1/robots", Access::Robot),
+    ("GET", "/v1/robots/{name}", Access::Robot),
+    ("PUT", "/v1/robots/{name}", Access::Admin),
+    ("DELETE", "/v1/robots/{name}", Access::Admin),
+    ("GET", "/v1/profiles", Access::Robot),
+    ("GET", "/v1/profiles/{name}", Access::Robot),
+    ("PUT", "/v1/profiles/{name}", Access::Admin),
+    ("DELETE", "/v1/profiles/{name}", Access::Admin),
+    ("PATCH", "/v1/profiles/{name}/thresholds", Access::Admin),
+    ("POST", "/v1/profiles/{name}/calibrate", Access::Admin),
+    ("GET", "/v1/jobs", Access::Admin),
+    ("GET", "/v1/jobs/{id}", Access::Admin),
+];
+
+/// The OpenAPI 3.0 description served at `/openapi.json`.
+pub const OPENAPI_JSON: &str = include_str!("openapi.json");
+
+/// The handler of a route of [`ROUTES`] (`None`: no such route).
+pub fn handler(method: &str, path: &str) -> Option<MethodRouter<Arc<Shared>>> {
+    Some(match (method, path) {
+        ("GET", "/healthz" | "/v2/health/live") => get(healthz),
+        ("GET", "/readyz" | "/v2/health/ready") => get(readyz),
+        ("GET", "/v2/models/{name}/ready") => get(model_ready),
+        ("GET", "/metrics") => get(metrics),
+        ("GET", "/openapi.json") => get(openapi),
+        ("GET", "/v1/sessions") => get(sessions),
+        ("POST", "/v1/episodes:score") => post(score_episode),
+        ("GET", "/v1/models") => get(list_models),
+        ("GET", "/v1/models/{name}") => get(get_model),
+        ("PUT", "/v1/models/{name}") => put(put_model),
+        ("DELETE", "/v1/models/{name}") => delete(delete_model),
+        ("DELETE", "/v1/models/{name}/versions/{version}") => delete(delete_model_version),
+        ("POST", "/v1/models/{name}/active") => post(set_active_model),
+        ("GET", "/v1/robots") => get(list_robots),
+        ("GET", "/v1/robots/{name}") => get(get_robot),
+        ("PUT", "/v1/robots/{name}") => put(put_robot),
+        ("DELETE", "/v1/robots/{name}") => delete(delete_robot),
+        ("GET", "/v1/profiles") => get(profiles),
+        ("GET", "/v1/profiles/{name}") => get(get_profile),
+        ("PUT", "/v1/profiles/{name}") => put(put_profile),
+        ("DELETE", "/v1/profiles/{name}") => delete(delete_profile),
+        ("PATCH", "/v1/profiles/{name}/thresholds") => patch(patch_thresholds),
+        ("POST", "/v1/profiles/{name}/calibrate") => post(start_calibration),
+        ("GET", "/v1/jobs") => get(list_jobs),
+        ("GET", "/v1/jobs/{id}") => get(get_job),
+        _ => return None,
+    })
+}
+
+/// The access check of a route: refuses a missing or insufficient token before the
+/// handler (and before any body is read).
+async fn require(
+    State((s, access)): State<(Arc<Shared>, Access)>,
+    req: Request,
+    next: Next,
+) -> Response {
+    let role = match access {
+        Access::Open => return next.run(req).await,
+        Access::Robot => Role::Robot,
+        Access::Admin => Role::Admin,
+    };
+    match authorize(&s, req.headers(), role) {
+        Ok(_) => next.run(req).await,
+        Err(e) => e.into_response(),
+    }
+}
+
+/// The REST routes of [`ROUTES`].
 pub fn router(shared: Arc<Shared>) -> Router {
-    Router::new()
-        .route("/healthz", get(healthz))
-        .route("/readyz", get(readyz))
-        .route("/v2/health/live", get(healthz))
-        .route("/v2/health/ready", get(readyz))
-        .route("/metrics", get(metrics))
-        .route("/v1/sessions", get(sessions))
-        .route("/v1/profiles", get(profiles))
-        .route("/v1/episodes:score", post(score_episode))
-        .route("/v2/models/{name}/ready", get(model_ready))
+    let mut by_path: Vec<(&str, MethodRouter<Arc<Shared>>)> = Vec::new();
+    for &(method, path, access) in ROUTES {
+        let Some(h) = handler(method, path) else {
+            tracing::error!(method, path, "route without a handler");
+            continue;
+        };
+        let h = h.route_layer(axum::middleware::from_fn_with_state(
+            (shared.clone(), access),
+            require,
+        ));
+        match by_path.iter().position(|(p, _)| *p == path) {
+            Some(i) => {
+                let (p, existing) = by_path.swap_remove(i);
+                by_path.push((p, existing.merge(h)));
+            }
+            None => by_path.push((path, h)),
+        }
+    }
+    by_path
+        .into_iter()
+        .fold(Router::new(), |r, (path, h)| r.route(path, h))
         .with_state(shared)
 }
 
@@ -144,28 +273,65 @@ async fn metrics(State(s): State<Arc<Shared>>) -> Response {
         .into_response()
 }
 
-async fn sessions(State(s): State<Arc<Shared>>, headers: HeaderMap) -> Result<Response, ApiError> {
-    authorize(&s, &headers, Role::Admin)?;
+async fn openapi() -> Response {
+    ([(header::CONTENT_TYPE, "application/json")], OPENAPI_JSON).into_response()
+}
+
+async fn sessions(State(s): State<Arc<Shared>>) -> Result<Response, ApiError> {
     Ok(Json(json!({ "sessions": s.hub.sessions() })).into_response())
 }
 
-async fn profiles(State(s): State<Arc<Shared>>, headers: HeaderMap) -> Result<Response, ApiError> {
-    authorize(&s, &headers, Role::Robot)?;
-    let list: Vec<_> = s
+fn file_profile_json(p: &super::profiles::LoadedProfile) -> serde_json::Value {
+    json!({
+        "name": p.name,
+        "source": "file",
+        "model": p.model_label,
+        "robot": p.setup.robot.is_some(),
+        "calibrated": p.setup.profile.calibration.is_some(),
+        "alarm_threshold": finite(p.setup.profile.alarm_threshold()),
+    })
+}
+
+fn stored_profile_json(s: &Shared, info: &crate::store::ProfileInfo) -> serde_json::Value {
+    let model = match s.profiles.get_cached(&info.name) {
+        Some(p) => p.model_label.clone(),
+        None => info.spec.model.as_ref().map_or_else(
+            || "none".into(),
+            |m| match m.version {
+                Some(v) => format!("{}@{v}", m.name),
+                None => m.name.clone(),
+            },
+        ),
+    };
+    json!({
+        "name": info.name,
+        "source": "store",
+        "model": model,
+        "robot": info.spec.robot.is_some(),
+        "calibrated": info.calibration.is_some(),
+        "alarm_threshold": info.alarm_threshold,
+        "profile": info,
+    })
+}
+
+/// `GET /v1/profiles`: the profile files, then the stored profiles they do not shadow.
+async fn profiles(State(s): State<Arc<Shared>>) -> Result<Response, ApiError> {
+    let mut list: Vec<_> = s
         .profiles
-        .names()
-        .into_iter()
-        .filter_map(|n| s.profiles.get(&n).ok())
-        .map(|p| {
-            json!({
-                "name": p.name,
-                "model": p.model_label,
-                "robot": p.setup.robot.is_some(),
-                "calibrated": p.setup.profile.calibration.is_some(),
-                "alarm_threshold": finite(p.setup.profile.alarm_threshold()),
-            })
-        })
+        .loaded()
+        .iter()
+        .filter(|p| s.profiles.is_file(&p.name))
+        .map(|p| file_profile_json(p))
         .collect();
+    list.sort_by(|a, b| a["name"].as_str().cmp(&b["name"].as_str()));
+    let store = s.store.clone();
+    let stored = blocking(move || Ok(store.profiles())).await?;
+    list.extend(
+        stored
+            .iter()
+            .filter(|p| !s.profiles.is_file(&p.name))
+            .map(|p| stored_profile_json(&s, p)),
+    );
     Ok(Json(json!({ "profiles": list })).into_response())
 }
 
@@ -173,14 +339,25 @@ fn finite(v: f64) -> Option<f64> {
     v.is_finite().then_some(v)
 }
 
-/// KServe-v2-style model readiness: the profile or model named is loaded.
+/// KServe-v2-style model readiness: `name` is a profile or model (`name@version` label)
+/// that a loaded profile uses, or a stored model whose active version has no problem
+/// (every stored version was loaded with ONNX Runtime when it was uploaded, and its
+/// checksum verified when the data directory was opened).
 async fn model_ready(State(s): State<Arc<Shared>>, Path(name): Path<String>) -> Response {
-    let ready = s.profiles.names().into_iter().any(|n| {
-        s.profiles
-            .get(&n)
-            .is_ok_and(|p| p.setup.model.is_some() && (p.name == name || p.model_label == name))
+    let loaded = s.profiles.loaded().iter().any(|p| {
+        p.setup.model.is_some()
+            && (p.name == name
+                || p.model_label == name
+                || p.model_label.split('@').next() == Some(&name))
     });
-    if ready {
+    let stored = s.store.model(&name).ok().is_some_and(|m| {
+        m.active.is_some_and(|v| {
+            m.versions
+                .iter()
+                .any(|x| x.version == v && x.problem.is_none())
+        })
+    });
+    if loaded || stored {
         Json(json!({ "name": name, "ready": true })).into_response()
     } else {
         (
@@ -229,10 +406,10 @@ async fn score_episode(
     axum::extract::Query(q): axum::extract::Query<ScoreQuery>,
     body: Body,
 ) -> Result<Response, ApiError> {
-    authorize(&s, &headers, Role::Robot)?;
     let profile = s
         .profiles
-        .get(&q.profile)
+        .get_async(&q.profile)
+        .await
         .map_err(|e| ApiError::new(StatusCode::NOT_FOUND, e.to_string()))?;
     let limit = s.hub.config().max_episode_bytes;
     if let Some(len) = headers
@@ -279,4 +456,503 @@ async fn score_episode(
         }
     }
     Ok(Json(json!({ "frames": frames, "damage": damage })).into_response())
+}
+
+// ---- Administration of the data directory ----
+
+impl From<StoreError> for ApiError {
+    fn from(e: StoreError) -> Self {
+        let status = match e.kind() {
+            StoreErrorKind::NotFound => StatusCode::NOT_FOUND,
+            StoreErrorKind::BadRequest => StatusCode::BAD_REQUEST,
+            StoreErrorKind::TooLarge => StatusCode::PAYLOAD_TOO_LARGE,
+            StoreErrorKind::Conflict => StatusCode::CONFLICT,
+            StoreErrorKind::Internal => StatusCode::INTERNAL_SERVER_ERROR,
+        };
+        Self::new(status, e.to_string())
+    }
+}
+
+fn internal(e: impl std::fmt::Display) -> ApiError {
+    ApiError::new(StatusCode::INTERNAL_SERVER_ERROR, e.to_string())
+}
+
+fn bad_request(e: impl std::fmt::Display) -> ApiError {
+    ApiError::new(StatusCode::BAD_REQUEST, e.to_string())
+}
+
+/// Runs a store call on a blocking thread.
+async fn blocking<T: Send + 'static>(
+    f: impl FnOnce() -> Result<T, StoreError> + Send + 'static,
+) -> Result<T, ApiError> {
+    Ok(tokio::task::spawn_blocking(f).await.map_err(internal)??)
+}
+
+fn json_body<T: serde::de::DeserializeOwned>(body: &Bytes) -> Result<T, ApiError> {
+    serde_json::from_slice(body).map_err(|e| bad_request(format!("bad JSON body: {e}")))
+}
+
+fn to_json(v: &impl serde::Serialize) -> Result<serde_json::Value, ApiError> {
+    serde_json::to_value(v).map_err(internal)
+}
+
+/// Streams `body` into a new upload of `kind`, refusing with 413 a declared or actual
+/// size over the store's limit.
+async fn receive(
+    store: &Store,
+    kind: UploadKind,
+    headers: &HeaderMap,
+    body: Body,
+) -> Result<Upload, ApiError> {
+    let limit = match kind {
+        UploadKind::Model => store.limits().max_model_bytes,
+        UploadKind::Robot { .. } => store.limits().max_robot_bytes,
+    };
+    if let Some(len) = headers
+        .get(header::CONTENT_LENGTH)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.parse::<u64>().ok())
+        && len > limit
+    {
+        return Err(StoreError::TooLarge { limit_bytes: limit }.into());
+    }
+    let s = store.clone();
+    let mut upload = blocking(move || s.begin_upload(kind)).await?;
+    let mut stream = body.into_data_stream();
+    while let Some(chunk) = stream.next().await {
+        let chunk = chunk.map_err(bad_request)?;
+        upload = blocking(move || upload.write_chunk(&chunk).map(|()| upload)).await?;
+    }
+    Ok(upload)
+}
+
+async fn list_models(State(s): State<Arc<Shared>>) -> Result<Response, ApiError> {
+    let store = s.store.clone();
+    let models = blocking(move || Ok(store.models())).await?;
+    Ok(Json(json!({ "models": models })).into_response())
+}
+
+async fn get_model(
+    State(s): State<Arc<Shared>>,
+    Path(name): Path<String>,
+) -> Result<Response, ApiError> {
+    let store = s.store.clone();
+    let model = blocking(move || store.model(&name)).await?;
+    Ok(Json(model).into_response())
+}
+
+/// `PUT /v1/models/{name}`: the body is a model bundle; it becomes the next version once
+/// it reads as a bundle and loads with ONNX Runtime.
+async fn put_model(
+    State(s): State<Arc<Shared>>,
+    Path(name): Path<String>,
+    headers: HeaderMap,
+    body: Body,
+) -> Result<Response, ApiError> {
+    let upload = receive(&s.store, UploadKind::Model, &headers, body).await?;
+    let store = s.store.clone();
+    let options = s.settings.model.load_options();
+    let n = name.clone();
+    let (info, active) = blocking(move || {
+        let info = store.commit_model(&n, upload, |path| {
+            let summary = model_bundle_summary(path)?;
+            FlowModel::load(path, &options)
+                .map_err(|e| format!("the model does not load with ONNX Runtime: {e}"))?;
+            Ok(summary)
+        })?;
+        let active = store.model(&n)?.active;
+        Ok((info, active))
+    })
+    .await?;
+    s.profiles.invalidate_model(&name);
+    let mut body = to_json(&info)?;
+    body["name"] = json!(name);
+    body["active"] = json!(active);
+    Ok((StatusCode::CREATED, Json(body)).into_response())
+}
+
+async fn delete_model(
+    State(s): State<Arc<Shared>>,
+    Path(name): Path<String>,
+) -> Result<Response, ApiError> {
+    let store = s.store.clone();
+    let n = name.clone();
+    blocking(move || store.delete_model(&n, None)).await?;
+    s.profiles.invalidate_model(&name);
+    Ok(StatusCode::NO_CONTENT.into_response())
+}
+
+async fn delete_model_version(
+    State(s): State<Arc<Shared>>,
+    Path((name, version)): Path<(String, String)>,
+) -> Result<Response, ApiError> {
+    let version: u32 = version
+        .parse()
+        .map_err(|_| bad_request(format!("bad version {version:?}")))?;
+    let store = s.store.clone();
+    let n = name.clone();
+    blocking(move || store.delete_model(&n, Some(version))).await?;
+    s.profiles.invalidate_model(&name);
+    Ok(StatusCode::NO_CONTENT.into_response())
+}
+
+/// Body of `POST /v1/models/{name}/active`.
+#[derive(Debug, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ActiveRequest {
+    version: u32,
+}
+
+async fn set_active_model(
+    State(s): State<Arc<Shared>>,
+    Path(name): Path<String>,
+    body: Bytes,
+) -> Result<Response, ApiError> {
+    let req: ActiveRequest = json_body(&body)?;
+    let store = s.store.clone();
+    let n = name.clone();
+    let model = blocking(move || {
+        store.set_active_model(&n, req.version)?;
+        store.model(&n)
+    })
+    .await?;
+    s.profiles.invalidate_model(&name);
+    Ok(Json(model).into_response())
+}
+
+async fn list_robots(State(s): State<Arc<Shared>>) -> Result<Response, ApiError> {
+    let store = s.store.clone();
+    let robots = blocking(move || Ok(store.robots())).await?;
+    Ok(Json(json!({ "robots": robots })).into_response())
+}
+
+async fn get_robot(
+    State(s): State<Arc<Shared>>,
+    Path(name): Path<String>,
+) -> Result<Response, ApiError> {
+    let store = s.store.clone();
+    let robot = blocking(move || store.robot(&name)).await?;
+    Ok(Json(robot).into_response())
+}
+
+/// Query of `PUT /v1/robots/{name}`.
+#[derive(Debug, serde::Deserialize)]
+struct RobotQuery {
+    #[serde(default)]
+    format: Option<String>,
+}
+
+/// The package format: `?format=urdf|tar.gz|tgz|zip`, else the Content-Type.
+fn robot_format(q: &RobotQuery, headers: &HeaderMap) -> Result<RobotFormat, ApiError> {
+    if let Some(f) = &q.format {
+        return match f.to_ascii_lowercase().as_str() {
+            "urdf" => Ok(RobotFormat::Urdf),
+            "tar.gz" | "tgz" => Ok(RobotFormat::TarGz),
+            "zip" => Ok(RobotFormat::Zip),
+            other => Err(bad_request(format!(
+                "unknown robot format {other:?} (urdf, tar.gz or zip)"
+            ))),
+        };
+    }
+    let ctype = headers
+        .get(header::CONTENT_TYPE)
+        .and_then(|v| v.to_str().ok())
+        .unwrap_or("");
+    let mime = ctype
+        .split(';')
+        .next()
+        .unwrap_or("")
+        .trim()
+        .to_ascii_lowercase();
+    match mime.as_str() {
+        "application/gzip" | "application/x-gzip" | "application/x-tar+gzip" => {
+            Ok(RobotFormat::TarGz)
+        }
+        "application/zip" => Ok(RobotFormat::Zip),
+        "application/xml" | "text/xml" => Ok(RobotFormat::Urdf),
+        _ => Err(bad_request(format!(
+            "cannot tell the robot format from Content-Type {ctype:?}: use ?format=urdf|tar.gz|zip"
+        ))),
+    }
+}
+
+/// `PUT /v1/robots/{name}`: the body is a URDF file or a robot package archive.
+async fn put_robot(
+    State(s): State<Arc<Shared>>,
+    Path(name): Path<String>,
+    axum::extract::Query(q): axum::extract::Query<RobotQuery>,
+    headers: HeaderMap,
+    body: Body,
+) -> Result<Response, ApiError> {
+    let format = robot_format(&q, &headers)?;
+    let upload = receive(&s.store, UploadKind::Robot { format }, &headers, body).await?;
+    let store = s.store.clone();
+    let cfg = s.settings.robot.clone();
+    let n = name.clone();
+    let info =
+        blocking(move || store.commit_robot(&n, upload, |path| robot_summary(path, &cfg))).await?;
+    s.profiles.invalidate_robot(&name);
+    Ok((StatusCode::CREATED, Json(info)).into_response())
+}
+
+async fn delete_robot(
+    State(s): State<Arc<Shared>>,
+    Path(name): Path<String>,
+) -> Result<Response, ApiError> {
+    let store = s.store.clone();
+    let n = name.clone();
+    blocking(move || store.delete_robot(&n)).await?;
+    s.profiles.invalidate_robot(&name);
+    Ok(StatusCode::NO_CONTENT.into_response())
+}
+
+fn refuse_file_profile(s: &Shared, name: &str) -> Result<(), ApiError> {
+    if s.profiles.is_file(name) {
+        return Err(ApiError::new(
+            StatusCode::CONFLICT,
+            format!(
+                "profile {name:?} is a profile file of the server's settings, which takes priority; it cannot be changed through the API"
+            ),
+        ));
+    }
+    Ok(())
+}
+
+async fn get_profile(
+    State(s): State<Arc<Shared>>,
+    Path(name): Path<String>,
+) -> Result<Response, ApiError> {
+    if let Some(p) = s
+        .profiles
+        .get_cached(&name)
+        .filter(|_| s.profiles.is_file(&name))
+    {
+        return Ok(Json(file_profile_json(&p)).into_response());
+    }
+    let store = s.store.clone();
+    let info = blocking(move || store.profile(&name)).await?;
+    Ok(Json(stored_profile_json(&s, &info)).into_response())
+}
+
+/// `PUT /v1/profiles/{name}`: stores the profile, then loads it (robot, camera, model) so
+/// the first session does not wait; a profile that does not load is stored anyway and
+/// the answer says why (`load_error`).
+async fn put_profile(
+    State(s): State<Arc<Shared>>,
+    Path(name): Path<String>,
+    body: Bytes,
+) -> Result<Response, ApiError> {
+    refuse_file_profile(&s, &name)?;
+    let spec: ProfileSpec = json_body(&body)?;
+    let store = s.store.clone();
+    let n = name.clone();
+    let info = blocking(move || store.put_profile(&n, spec)).await?;
+    s.profiles.invalidate_profile(&name);
+    let load_error = s
+        .profiles
+        .get_async(&name)
+        .await
+        .err()
+        .map(|e| e.to_string());
+    let mut body = stored_profile_json(&s, &info);
+    body["load_error"] = json!(load_error);
+    Ok(Json(body).into_response())
+}
+
+async fn delete_profile(
+    State(s): State<Arc<Shared>>,
+    Path(name): Path<String>,
+) -> Result<Response, ApiError> {
+    refuse_file_profile(&s, &name)?;
+    let store = s.store.clone();
+    let n = name.clone();
+    blocking(move || store.delete_profile(&n)).await?;
+    s.profiles.invalidate_profile(&name);
+    Ok(StatusCode::NO_CONTENT.into_response())
+}
+
+async fn patch_thresholds(
+    State(s): State<Arc<Shared>>,
+    Path(name): Path<String>,
+    body: Bytes,
+) -> Result<Response, ApiError> {
+    refuse_file_profile(&s, &name)?;
+    let patch: ThresholdsPatch = json_body(&body)?;
+    let store = s.store.clone();
+    let n = name.clone();
+    let info = blocking(move || store.patch_thresholds(&n, patch)).await?;
+    s.profiles.invalidate_profile(&name);
+    Ok(Json(stored_profile_json(&s, &info)).into_response())
+}
+
+fn default_alpha() -> f64 {
+    0.1
+}
+
+/// Body of `POST /v1/profiles/{name}/calibrate`: episode files or folders of `.mcap`
+/// files on the server.
+#[derive(Debug, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+struct CalibrateRequest {
+    episodes: Vec<PathBuf>,
+    #[serde(default)]
+    holdout: Vec<PathBuf>,
+    #[serde(default = "default_alpha")]
+    alpha: f64,
+}
+
+/// Folders become the `.mcap` files directly inside them (sorted).
+fn expand(paths: &[PathBuf]) -> Result<Vec<PathBuf>, String> {
+    let mut out = Vec::new();
+    for p in paths {
+        if p.is_dir() {
+            let mut found: Vec<PathBuf> = std::fs::read_dir(p)
+                .map_err(|e| format!("{}: {e}", p.display()))?
+                .filter_map(|e| e.ok().map(|e| e.path()))
+                .filter(|f| f.extension().is_some_and(|x| x == "mcap"))
+                .collect();
+            found.sort();
+            out.extend(found);
+        } else if p.is_file() {
+            out.push(p.clone());
+        } else {
+            return Err(format!("{}: no such episode file or folder", p.display()));
+        }
+    }
+    Ok(out)
+}
+
+/// The calibration job's work (blocking): scores the episodes with the profile, saves
+/// the calibration.
+fn run_calibration(
+    s: &Shared,
+    name: &str,
+    req: &CalibrateRequest,
+) -> Result<(crate::pipeline::Calibration, Vec<String>), String> {
+    let profile = s.profiles.get(name).map_err(|e| e.to_string())?;
+    let setup = &profile.setup;
+    let training = expand(&req.episodes)?;
+    let holdout = expand(&req.holdout)?;
+    if training.is_empty() {
+        return Err("no training episodes".into());
+    }
+    let model_sha256 = setup.model.as_ref().map(|m| m.sha256().to_string());
+    let outcome = calibrate(
+        &training,
+        &holdout,
+        req.alpha,
+        model_sha256,
+        |episodes, thresholds| {
+            episodes
+                .iter()
+                .map(|path| {
+                    let what = |e: &dyn std::fmt::Display| format!("{}: {e}", path.display());
+                    let episode = McapEpisode::open(path, &setup.episode).map_err(|e| what(&e))?;
+                    let mut scorer = setup
+                        .scorer(episode.name(), thresholds, f64::INFINITY, false, None, None)
+                        .map_err(|e| what(&e))?;
+                    score_offline::<EpisodeError>(&mut scorer, &episode, |_, _| Ok(()))
+                        .map_err(|e| what(&e))
+                })
+                .collect()
+        },
+    )?;
+    s.store
+        .save_calibration(name, outcome.calibration.clone())
+        .map_err(|e| e.to_string())?;
+    Ok((outcome.calibration, outcome.notes))
+}
+
+/// `POST /v1/profiles/{name}/calibrate`: starts a calibration job (202 `{"job": id}`).
+async fn start_calibration(
+    State(s): State<Arc<Shared>>,
+    Path(name): Path<String>,
+    body: Bytes,
+) -> Result<Response, ApiError> {
+    refuse_file_profile(&s, &name)?;
+    let req: CalibrateRequest = json_body(&body)?;
+    if req.episodes.is_empty() {
+        return Err(bad_request("`episodes` is empty"));
+    }
+    if !(req.alpha > 0.0 && req.alpha < 1.0) {
+        return Err(bad_request(format!("alpha {} is not in (0, 1)", req.alpha)));
+    }
+    let store = s.store.clone();
+    let n = name.clone();
+    blocking(move || store.profile(&n)).await?;
+    let id = s.jobs.start(&name);
+    let shared = s.clone();
+    tokio::task::spawn_blocking(move || {
+        let result = run_calibration(&shared, &name, &req);
+        match &result {
+            Ok(_) => {
+                shared.profiles.invalidate_profile(&name);
+                tracing::info!(job = id, profile = %name, "calibration job succeeded");
+            }
+            Err(e) => tracing::warn!(job = id, profile = %name, "calibration job failed: {e}"),
+        }
+        shared.jobs.finish(id, result);
+    });
+    Ok((StatusCode::ACCEPTED, Json(json!({ "job": id }))).into_response())
+}
+
+async fn list_jobs(State(s): State<Arc<Shared>>) -> Response {
+    Json(json!({ "jobs": s.jobs.list() })).into_response()
+}
+
+async fn get_job(
+    State(s): State<Arc<Shared>>,
+    Path(id): Path<String>,
+) -> Result<Response, ApiError> {
+    id.parse::<u64>()
+        .ok()
+        .and_then(|id| s.jobs.get(id))
+        .map(|j| Json(j).into_response())
+        .ok_or_else(|| ApiError::new(StatusCode::NOT_FOUND, format!("no job {id:?}")))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{Access, OPENAPI_JSON, ROUTES, handler};
+    use std::collections::BTreeSet;
+
+    #[test]
+    fn openapi_describes_exactly_the_routes() {
+        let doc: serde_json::Value = serde_json::from_str(OPENAPI_JSON).unwrap();
+        assert_eq!(doc["openapi"].as_str().map(|v| &v[..2]), Some("3."));
+        let mut described = BTreeSet::new();
+        for (path, ops) in doc["paths"].as_object().unwrap() {
+            for (method, op) in ops.as_object().unwrap() {
+                let method = method.to_ascii_uppercase();
+                // The role in the description is the one enforced.
+                let role = op.get("x-vamos-role").and_then(|r| r.as_str());
+                let access = ROUTES
+                    .iter()
+                    .find(|(m, p, _)| *m == method && p == path)
+                    .map(|r| r.2);
+                let expected = match access {
+                    Some(Access::Open) => None,
+                    Some(Access::Robot) => Some("robot"),
+                    Some(Access::Admin) => Some("admin"),
+                    None => panic!("{method} {path} is described but not routed"),
+                };
+                assert_eq!(role, expected, "{method} {path}");
+                described.insert((method, path.clone()));
+            }
+        }
+        let routed: BTreeSet<(String, String)> = ROUTES
+            .iter()
+            .map(|(m, p, _)| (m.to_string(), p.to_string()))
+            .collect();
+        assert_eq!(routed.len(), ROUTES.len(), "a route is listed twice");
+        assert_eq!(described, routed);
+    }
+
+    #[test]
+    fn every_listed_route_has_a_handler() {
+        for (m, p, _) in ROUTES {
+            assert!(handler(m, p).is_some(), "{m} {p}");
+        }
+        assert!(handler("GET", "/v1/nothing").is_none());
+    }
 }

@@ -20,3 +20,4 @@ mod render_cli;
 mod robot_fk;
 mod scorer_model;
 mod service;
+mod service_admin;

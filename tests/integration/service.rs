@@ -19,7 +19,7 @@ use vamos::service::proto::{self, stream_request::Message as In};
 use vamos::service::{RunningServer, Server, profiles::ProfileCatalog};
 use vamos::setup::Setup;
 
-const PROFILE: &str = r#"name = "sim-arm"
+pub(crate) const PROFILE: &str = r#"name = "sim-arm"
 robot = "robot/vamos_arm.urdf"
 camera = "camera.json"
 flow_preset = "realtime"
@@ -31,14 +31,14 @@ height = 120
 variant = "masked"
 "#;
 
-const ADMIN: &str = "admin-secret";
-const ROBOT: &str = "robot-secret";
+pub(crate) const ADMIN: &str = "admin-secret";
+pub(crate) const ROBOT: &str = "robot-secret";
 
-fn fixture() -> PathBuf {
+pub(crate) fn fixture() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/sim")
 }
 
-fn hex_sha256(s: &str) -> String {
+pub(crate) fn hex_sha256(s: &str) -> String {
     vamos::service::auth::digest(s)
         .iter()
         .map(|b| format!("{b:02x}"))
@@ -95,7 +95,7 @@ async fn start(f: &Fixture) -> RunningServer {
 
 /// The messages of a bag as a robot would stream them (log-time order): images, joint
 /// states; and its first camera info.
-fn episode_messages(path: &std::path::Path) -> (Vec<In>, Option<proto::CameraInfo>) {
+pub(crate) fn episode_messages(path: &std::path::Path) -> (Vec<In>, Option<proto::CameraInfo>) {
     let ep = McapEpisode::open(path, &Default::default()).unwrap();
     let topics: Vec<String> = ep.info().topics.iter().map(|t| t.name.clone()).collect();
     let mut out = Vec::new();
@@ -148,7 +148,7 @@ fn offline(setup: &Setup, path: &std::path::Path) -> Vec<FrameScore> {
         .frames
 }
 
-fn open_msg(profile: &str, session_id: &str, camera: Option<proto::CameraInfo>) -> In {
+pub(crate) fn open_msg(profile: &str, session_id: &str, camera: Option<proto::CameraInfo>) -> In {
     In::Open(proto::OpenSession {
         robot_id: format!("robot-{session_id}"),
         profile: profile.into(),
@@ -158,7 +158,7 @@ fn open_msg(profile: &str, session_id: &str, camera: Option<proto::CameraInfo>) 
     })
 }
 
-fn authed<T>(msg: T, token: Option<&str>) -> Request<T> {
+pub(crate) fn authed<T>(msg: T, token: Option<&str>) -> Request<T> {
     let mut req = Request::new(msg);
     if let Some(t) = token {
         req.metadata_mut().insert(
@@ -170,7 +170,7 @@ fn authed<T>(msg: T, token: Option<&str>) -> Request<T> {
 }
 
 /// Streams `messages` after `open` and collects the responses until the server closes.
-async fn stream_all(
+pub(crate) async fn stream_all(
     addr: std::net::SocketAddr,
     token: Option<&str>,
     open: In,
@@ -234,7 +234,7 @@ async fn tcp_proxy(
     (addr, task)
 }
 
-fn episode(name: &str) -> PathBuf {
+pub(crate) fn episode(name: &str) -> PathBuf {
     fixture().join("test").join(format!("{name}.mcap"))
 }
 

@@ -1,0 +1,409 @@
+//! The REST administration API end to end: tokens on every admin route, robots, models
+//! (ONNX-validated uploads), stored profiles served to gRPC sessions, a model hot swap
+//! that keeps running sessions, threshold patches, a calibration job, and a restart that
+//! keeps the data directory.
+
+use super::service::{
+    ADMIN, PROFILE, ROBOT, authed, episode, episode_messages, fixture, hex_sha256, open_msg,
+};
+use futures_util::StreamExt;
+use reqwest::{Client, Method, StatusCode};
+use serde_json::{Value, json};
+use std::path::PathBuf;
+use std::time::Duration;
+use tokio::sync::mpsc;
+use tokio_stream::wrappers::ReceiverStream;
+use vamos::config::Settings;
+use vamos::service::proto::monitor_client::MonitorClient;
+use vamos::service::proto::{self, stream_request::Message as In};
+use vamos::service::rest::{Access, ROUTES};
+use vamos::service::{RunningServer, Server, profiles::ProfileCatalog};
+
+fn settings(dir: &std::path::Path) -> Settings {
+    let mut s = Settings::default();
+    s.service.grpc_addr = "127.0.0.1:0".into();
+    s.service.rest_addr = "127.0.0.2:0".into();
+    s.service.data_dir = dir.join("data");
+    s.service.workers = 2;
+    s.service.queue_depth = 64;
+    s.service.shutdown_grace_s = 5.0;
+    s.service.admin_token_sha256 = vec![hex_sha256(ADMIN)];
+    s.service.robot_token_sha256 = vec![hex_sha256(ROBOT)];
+    s
+}
+
+async fn start(settings: &Settings) -> RunningServer {
+    Server::start(settings.clone(), ProfileCatalog::from_setups(Vec::new()))
+        .await
+        .unwrap()
+}
+
+fn model_fixture(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/fixtures/model")
+        .join(name)
+}
+
+struct Api {
+    http: Client,
+    base: String,
+}
+
+impl Api {
+    fn new(server: &RunningServer) -> Self {
+        Self {
+            http: Client::new(),
+            base: format!("http://{}", server.rest_addr),
+        }
+    }
+
+    async fn call(&self, method: Method, path: &str, body: Option<Vec<u8>>) -> (StatusCode, Value) {
+        let mut req = self
+            .http
+            .request(method, format!("{}{path}", self.base))
+            .bearer_auth(ADMIN);
+        if let Some(b) = body {
+            req = req.body(b);
+        }
+        let resp = req.send().await.unwrap();
+        let status = resp.status();
+        let text = resp.text().await.unwrap();
+        (status, serde_json::from_str(&text).unwrap_or(Value::Null))
+    }
+
+    async fn json(&self, method: Method, path: &str, body: Value) -> (StatusCode, Value) {
+        self.call(method, path, Some(serde_json::to_vec(&body).unwrap()))
+            .await
+    }
+
+    async fn get(&self, path: &str) -> Value {
+        let (status, v) = self.call(Method::GET, path, None).await;
+        assert_eq!(status, StatusCode::OK, "GET {path}: {v}");
+        v
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn every_route_refuses_missing_and_insufficient_tokens() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = start(&settings(dir.path())).await;
+    let http = Client::new();
+    let mut admin_routes = 0;
+    for &(method, path, access) in ROUTES {
+        let url = format!(
+            "http://{}{}",
+            server.rest_addr,
+            path.replace("{name}", "x")
+                .replace("{version}", "1")
+                .replace("{id}", "1")
+        );
+        let m = Method::from_bytes(method.as_bytes()).unwrap();
+        let none = http.request(m.clone(), &url).send().await.unwrap().status();
+        let robot = http
+            .request(m, &url)
+            .bearer_auth(ROBOT)
+            .send()
+            .await
+            .unwrap()
+            .status();
+        match access {
+            Access::Open => {
+                assert_ne!(none, StatusCode::UNAUTHORIZED, "{method} {path}");
+            }
+            Access::Robot => {
+                assert_eq!(none, StatusCode::UNAUTHORIZED, "{method} {path}");
+                assert_ne!(robot, StatusCode::FORBIDDEN, "{method} {path}");
+                assert_ne!(robot, StatusCode::UNAUTHORIZED, "{method} {path}");
+            }
+            Access::Admin => {
+                admin_routes += 1;
+                assert_eq!(none, StatusCode::UNAUTHORIZED, "{method} {path}");
+                assert_eq!(robot, StatusCode::FORBIDDEN, "{method} {path}");
+            }
+        }
+    }
+    assert!(admin_routes >= 12, "{admin_routes} admin routes");
+    // The description served is the one the routes are checked against.
+    let doc: Value = reqwest::get(format!("http://{}/openapi.json", server.rest_addr))
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
+    assert_eq!(doc["paths"].as_object().unwrap().len(), {
+        let mut paths: Vec<&str> = ROUTES.iter().map(|r| r.1).collect();
+        paths.sort();
+        paths.dedup();
+        paths.len()
+    });
+    server.shutdown().await.unwrap();
+}
+
+/// A session on `profile` fed by a channel; returns the sender and a task collecting
+/// (scores, events, error).
+async fn open_session(
+    addr: std::net::SocketAddr,
+    profile: &str,
+    session_id: &str,
+    camera: Option<proto::CameraInfo>,
+) -> (
+    mpsc::Sender<proto::StreamRequest>,
+    tokio::task::JoinHandle<(
+        Vec<proto::FrameScore>,
+        Vec<proto::SessionEvent>,
+        Option<tonic::Status>,
+    )>,
+    proto::SessionEvent,
+) {
+    let mut client = MonitorClient::connect(format!("http://{addr}"))
+        .await
+        .unwrap();
+    let (tx, rx) = mpsc::channel(256);
+    tx.send(proto::StreamRequest {
+        message: Some(open_msg(profile, session_id, camera)),
+    })
+    .await
+    .unwrap();
+    let mut inbound = client
+        .stream(authed(ReceiverStream::new(rx), Some(ROBOT)))
+        .await
+        .unwrap()
+        .into_inner();
+    let opened = match inbound.next().await.unwrap().unwrap().message {
+        Some(proto::stream_response::Message::Event(e)) => e,
+        other => panic!("first message {other:?}"),
+    };
+    let task = tokio::spawn(async move {
+        let mut scores = Vec::new();
+        let mut events = Vec::new();
+        while let Some(item) = inbound.next().await {
+            match item {
+                Ok(r) => match r.message {
+                    Some(proto::stream_response::Message::Score(s)) => scores.push(s),
+                    Some(proto::stream_response::Message::Event(e)) => events.push(e),
+                    None => {}
+                },
+                Err(s) => return (scores, events, Some(s)),
+            }
+        }
+        (scores, events, None)
+    });
+    (tx, task, opened)
+}
+
+async fn send_all(tx: &mpsc::Sender<proto::StreamRequest>, messages: &[In]) {
+    for m in messages {
+        tx.send(proto::StreamRequest {
+            message: Some(m.clone()),
+        })
+        .await
+        .unwrap();
+    }
+}
+
+fn images(messages: &[In]) -> usize {
+    messages
+        .iter()
+        .filter(|m| matches!(m, In::Image(_)))
+        .count()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn stored_profiles_serve_sessions_swap_models_calibrate_and_survive_a_restart() {
+    let dir = tempfile::tempdir().unwrap();
+    let settings = settings(dir.path());
+    let server = start(&settings).await;
+    let api = Api::new(&server);
+
+    // A robot.
+    let urdf = std::fs::read(fixture().join("robot/vamos_arm.urdf")).unwrap();
+    let (status, robot) = api
+        .call(Method::PUT, "/v1/robots/arm?format=urdf", Some(urdf))
+        .await;
+    assert_eq!(status, StatusCode::CREATED, "{robot}");
+    assert_eq!(robot["name"], "arm");
+    assert_eq!(robot["format"], "urdf");
+    assert!(robot["summary"]["joints"].as_u64().unwrap() > 0);
+
+    // A model; a corrupt one is refused with the reason and leaves it as it was.
+    let bundle = std::fs::read(model_fixture("tiny_trained.vamos")).unwrap();
+    let (status, v1) = api
+        .call(Method::PUT, "/v1/models/tiny", Some(bundle.clone()))
+        .await;
+    assert_eq!(status, StatusCode::CREATED, "{v1}");
+    assert_eq!(v1["version"], 1);
+    assert_eq!(v1["active"], 1);
+    assert_eq!(v1["name"], "tiny");
+    for bad in ["corrupt_onnx.vamos", "checksum.vamos"] {
+        let (status, e) = api
+            .call(
+                Method::PUT,
+                "/v1/models/tiny",
+                Some(std::fs::read(model_fixture(bad)).unwrap()),
+            )
+            .await;
+        assert_eq!(status, StatusCode::BAD_REQUEST, "{bad}: {e}");
+        assert!(e["error"].as_str().unwrap().len() > 10, "{e}");
+    }
+    let model = api.get("/v1/models/tiny").await;
+    assert_eq!(model["active"], 1);
+    assert_eq!(model["versions"].as_array().unwrap().len(), 1);
+
+    // A profile: the fixture's camera and pipeline section, the stored robot and model.
+    let camera: Value =
+        serde_json::from_str(&std::fs::read_to_string(fixture().join("camera.json")).unwrap())
+            .unwrap();
+    assert!(PROFILE.contains("width = 160") && PROFILE.contains("variant = \"masked\""));
+    let spec = json!({
+        "robot": "arm",
+        "camera": camera,
+        "model": { "name": "tiny" },
+        "flow_preset": "realtime",
+        "pipeline": { "stride": 1, "frames": { "width": 160, "height": 120, "variant": "masked" } },
+    });
+    let (status, p) = api.json(Method::PUT, "/v1/profiles/arm-store", spec).await;
+    assert_eq!(status, StatusCode::OK, "{p}");
+    assert_eq!(p["load_error"], Value::Null, "{p}");
+    assert_eq!(p["model"], "tiny@1");
+    let list = api.get("/v1/profiles").await;
+    assert!(
+        list["profiles"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|p| p["name"] == "arm-store" && p["source"] == "store")
+    );
+    let ready = reqwest::get(format!("{}/v2/models/tiny/ready", api.base))
+        .await
+        .unwrap();
+    assert_eq!(ready.status(), StatusCode::OK);
+
+    // A session scores with the stored profile.
+    let (messages, camera_info) = episode_messages(&episode("test_0000"));
+    let half = messages.len() / 2;
+    let (tx_a, task_a, opened_a) =
+        open_session(server.grpc_addr, "arm-store", "a", camera_info).await;
+    assert!(
+        opened_a.detail.contains("model tiny@1"),
+        "{}",
+        opened_a.detail
+    );
+    send_all(&tx_a, &messages[..half]).await;
+
+    // A second version, made active while session a streams.
+    let (status, v2) = api.call(Method::PUT, "/v1/models/tiny", Some(bundle)).await;
+    assert_eq!(status, StatusCode::CREATED, "{v2}");
+    assert_eq!(v2["version"], 2);
+    assert_eq!(v2["active"], 1, "a new version is not active by itself");
+    let (status, m) = api
+        .json(
+            Method::POST,
+            "/v1/models/tiny/active",
+            json!({ "version": 2 }),
+        )
+        .await;
+    assert_eq!(status, StatusCode::OK, "{m}");
+    assert_eq!(m["active"], 2);
+    let (tx_b, task_b, opened_b) =
+        open_session(server.grpc_addr, "arm-store", "b", camera_info).await;
+    assert!(
+        opened_b.detail.contains("model tiny@2"),
+        "{}",
+        opened_b.detail
+    );
+    send_all(&tx_a, &messages[half..]).await;
+    send_all(&tx_b, &messages[..half]).await;
+    drop(tx_a);
+    drop(tx_b);
+    let (scores_a, _, err_a) = task_a.await.unwrap();
+    let (scores_b, _, err_b) = task_b.await.unwrap();
+    assert!(err_a.is_none(), "{err_a:?}");
+    assert!(err_b.is_none(), "{err_b:?}");
+    assert_eq!(
+        scores_a.len(),
+        images(&messages),
+        "session a scored every frame"
+    );
+    assert_eq!(scores_b.len(), images(&messages[..half]));
+    assert!(scores_a.iter().all(|s| s.score.is_finite()));
+    // Same frames, same geometry (e_c, e_b do not depend on the model; e_o does on the
+    // session's sampling seed).
+    for (a, b) in scores_a.iter().zip(&scores_b) {
+        assert_eq!(a.stamp_ns, b.stamp_ns);
+        assert_eq!(a.e_c, b.e_c);
+        assert_eq!(a.e_b, b.e_b);
+    }
+    assert!(scores_b.iter().any(|s| s.e_o.is_some_and(|v| v > 0.0)));
+    // The active version cannot go while the profile follows it.
+    let (status, _) = api
+        .call(Method::DELETE, "/v1/models/tiny/versions/2", None)
+        .await;
+    assert_eq!(status, StatusCode::CONFLICT);
+
+    // Thresholds.
+    let (status, p) = api
+        .json(
+            Method::PATCH,
+            "/v1/profiles/arm-store/thresholds",
+            json!({ "alarm": 3.5 }),
+        )
+        .await;
+    assert_eq!(status, StatusCode::OK, "{p}");
+    let p = api.get("/v1/profiles/arm-store").await;
+    assert_eq!(p["alarm_threshold"], 3.5);
+
+    // Calibration over the training episodes.
+    let train = fixture().join("train");
+    let (status, job) = api
+        .json(
+            Method::POST,
+            "/v1/profiles/arm-store/calibrate",
+            json!({ "episodes": [train] }),
+        )
+        .await;
+    assert_eq!(status, StatusCode::ACCEPTED, "{job}");
+    let id = job["job"].as_u64().unwrap();
+    let deadline = std::time::Instant::now() + Duration::from_secs(600);
+    let job = loop {
+        let j = api.get(&format!("/v1/jobs/{id}")).await;
+        if j["state"] != "running" {
+            break j;
+        }
+        assert!(std::time::Instant::now() < deadline, "calibration too slow");
+        tokio::time::sleep(Duration::from_millis(200)).await;
+    };
+    assert_eq!(job["state"], "succeeded", "{job}");
+    assert_eq!(job["profile"], "arm-store");
+    let p = api.get("/v1/profiles/arm-store").await;
+    assert_eq!(p["calibrated"], true);
+    let cal = &p["profile"]["calibration"];
+    assert_eq!(cal, &job["calibration"]);
+    assert_eq!(
+        cal["training_episodes"],
+        json!(["train_0000", "train_0001"])
+    );
+    assert!(cal["training_frames"].as_u64().unwrap() > 0);
+    // The override stays in force over the calibrated alarm threshold; the calibrated
+    // e_c threshold is in force.
+    assert_eq!(p["alarm_threshold"], 3.5);
+    assert_eq!(p["profile"]["thresholds"]["e_c"], cal["thresholds"]["e_c"]);
+    let jobs = api.get("/v1/jobs").await;
+    assert_eq!(jobs["jobs"].as_array().unwrap().len(), 1);
+
+    // A restart on the same data directory keeps everything.
+    server.shutdown().await.unwrap();
+    let server = start(&settings).await;
+    let api = Api::new(&server);
+    let model = api.get("/v1/models/tiny").await;
+    assert_eq!(model["active"], 2);
+    assert_eq!(model["versions"].as_array().unwrap().len(), 2);
+    assert_eq!(api.get("/v1/robots").await["robots"][0]["name"], "arm");
+    let p = api.get("/v1/profiles/arm-store").await;
+    assert_eq!(p["profile"]["calibration"], *cal);
+    assert_eq!(p["alarm_threshold"], 3.5);
+    // Jobs live in memory only.
+    assert_eq!(api.get("/v1/jobs").await["jobs"], json!([]));
+    let (_, _, opened) = open_session(server.grpc_addr, "arm-store", "c", camera_info).await;
+    assert!(opened.detail.contains("model tiny@2"), "{}", opened.detail);
+    server.shutdown().await.unwrap();
+}
