@@ -12,10 +12,9 @@ use std::time::{Duration, Instant};
 use tokio::sync::Mutex;
 use tokio_stream::wrappers::ReceiverStream;
 use tonic::metadata::MetadataValue;
-use vamos::episode::McapEpisode;
-use vamos::episode::ros::{CameraInfoMsg, ImageMsg, JointStateMsg};
 use vamos::service::proto::monitor_client::MonitorClient;
 use vamos::service::proto::{self, stream_request::Message as In};
+use vamos::service::replay::{Recording, record};
 
 /// Options of `vamos loadgen`.
 pub struct LoadOptions {
@@ -35,71 +34,6 @@ pub struct LoadOptions {
     pub token: Option<String>,
     /// Episodes (MCAP) to replay, round-robin.
     pub episodes: Vec<PathBuf>,
-}
-
-/// One episode as a robot sends it: messages with their offsets from the first.
-struct Recording {
-    messages: Vec<(Duration, In)>,
-    camera: Option<proto::CameraInfo>,
-}
-
-fn record(path: &std::path::Path) -> Result<Recording> {
-    let ep = McapEpisode::open(path, &Default::default())
-        .with_context(|| format!("episode {}", path.display()))?;
-    let topics: Vec<String> = ep.info().topics.iter().map(|t| t.name.clone()).collect();
-    let mut messages = Vec::new();
-    let mut camera = None;
-    let mut first: Option<u64> = None;
-    let mut error = None;
-    ep.for_each_message(&topics, |_topic, schema, log_time, cdr| {
-        let t0 = *first.get_or_insert(log_time);
-        let at = Duration::from_nanos(log_time.saturating_sub(t0));
-        let msg = match schema {
-            "sensor_msgs/msg/Image" => ImageMsg::decode(cdr).map(|m| {
-                Some(In::Image(proto::Image {
-                    stamp_ns: m.header.stamp_ns(),
-                    encoding: m.encoding.clone(),
-                    width: m.width,
-                    height: m.height,
-                    step: m.step,
-                    big_endian: m.is_bigendian,
-                    data: m.data.to_vec(),
-                }))
-            }),
-            "sensor_msgs/msg/JointState" => JointStateMsg::decode(cdr).map(|m| {
-                Some(In::Joints(proto::JointState {
-                    stamp_ns: m.header.stamp_ns(),
-                    names: m.name,
-                    positions: m.position,
-                    velocities: m.velocity,
-                    efforts: m.effort,
-                }))
-            }),
-            "sensor_msgs/msg/CameraInfo" if camera.is_none() => {
-                CameraInfoMsg::decode(cdr).map(|c| {
-                    camera = Some(proto::CameraInfo {
-                        width: c.width,
-                        height: c.height,
-                        fx: c.k[0],
-                        fy: c.k[4],
-                        cx: c.k[2],
-                        cy: c.k[5],
-                    });
-                    None
-                })
-            }
-            _ => Ok(None),
-        };
-        match msg {
-            Ok(Some(m)) => messages.push((at, m)),
-            Ok(None) => {}
-            Err(e) => error = Some(e.to_string()),
-        }
-    })?;
-    if let Some(e) = error {
-        bail!("{}: {e}", path.display());
-    }
-    Ok(Recording { messages, camera })
 }
 
 #[derive(Default)]
@@ -274,7 +208,7 @@ pub async fn run(opts: LoadOptions) -> Result<()> {
     let recordings: Vec<Recording> = opts
         .episodes
         .iter()
-        .map(|p| record(p))
+        .map(|p| record(p, &Default::default()).with_context(|| format!("episode {}", p.display())))
         .collect::<Result<_>>()?;
     let image_rate = {
         let r = &recordings[0];

@@ -577,6 +577,17 @@ impl Hub {
         );
     }
 
+    /// An image that will not be scored: counted as dropped (`bad_message`) and
+    /// reported to the client.
+    fn refuse(&self, s: &Session, kind: &str, detail: String, stamp_ns: i64) {
+        s.dropped.fetch_add(1, Ordering::Relaxed);
+        self.metrics
+            .drops
+            .with_label_values(&[&s.profile.name, "bad_message"])
+            .inc();
+        self.message_error(s, kind, detail, stamp_ns);
+    }
+
     /// An image of a live session.
     pub fn image(&self, s: &Arc<Session>, image: proto::Image) {
         let stamp = image.stamp_ns;
@@ -587,12 +598,7 @@ impl Hub {
             && stamp <= last
         {
             drop(st);
-            s.dropped.fetch_add(1, Ordering::Relaxed);
-            self.metrics
-                .drops
-                .with_label_values(&[&s.profile.name, "bad_message"])
-                .inc();
-            self.message_error(
+            self.refuse(
                 s,
                 "stamp",
                 format!("image stamp {stamp} ns is not after the previous image ({last} ns): image dropped"),
@@ -945,7 +951,7 @@ impl Hub {
         }
     }
 
-    fn decode(&self, s: &Session, image: proto::Image) -> Result<GrayImage, String> {
+    fn decode(image: proto::Image) -> Result<GrayImage, String> {
         let enc = image.encoding.to_ascii_lowercase();
         if matches!(enc.as_str(), "jpeg" | "jpg" | "png") {
             let msg = CompressedImageMsg {
@@ -955,7 +961,6 @@ impl Hub {
             };
             return msg.to_gray(MAX_PIXELS).map_err(|e| e.to_string());
         }
-        let _ = s;
         let bpp = match enc.as_str() {
             "rgb8" | "bgr8" => 3,
             "rgba8" | "bgra8" => 4,
@@ -986,15 +991,10 @@ impl Hub {
         let started = Instant::now();
         let (image, frame_camera) = match frame.image {
             ImagePayload::Decoded(img, k) => (img, k),
-            ImagePayload::Message(msg) => match self.decode(s, msg) {
+            ImagePayload::Message(msg) => match Self::decode(msg) {
                 Ok(img) => (img, None),
                 Err(e) => {
-                    s.dropped.fetch_add(1, Ordering::Relaxed);
-                    self.metrics
-                        .drops
-                        .with_label_values(&[&s.profile.name, "bad_message"])
-                        .inc();
-                    self.message_error(s, "image", format!("image refused: {e}"), stamp);
+                    self.refuse(s, "image", format!("image refused: {e}"), stamp);
                     return;
                 }
             },
@@ -1020,14 +1020,7 @@ impl Hub {
         match result {
             Ok(Some(score)) => self.deliver(s, &score, frame.arrived, started, decode_s),
             Ok(None) => {}
-            Err(e) => {
-                s.dropped.fetch_add(1, Ordering::Relaxed);
-                self.metrics
-                    .drops
-                    .with_label_values(&[&s.profile.name, "bad_message"])
-                    .inc();
-                self.message_error(s, "frame", format!("frame refused: {e}"), stamp);
-            }
+            Err(e) => self.refuse(s, "frame", format!("frame refused: {e}"), stamp),
         }
     }
 

@@ -21,6 +21,7 @@ pub mod jobs;
 pub mod metrics;
 pub mod profiles;
 pub mod proto;
+pub mod replay;
 pub mod rest;
 pub mod tls;
 

@@ -11,7 +11,6 @@ use tonic::Request;
 use tonic::metadata::MetadataValue;
 use vamos::config::Settings;
 use vamos::episode::McapEpisode;
-use vamos::episode::ros::{CameraInfoMsg, ImageMsg, JointStateMsg};
 use vamos::pipeline::FrameScore;
 use vamos::pipeline::offline::score_episode;
 use vamos::service::proto::monitor_client::MonitorClient;
@@ -96,48 +95,11 @@ async fn start(f: &Fixture) -> RunningServer {
 /// The messages of a bag as a robot would stream them (log-time order): images, joint
 /// states; and its first camera info.
 pub(crate) fn episode_messages(path: &std::path::Path) -> (Vec<In>, Option<proto::CameraInfo>) {
-    let ep = McapEpisode::open(path, &Default::default()).unwrap();
-    let topics: Vec<String> = ep.info().topics.iter().map(|t| t.name.clone()).collect();
-    let mut out = Vec::new();
-    let mut camera = None;
-    ep.for_each_message(&topics, |_topic, schema, _t, cdr| match schema {
-        "sensor_msgs/msg/Image" => {
-            let m = ImageMsg::decode(cdr).unwrap();
-            out.push(In::Image(proto::Image {
-                stamp_ns: m.header.stamp_ns(),
-                encoding: m.encoding.clone(),
-                width: m.width,
-                height: m.height,
-                step: m.step,
-                big_endian: m.is_bigendian,
-                data: m.data.to_vec(),
-            }));
-        }
-        "sensor_msgs/msg/JointState" => {
-            let m = JointStateMsg::decode(cdr).unwrap();
-            out.push(In::Joints(proto::JointState {
-                stamp_ns: m.header.stamp_ns(),
-                names: m.name,
-                positions: m.position,
-                velocities: m.velocity,
-                efforts: m.effort,
-            }));
-        }
-        "sensor_msgs/msg/CameraInfo" if camera.is_none() => {
-            let c = CameraInfoMsg::decode(cdr).unwrap();
-            camera = Some(proto::CameraInfo {
-                width: c.width,
-                height: c.height,
-                fx: c.k[0],
-                fy: c.k[4],
-                cx: c.k[2],
-                cy: c.k[5],
-            });
-        }
-        _ => {}
-    })
-    .unwrap();
-    (out, camera)
+    let rec = vamos::service::replay::record(path, &Default::default()).unwrap();
+    (
+        rec.messages.into_iter().map(|(_, m)| m).collect(),
+        rec.camera,
+    )
 }
 
 fn offline(setup: &Setup, path: &std::path::Path) -> Vec<FrameScore> {
