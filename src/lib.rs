@@ -25,9 +25,13 @@
 //!   calibrations, written atomically with checksums, verified on open. Synchronous.
 //! - [`service`]: the server: gRPC sessions and episode scoring, REST, metrics, auth,
 //!   TLS (tokio, tonic, axum; the only async module).
+//! - [`client`]: a typed gRPC client (sessions, recorded episodes replayed as live
+//!   robots, batch episode scoring), used by the demo, `vamos stream` and the load
+//!   generator.
 //! - [`config`]: service settings composed of each module's `*Config`.
 //! - [`telemetry`]: `tracing` set-up (human or JSON logs).
 
+pub mod client;
 pub mod config;
 pub mod episode;
 pub mod eval;

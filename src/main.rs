@@ -12,8 +12,7 @@ use vamos::telemetry::{self, LogFormat};
 use vamos::vision::flow::{FlowEstimator, FlowParams};
 use vamos::vision::flowio::{write_flo, write_flow_png};
 use vamos::vision::preprocess::equalize_histogram;
-use vamos::vision::registration::{Registrar, RegistrationParams};
-use vamos::vision::synthetic::{self, Motion};
+use vamos::vision::registration::Registrar;
 use vamos::vision::{FlowField, GrayImage};
 
 /// vamos: Visual Anomaly MOnitoring Service.
@@ -35,20 +34,41 @@ struct Cli {
 
 #[derive(Subcommand, Debug)]
 enum Command {
-    /// Run the vision core on built-in synthetic image pairs with known motion and show
-    /// what vamos measures (no input files needed).
+    /// The main job on embedded data: start a vamos server in-process, stream the bundled
+    /// simulated episodes (nominal and anomalous) to it over gRPC as concurrent robots,
+    /// show their scores live, and write a report with plots. `--vision` instead runs the
+    /// vision core on synthetic image pairs with exactly known motion.
     Demo {
-        /// Folder for the images, colour-coded flows and summary.json.
+        /// Output folder (report.md, report.json, plots/, the unpacked assets/).
         #[arg(short, long, default_value = "vamos-demo")]
         out: PathBuf,
-        /// Image width in pixels.
-        #[arg(long, default_value_t = 320)]
-        width: usize,
-        /// Image height in pixels.
-        #[arg(long, default_value_t = 240)]
-        height: usize,
-        /// Worker threads (0 = one per core; default from the settings).
+        /// Use this profile instead of the embedded one (needs --episodes).
         #[arg(long)]
+        profile: Option<PathBuf>,
+        /// Labelled episodes (.mcap files or folders) instead of the embedded ones.
+        #[arg(long, num_args = 1..)]
+        episodes: Vec<PathBuf>,
+        /// Robots streaming at once (0: one per episode, all at once).
+        #[arg(long, default_value_t = 0)]
+        robots: usize,
+        /// Replay at the recorded rate times this factor (1.0: real time) instead of as
+        /// fast as the server scores.
+        #[arg(long)]
+        speed: Option<f64>,
+        /// No live progress table: one line per finished episode.
+        #[arg(long)]
+        quiet: bool,
+        /// Run the vision-core demo instead (TV-L1 and registration on synthetic pairs).
+        #[arg(long)]
+        vision: bool,
+        /// Vision demo: image width in pixels.
+        #[arg(long, default_value_t = 320, requires = "vision")]
+        width: usize,
+        /// Vision demo: image height in pixels.
+        #[arg(long, default_value_t = 240, requires = "vision")]
+        height: usize,
+        /// Vision demo: worker threads (0 = one per core; default from the settings).
+        #[arg(long, requires = "vision")]
         threads: Option<usize>,
     },
     /// TV-L1 optical flow from image A to image B (forward flow, pixels).
@@ -115,6 +135,39 @@ enum Command {
         /// Profile files to serve (TOML, as `vamos score --profile` takes); repeatable.
         #[arg(long = "profile")]
         profiles: Vec<PathBuf>,
+    },
+    /// Stream a recorded episode (MCAP) to a running server as a live robot and print
+    /// every answer as a JSON line (scores and session events); a summary goes to stderr.
+    Stream {
+        /// The episode.
+        episode: PathBuf,
+        /// gRPC URL of the server (`https://` needs --ca).
+        #[arg(long, default_value = "http://127.0.0.1:8081")]
+        server: String,
+        /// Profile the session uses.
+        #[arg(long)]
+        profile: String,
+        /// Replay at the recorded rate times this factor (1.0: real time).
+        #[arg(long, default_value_t = 1.0, conflicts_with = "fast")]
+        speed: f64,
+        /// As fast as the server scores (at most 4 images unanswered) instead.
+        #[arg(long)]
+        fast: bool,
+        /// Upload the whole file for batch scoring (Monitor.ScoreEpisode) instead.
+        #[arg(long, conflicts_with_all = ["fast", "speed"])]
+        batch: bool,
+        /// Robot id reported to the server.
+        #[arg(long, default_value = "vamos-stream")]
+        robot_id: String,
+        /// Session id (for resumption and seeding; default: the episode's file stem).
+        #[arg(long)]
+        session_id: Option<String>,
+        /// Bearer token (default: $VAMOS_ROBOT_TOKEN).
+        #[arg(long, env = "VAMOS_ROBOT_TOKEN", hide_env_values = true)]
+        token: Option<String>,
+        /// CA certificate (PEM) of an https:// server.
+        #[arg(long)]
+        ca: Option<PathBuf>,
     },
     /// Replay episodes as N robots streaming to a running server; prints the achieved
     /// rate, score latency percentiles, drops and the server's CPU and memory (JSON).
@@ -362,6 +415,13 @@ fn run(cli: Cli) -> Result<()> {
     let mut settings = Settings::load(cli.config.as_deref())?;
     if let Some(level) = cli.log_level {
         settings.log.level = level;
+    } else if matches!(cli.command, Command::Demo { .. })
+        && std::env::var_os("VAMOS_LOG__LEVEL").is_none()
+        && cli.config.is_none()
+    {
+        // The demo's terminal is for its progress table: the in-process server's
+        // informational logs would bury it (--log-level info brings them back).
+        settings.log.level = "warn".into();
     }
     if let Some(format) = cli.log_format {
         settings.log.format = format;
@@ -382,6 +442,40 @@ fn run(cli: Cli) -> Result<()> {
         Command::Config => {
             print!("{}", toml::to_string_pretty(&settings)?);
             Ok(())
+        }
+        Command::Stream {
+            episode,
+            server,
+            profile,
+            speed,
+            fast,
+            batch,
+            robot_id,
+            session_id,
+            token,
+            ca,
+        } => {
+            let runtime = tokio::runtime::Builder::new_multi_thread()
+                .enable_all()
+                .build()
+                .context("cannot start the async runtime")?;
+            runtime.block_on(cli::stream::run(cli::stream::StreamOptions {
+                episode,
+                server,
+                profile,
+                mode: if batch {
+                    cli::stream::Mode::Batch
+                } else if fast {
+                    cli::stream::Mode::Pace(vamos::client::Pace::Window(4))
+                } else {
+                    cli::stream::Mode::Pace(vamos::client::Pace::Recorded { speed })
+                },
+                robot_id,
+                session_id,
+                token,
+                ca,
+                episode_config: settings.episode.clone(),
+            }))
         }
         Command::Loadgen {
             episodes,
@@ -656,16 +750,41 @@ fn run(cli: Cli) -> Result<()> {
         }
         Command::Demo {
             out,
+            profile,
+            episodes,
+            robots,
+            speed,
+            quiet,
+            vision,
             width,
             height,
             threads,
-        } => demo(
-            &out,
-            width,
-            height,
-            resolve_threads(threads.unwrap_or(settings.vision.threads)),
-            &settings.vision.registration,
-        ),
+        } => {
+            if vision {
+                return cli::vision_demo::run(
+                    &out,
+                    width,
+                    height,
+                    resolve_threads(threads.unwrap_or(settings.vision.threads)),
+                    &settings.vision.registration,
+                );
+            }
+            let runtime = tokio::runtime::Builder::new_multi_thread()
+                .enable_all()
+                .build()
+                .context("cannot start the async runtime")?;
+            runtime.block_on(cli::demo::run(
+                &settings,
+                cli::demo::DemoOptions {
+                    out,
+                    profile,
+                    episodes,
+                    robots,
+                    speed,
+                    quiet,
+                },
+            ))
+        }
     }
 }
 
@@ -700,126 +819,4 @@ fn min_median(times: &mut [f64]) -> (f64, f64) {
         times.first().copied().unwrap_or(f64::NAN),
         times.get(times.len() / 2).copied().unwrap_or(f64::NAN),
     )
-}
-
-/// The vision core on synthetic pairs with exact ground truth: flow (both presets) and
-/// registration, errors against the truth, timings; images to `out`.
-fn demo(
-    out: &Path,
-    width: usize,
-    height: usize,
-    threads: usize,
-    reg: &RegistrationParams,
-) -> Result<()> {
-    std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
-    let pool = pool(threads)?;
-    let cases = [
-        ("translation", Motion::Translation { dx: 2.5, dy: -1.25 }),
-        (
-            "camera_similarity",
-            Motion::Similarity {
-                tx: 3.0,
-                ty: -2.0,
-                scale: 1.03,
-                rotation_deg: 2.0,
-            },
-        ),
-        (
-            "non_rigid",
-            Motion::Smooth {
-                amplitude_px: 3.0,
-                seed: 11,
-            },
-        ),
-        (
-            "moving_square",
-            Motion::MovingSquare {
-                x: width as f64 * 0.35,
-                y: height as f64 * 0.3,
-                size_px: height as f64 / 3.0,
-                dx: 3.0,
-                dy: 2.0,
-            },
-        ),
-    ];
-    println!(
-        "vamos demo: {width}x{height}, {threads} thread(s), output in {}",
-        out.display()
-    );
-    println!(
-        "{:<18} {:>10} {:>10} {:>12} {:>10} | registration (tx, ty, scale, rot) vs truth",
-        "case", "AEE def", "ms def", "AEE realtime", "ms rt"
-    );
-    let mut registrar = Registrar::new(reg.clone())?;
-    let mut summary = Vec::new();
-    for (i, (name, motion)) in cases.iter().enumerate() {
-        let (a, b, truth) = synthetic::pair(width, height, motion, 100 + i as u64);
-        let valid = synthetic::moving_square_valid(width, height, motion, 2.0);
-        let mut row = json!({ "case": name, "motion": format!("{motion:?}") });
-        let mut cells = Vec::new();
-        for preset in ["default", "realtime"] {
-            let params = FlowParams::preset(preset)?;
-            let start = Instant::now();
-            let flow = pool.install(|| flow_of(&a, &b, &params))?;
-            let ms = start.elapsed().as_secs_f64() * 1e3;
-            let aee = flow
-                .average_endpoint_error(&truth, valid.as_deref())
-                .unwrap_or(f64::NAN);
-            write_flow_png(&flow, None, &out.join(format!("{name}_flow_{preset}.png")))?;
-            row[preset] = json!({ "aee_px": aee, "ms": ms });
-            cells.push((aee, ms));
-        }
-        a.save_png(&out.join(format!("{name}_a.png")))?;
-        b.save_png(&out.join(format!("{name}_b.png")))?;
-        write_flow_png(&truth, None, &out.join(format!("{name}_flow_truth.png")))?;
-        // The moving square stands in for the robot body: registration measures the
-        // camera (background) motion with those pixels masked out, as the pipeline does.
-        let mask = synthetic::moving_square_cover(width, height, motion, 2.0);
-        let r = registrar.register(&a, &b, mask.as_deref())?;
-        let t = &r.transform;
-        let truth_t = match *motion {
-            Motion::Translation { dx, dy } => Some((dx, dy, 1.0, 0.0)),
-            Motion::Similarity {
-                tx,
-                ty,
-                scale,
-                rotation_deg,
-            } => Some((tx, ty, scale, rotation_deg)),
-            Motion::MovingSquare { .. } => Some((0.0, 0.0, 1.0, 0.0)),
-            Motion::Smooth { .. } => None,
-        };
-        row["registration"] = json!({
-            "tx": t.tx_px, "ty": t.ty_px, "scale": t.scale, "rotation_deg": t.rotation_deg,
-            "confidence": r.confidence, "masked": mask.is_some(),
-            "truth": truth_t.map(|(a, b, c, d)| json!([a, b, c, d])),
-        });
-        let truth_txt = truth_t.map_or("(no single similarity)".to_string(), |(a, b, c, d)| {
-            format!("truth ({a:.2}, {b:.2}, {c:.3}, {d:.2})")
-        }) + if mask.is_some() {
-            ", moving square masked"
-        } else {
-            ""
-        };
-        println!(
-            "{:<18} {:>10.3} {:>10.1} {:>12.3} {:>10.1} | ({:.2}, {:.2}, {:.3}, {:.2}) conf {:.2} {}",
-            name,
-            cells[0].0,
-            cells[0].1,
-            cells[1].0,
-            cells[1].1,
-            t.tx_px,
-            t.ty_px,
-            t.scale,
-            t.rotation_deg,
-            r.confidence,
-            truth_txt
-        );
-        summary.push(row);
-    }
-    let path = out.join("summary.json");
-    std::fs::write(&path, serde_json::to_string_pretty(&summary)?)
-        .with_context(|| format!("cannot write {}", path.display()))?;
-    println!("AEE: average endpoint error against the exact ground truth, pixels.");
-    println!("wrote {}", path.display());
-    Ok(())
 }

@@ -7,6 +7,7 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use vamos::config::Settings;
+use vamos::episode::Labels;
 use vamos::eval::plot::{PlotOptions, plot_episode, plot_pr, plot_roc};
 use vamos::eval::{AblationTable, AucPair, FusionLevel};
 use vamos::eval::{
@@ -78,7 +79,7 @@ pub fn run(settings: &Settings, opts: EvalOptions) -> Result<()> {
             .with_context(|| format!("cannot write {}", path.display()))?;
     }
     if let Some(dir) = &opts.plots {
-        write_plots(dir, &results, &frames, alarm)?;
+        write_plots(dir, &timelines(&results), &frames, alarm)?;
         eprintln!("plots in {}", dir.display());
     }
     if let Some(out) = &opts.ablation {
@@ -90,56 +91,79 @@ pub fn run(settings: &Settings, opts: EvalOptions) -> Result<()> {
     Ok(())
 }
 
-fn write_plots(
+/// One episode's score timeline for the plots.
+pub struct Timeline<'a> {
+    /// Episode name (also the PNG's stem).
+    pub name: &'a str,
+    /// `(image stamp ns, score)` in stamp order.
+    pub points: Vec<(i64, f64)>,
+    /// The episode's labels (anomalous intervals are shaded).
+    pub labels: Option<&'a Labels>,
+}
+
+/// The timelines of offline-scored episodes.
+pub fn timelines(results: &[EpisodeScores]) -> Vec<Timeline<'_>> {
+    results
+        .iter()
+        .map(|e| Timeline {
+            name: &e.name,
+            points: e.frames.iter().map(|f| (f.stamp_ns, f.score)).collect(),
+            labels: e.labels.as_ref(),
+        })
+        .collect()
+}
+
+/// Writes `<episode>.png` (score over time, anomalous intervals shaded, the alarm
+/// threshold drawn) for every timeline, and `roc.png` + `pr.png` over all `frames` when
+/// both classes are present. Returns the files written.
+pub fn write_plots(
     dir: &Path,
-    results: &[EpisodeScores],
+    timelines: &[Timeline<'_>],
     frames: &[ScoredFrame],
     alarm: f64,
-) -> Result<()> {
+) -> Result<Vec<PathBuf>> {
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     let options = PlotOptions {
         log_y: true,
         ..PlotOptions::default()
     };
     let threshold = alarm.is_finite().then_some(alarm);
-    for e in results {
-        let Some(t0) = e.frames.first().map(|f| f.stamp_ns) else {
+    let mut written = Vec::new();
+    for e in timelines {
+        let Some(t0) = e.points.first().map(|p| p.0) else {
             continue;
         };
         let s = |ns: i64| (ns - t0) as f64 / 1e9;
-        let stamps: Vec<f64> = e.frames.iter().map(|f| s(f.stamp_ns)).collect();
-        let scores: Vec<f64> = e.frames.iter().map(|f| f.score).collect();
+        let stamps: Vec<f64> = e.points.iter().map(|p| s(p.0)).collect();
+        let scores: Vec<f64> = e.points.iter().map(|p| p.1).collect();
         let intervals: Vec<(f64, f64)> = e
             .labels
-            .as_ref()
             .map(|l| l.intervals_ns.iter().map(|[a, b]| (s(*a), s(*b))).collect())
             .unwrap_or_default();
+        let path = dir.join(format!("{}.png", e.name));
         plot_episode(
-            &dir.join(format!("{}.png", e.name)),
-            &e.name,
-            &stamps,
-            &scores,
-            &intervals,
-            threshold,
-            &options,
+            &path, e.name, &stamps, &scores, &intervals, threshold, &options,
         )?;
+        written.push(path);
     }
     let scores: Vec<f64> = frames.iter().map(|f| f.score).collect();
     let labels: Vec<bool> = frames.iter().map(|f| f.anomalous).collect();
     if let (Some(roc), Some(pr)) = (roc_curve(&scores, &labels), pr_curve(&scores, &labels)) {
         let options = PlotOptions::default();
+        let (roc_path, pr_path) = (dir.join("roc.png"), dir.join("pr.png"));
         plot_roc(
-            &dir.join("roc.png"),
+            &roc_path,
             &[("all frames", &roc, roc_auc(&scores, &labels))],
             &options,
         )?;
         plot_pr(
-            &dir.join("pr.png"),
+            &pr_path,
             &[("all frames", &pr, average_precision(&scores, &labels))],
             &options,
         )?;
+        written.extend([roc_path, pr_path]);
     }
-    Ok(())
+    Ok(written)
 }
 
 /// The paper's table: per flow variant one pipeline run (its own model), then the three

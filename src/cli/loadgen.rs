@@ -3,16 +3,13 @@
 //! and memory (scraped from its `/metrics`).
 
 use anyhow::{Context, Result, bail};
-use futures_util::StreamExt;
 use serde_json::json;
 use std::collections::HashMap;
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 use tokio::sync::Mutex;
-use tokio_stream::wrappers::ReceiverStream;
-use tonic::metadata::MetadataValue;
-use vamos::service::proto::monitor_client::MonitorClient;
+use vamos::client::{Client, ClientOptions, Pace, Update};
 use vamos::service::proto::{self, stream_request::Message as In};
 use vamos::service::replay::{Recording, record};
 
@@ -56,6 +53,7 @@ fn percentile(sorted: &[f64], q: f64) -> Option<f64> {
 }
 
 async fn one_session(
+    client: &Client,
     opts: &LoadOptions,
     robot: usize,
     n: usize,
@@ -63,97 +61,54 @@ async fn one_session(
     deadline: Instant,
     tally: &Mutex<Tally>,
 ) -> Result<()> {
-    let mut client = MonitorClient::connect(opts.server.clone())
-        .await
-        .with_context(|| format!("cannot connect to {}", opts.server))?
-        .max_decoding_message_size(64 << 20)
-        .max_encoding_message_size(64 << 20);
-    let (tx, rx) = tokio::sync::mpsc::channel(64);
-    let sent_at: Arc<std::sync::Mutex<HashMap<i64, Instant>>> = Arc::default();
-    let open = In::Open(proto::OpenSession {
+    // What fits before the deadline at this speed is what a robot would send.
+    let left = deadline.saturating_duration_since(Instant::now());
+    let rec = Recording {
+        messages: rec
+            .messages
+            .iter()
+            .take_while(|(at, _)| at.div_f64(opts.speed.max(1e-6)) < left)
+            .cloned()
+            .collect(),
+        camera: rec.camera,
+    };
+    let open = proto::OpenSession {
         robot_id: format!("loadgen-{robot}"),
         profile: opts.profile.clone(),
         camera_info: rec.camera,
         task: "loadgen".into(),
         session_id: format!("loadgen-{robot}-{n}"),
-    });
-    let mut request = tonic::Request::new(ReceiverStream::new(rx));
-    if let Some(t) = &opts.token {
-        request.metadata_mut().insert(
-            "authorization",
-            MetadataValue::try_from(format!("Bearer {t}"))?,
-        );
-    }
-    tx.send(proto::StreamRequest {
-        message: Some(open),
-    })
-    .await?;
-    let sender = {
-        let sent_at = sent_at.clone();
-        let messages: Vec<(Duration, In)> = rec.messages.clone();
-        let speed = opts.speed;
-        tokio::spawn(async move {
-            let start = tokio::time::Instant::now();
-            let mut images = 0u64;
-            for (at, m) in messages {
-                if Instant::now() >= deadline {
-                    break;
-                }
-                let due = start + at.div_f64(speed.max(1e-6));
-                tokio::time::sleep_until(due).await;
-                if let In::Image(img) = &m {
-                    images += 1;
-                    if let Ok(mut map) = sent_at.lock() {
-                        map.insert(img.stamp_ns, Instant::now());
-                    }
-                }
-                if tx
-                    .send(proto::StreamRequest { message: Some(m) })
-                    .await
-                    .is_err()
-                {
-                    break;
-                }
-            }
-            images
-        })
     };
-    let mut inbound = client.stream(request).await?.into_inner();
+    let mut sent_at: HashMap<i64, Instant> = HashMap::new();
     let mut local = Tally::default();
-    while let Some(item) = inbound.next().await {
-        match item {
-            Ok(r) => match r.message {
-                Some(proto::stream_response::Message::Score(s)) => {
-                    local.scores += 1;
+    let result = client
+        .replay(
+            open,
+            &rec,
+            Pace::Recorded { speed: opts.speed },
+            |u| match u {
+                Update::Sent { stamp_ns } => {
+                    sent_at.insert(*stamp_ns, Instant::now());
+                }
+                Update::Score(s) => {
                     local.server_latencies_s.push(s.latency_s);
-                    if let Some(t) = sent_at.lock().ok().and_then(|mut m| m.remove(&s.stamp_ns)) {
+                    if let Some(t) = sent_at.remove(&s.stamp_ns) {
                         local.latencies_s.push(t.elapsed().as_secs_f64());
                     }
                 }
-                Some(proto::stream_response::Message::Event(e)) => {
-                    if e.kind == proto::session_event::Kind::FramesDropped as i32 {
-                        local.dropped_events = e.count;
-                    } else if e.kind == proto::session_event::Kind::MessageError as i32 {
-                        local.errors.push(e.detail);
-                    }
-                }
-                None => {}
+                Update::Event(_) => {}
             },
-            Err(status) => {
-                local.errors.push(format!("stream ended: {status}"));
-                break;
-            }
-        }
-    }
-    local.images = sender.await.unwrap_or(0);
+        )
+        .await;
     let mut t = tally.lock().await;
-    t.sessions += 1;
-    t.images += local.images;
-    t.scores += local.scores;
-    t.dropped_events += local.dropped_events;
-    t.errors.extend(local.errors);
     t.latencies_s.extend(local.latencies_s);
     t.server_latencies_s.extend(local.server_latencies_s);
+    let summary = result?;
+    t.sessions += 1;
+    t.images += summary.images_sent;
+    t.scores += summary.scores.len() as u64;
+    t.dropped_events += summary.dropped;
+    t.errors.extend(summary.message_errors);
     Ok(())
 }
 
@@ -234,14 +189,20 @@ pub async fn run(opts: LoadOptions) -> Result<()> {
     let tally = Arc::new(Mutex::new(Tally::default()));
     let opts = Arc::new(opts);
     let recordings = Arc::new(recordings);
+    let connect = ClientOptions {
+        token: opts.token.clone(),
+        ..ClientOptions::default()
+    };
     let mut tasks = Vec::new();
     for robot in 0..opts.robots {
         let (o, recordings, tally) = (opts.clone(), recordings.clone(), tally.clone());
+        // One connection per robot, as separate robots would have.
+        let client = Client::connect(&opts.server, connect.clone()).await?;
         tasks.push(tokio::spawn(async move {
             let mut n = 0;
             while Instant::now() < deadline {
                 let rec = &recordings[(robot + n) % recordings.len()];
-                if let Err(e) = one_session(&o, robot, n, rec, deadline, &tally).await {
+                if let Err(e) = one_session(&client, &o, robot, n, rec, deadline, &tally).await {
                     tally
                         .lock()
                         .await

@@ -1,6 +1,7 @@
 //! Implementations of the larger CLI sub-commands (binary-only; `main.rs` dispatches).
 
 pub mod calibrate;
+pub mod demo;
 pub mod episode;
 pub mod eval;
 pub mod export;
@@ -9,3 +10,5 @@ pub mod model;
 pub mod render;
 pub mod robot;
 pub mod score;
+pub mod stream;
+pub mod vision_demo;

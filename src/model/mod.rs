@@ -199,6 +199,9 @@ pub struct ModelConfig {
     /// cores for concurrent robot sessions and the vision kernels; 0 = ONNX Runtime's
     /// default (one per core).
     pub threads: usize,
+    /// ONNX Runtime sessions per graph, so that robot sessions run inference in parallel
+    /// (0 = one per core, at most 8; each holds a copy of the weights).
+    pub replicas: usize,
     /// Prior samples M per past offset n; 0 = the bundle's `temporal.m`.
     pub samples: usize,
     /// Base seed of the prior-sample generator.
@@ -216,6 +219,7 @@ impl Default for ModelConfig {
     fn default() -> Self {
         Self {
             threads: 1,
+            replicas: 0,
             samples: 0,
             seed: 0,
             seed_policy: SeedPolicy::PerSession,
@@ -254,6 +258,7 @@ impl ModelConfig {
     pub fn load_options(&self) -> LoadOptions {
         LoadOptions {
             intra_threads: self.threads,
+            replicas: self.replicas,
             runtime: self.runtime_options(),
         }
     }

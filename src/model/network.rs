@@ -1,9 +1,10 @@
 //! The loaded flow predictor network: one ONNX Runtime session per graph (encoder, head),
 //! validated against the contract and shared by every robot session.
 //!
-//! `ort`'s `Session::run` takes `&mut self`, so each session sits behind a `Mutex`: robot
-//! sessions that call the same graph at the same moment take turns (each call uses the
-//! configured intra-op threads).
+//! `ort`'s `Session::run` takes `&mut self`, so each graph is loaded into a small pool of
+//! sessions ([`LoadOptions::replicas`], default one per core), each behind a `Mutex`: robot
+//! sessions that call the same graph at the same moment run on different replicas, and
+//! only queue when every replica is busy (each call uses the configured intra-op threads).
 
 use super::bundle::{Bundle, ENCODER, HEAD, Manifest};
 use super::onnx_proto;
@@ -13,7 +14,8 @@ use ort::session::Session;
 use ort::session::builder::GraphOptimizationLevel;
 use ort::value::{TensorElementType, TensorRef, ValueType};
 use std::path::Path;
-use std::sync::{Arc, Mutex, RwLock};
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex, MutexGuard, RwLock, TryLockError};
 
 /// Opsets accepted (ONNX Runtime 1.31 runs them; the contract asks for 17).
 pub const SUPPORTED_OPSETS: std::ops::RangeInclusive<u64> = 13..=21;
@@ -23,6 +25,9 @@ pub const SUPPORTED_OPSETS: std::ops::RangeInclusive<u64> = 13..=21;
 pub struct LoadOptions {
     /// Intra-op threads per session (0 = ONNX Runtime's default, one per core).
     pub intra_threads: usize,
+    /// Sessions per graph, so that concurrent callers run in parallel (0 = one per core,
+    /// at most 8). Each replica holds its own copy of the weights.
+    pub replicas: usize,
     /// Where the ONNX Runtime library may come from.
     pub runtime: RuntimeOptions,
 }
@@ -31,6 +36,7 @@ impl Default for LoadOptions {
     fn default() -> Self {
         Self {
             intra_threads: 1,
+            replicas: 0,
             runtime: RuntimeOptions::default(),
         }
     }
@@ -72,13 +78,48 @@ pub struct EncoderOutput {
     pub prior_log_sigma: Vec<f32>,
 }
 
-/// A loaded, validated model: manifest and the two sessions.
+/// Replicas of one graph's session; a caller takes a free one, or waits for one.
+struct SessionPool {
+    sessions: Vec<Mutex<Session>>,
+    next: AtomicUsize,
+}
+
+impl SessionPool {
+    /// A free replica if there is one (starting the search round-robin), else waits for
+    /// the next in turn.
+    fn get(&self) -> MutexGuard<'_, Session> {
+        let n = self.sessions.len();
+        let start = self.next.fetch_add(1, Ordering::Relaxed) % n;
+        for k in 0..n {
+            match self.sessions[(start + k) % n].try_lock() {
+                Ok(guard) => return guard,
+                // A panic elsewhere cannot leave an ONNX session half-updated.
+                Err(TryLockError::Poisoned(p)) => return p.into_inner(),
+                Err(TryLockError::WouldBlock) => {}
+            }
+        }
+        self.sessions[start]
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+    }
+}
+
+/// The replica count `replicas` asks for (0: one per core, at most 8).
+fn replica_count(replicas: usize) -> usize {
+    if replicas > 0 {
+        replicas
+    } else {
+        std::thread::available_parallelism().map_or(1, |n| n.get().min(8))
+    }
+}
+
+/// A loaded, validated model: manifest and the session pools of its two graphs.
 pub struct FlowModel {
     manifest: Manifest,
     sha256: String,
     dims: ModelDims,
-    encoder: Mutex<Session>,
-    head: Mutex<Session>,
+    encoder: SessionPool,
+    head: SessionPool,
 }
 
 impl std::fmt::Debug for FlowModel {
@@ -296,15 +337,33 @@ impl FlowModel {
             channels: enc_c as usize,
             latent: enc_l as usize,
         };
+        let replicas = replica_count(options.replicas);
+        let mut encoders = vec![Mutex::new(encoder)];
+        let mut heads = vec![Mutex::new(head)];
+        for _ in 1..replicas {
+            encoders.push(Mutex::new(session(ENCODER, &bundle.encoder, options)?));
+            heads.push(Mutex::new(session(HEAD, &bundle.head, options)?));
+        }
         let model = Self {
             manifest: bundle.manifest,
             sha256: bundle.sha256,
             dims,
-            encoder: Mutex::new(encoder),
-            head: Mutex::new(head),
+            encoder: SessionPool {
+                sessions: encoders,
+                next: AtomicUsize::new(0),
+            },
+            head: SessionPool {
+                sessions: heads,
+                next: AtomicUsize::new(0),
+            },
         };
         model.smoke_test()?;
         Ok(model)
+    }
+
+    /// Sessions per graph (concurrent inference calls that do not wait for each other).
+    pub fn replicas(&self) -> usize {
+        self.encoder.sessions.len()
     }
 
     /// Runs both graphs on a random batch of two and checks shapes and finiteness.
@@ -370,7 +429,7 @@ impl FlowModel {
         }
         let input = TensorRef::from_array_view(([batch, 2, d.size, d.size], flow))
             .map_err(ort_err("wrapping the encoder input"))?;
-        let mut session = self.encoder.lock().unwrap_or_else(|p| p.into_inner());
+        let mut session = self.encoder.get();
         let outputs = session
             .run(ort::inputs!["flow" => input])
             .map_err(ort_err("running the encoder"))?;
@@ -437,7 +496,7 @@ impl FlowModel {
             .map_err(ort_err("wrapping the head features"))?;
         let zt = TensorRef::from_array_view(([batch, d.latent], z))
             .map_err(ort_err("wrapping the head z"))?;
-        let mut session = self.head.lock().unwrap_or_else(|p| p.into_inner());
+        let mut session = self.head.get();
         let outputs = session
             .run(ort::inputs!["features" => f, "z" => zt])
             .map_err(ort_err("running the head"))?;

@@ -163,12 +163,13 @@ fn settings_come_from_file_and_environment() {
 }
 
 #[test]
-fn demo_runs_on_the_embedded_pairs() {
+fn vision_demo_runs_on_the_synthetic_pairs() {
     let dir = tempfile::tempdir().unwrap();
     let out_dir = dir.path().join("demo");
     let out = vamos(
         &[
             "demo",
+            "--vision",
             "--out",
             &out_dir.display().to_string(),
             "--width",

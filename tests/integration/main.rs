@@ -6,6 +6,8 @@
 mod architecture;
 mod camera_motion;
 mod cli;
+mod client;
+mod demo;
 mod detect_cli;
 mod detect_episode;
 mod episode_mcap;

@@ -487,3 +487,42 @@ fn batched_sessions_equal_single_sessions() {
     }
     assert!(scored >= 4, "{scored}");
 }
+
+#[test]
+fn session_replicas_run_concurrently_and_agree() {
+    let model = Arc::new(
+        FlowModel::load(
+            &fixture("tiny_trained.vamos"),
+            &LoadOptions {
+                replicas: 3,
+                ..LoadOptions::default()
+            },
+        )
+        .unwrap(),
+    );
+    assert_eq!(model.replicas(), 3);
+    let d = model.dims();
+    let flows = test_frames(2, d.flow_len()).concat();
+    let serial = model.encode(&flows, 2).unwrap();
+    // Four callers at once on three replicas: every answer equals the serial one.
+    let outputs: Vec<_> = std::thread::scope(|s| {
+        let handles: Vec<_> = (0..4)
+            .map(|_| {
+                let (m, f) = (model.clone(), &flows);
+                s.spawn(move || (0..5).map(|_| m.encode(f, 2).unwrap()).collect::<Vec<_>>())
+            })
+            .collect();
+        handles
+            .into_iter()
+            .flat_map(|h| h.join().unwrap())
+            .collect()
+    });
+    assert_eq!(outputs.len(), 20);
+    for o in outputs {
+        assert_eq!(o, serial);
+    }
+    // The default is one replica per core.
+    let default = FlowModel::load(&fixture("tiny_trained.vamos"), &LoadOptions::default()).unwrap();
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get().min(8));
+    assert_eq!(default.replicas(), cores);
+}

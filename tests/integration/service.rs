@@ -44,13 +44,13 @@ pub(crate) fn hex_sha256(s: &str) -> String {
         .collect()
 }
 
-struct Fixture {
+pub(crate) struct Fixture {
     _dir: tempfile::TempDir,
-    setup: Setup,
-    settings: Settings,
+    pub(crate) setup: Setup,
+    pub(crate) settings: Settings,
 }
 
-fn fixture_setup(max_sessions: usize, tokens: bool) -> Fixture {
+pub(crate) fn fixture_setup(max_sessions: usize, tokens: bool) -> Fixture {
     let dir = tempfile::tempdir().unwrap();
     // The profile names the fixture's robot and camera by absolute path.
     let profile_dir = dir.path().join("profile");
@@ -87,7 +87,7 @@ fn fixture_setup(max_sessions: usize, tokens: bool) -> Fixture {
     }
 }
 
-async fn start(f: &Fixture) -> RunningServer {
+pub(crate) async fn start(f: &Fixture) -> RunningServer {
     let catalog = ProfileCatalog::from_setups(vec![f.setup.clone()]);
     Server::start(f.settings.clone(), catalog).await.unwrap()
 }
@@ -102,7 +102,7 @@ pub(crate) fn episode_messages(path: &std::path::Path) -> (Vec<In>, Option<proto
     )
 }
 
-fn offline(setup: &Setup, path: &std::path::Path) -> Vec<FrameScore> {
+pub(crate) fn offline(setup: &Setup, path: &std::path::Path) -> Vec<FrameScore> {
     let ep = McapEpisode::open(path, &setup.episode).unwrap();
     let mut scorer = setup.calibrated_scorer(ep.name(), false).unwrap();
     score_episode::<vamos::episode::EpisodeError>(&mut scorer, &ep, |_, _| Ok(()))
@@ -200,7 +200,7 @@ pub(crate) fn episode(name: &str) -> PathBuf {
     fixture().join("test").join(format!("{name}.mcap"))
 }
 
-fn assert_same_scores(streamed: &[proto::FrameScore], offline: &[FrameScore]) {
+pub(crate) fn assert_same_scores(streamed: &[proto::FrameScore], offline: &[FrameScore]) {
     assert_eq!(streamed.len(), offline.len(), "frame counts differ");
     assert!(!offline.is_empty());
     for (s, o) in streamed.iter().zip(offline) {
@@ -603,6 +603,74 @@ async fn health_reflection_readiness_and_one_port() {
         r.status,
         tonic_health::pb::health_check_response::ServingStatus::Serving as i32
     );
+    // Server reflection, as grpcurl uses it: list the services, then fetch the file that
+    // declares Monitor (v1 and v1alpha).
+    let channel = tonic::transport::Endpoint::from_shared(format!("http://{}", server.grpc_addr))
+        .unwrap()
+        .connect()
+        .await
+        .unwrap();
+    {
+        use tonic_reflection::pb::v1::{
+            ServerReflectionRequest, server_reflection_client::ServerReflectionClient,
+            server_reflection_request::MessageRequest, server_reflection_response::MessageResponse,
+        };
+        let mut client = ServerReflectionClient::new(channel.clone());
+        let requests = [
+            MessageRequest::ListServices(String::new()),
+            MessageRequest::FileContainingSymbol("vamos.v1.Monitor".into()),
+        ]
+        .map(|m| ServerReflectionRequest {
+            host: String::new(),
+            message_request: Some(m),
+        });
+        let mut answers = client
+            .server_reflection_info(tokio_stream::iter(requests))
+            .await
+            .unwrap()
+            .into_inner();
+        let Some(MessageResponse::ListServicesResponse(list)) =
+            answers.next().await.unwrap().unwrap().message_response
+        else {
+            panic!("no service list");
+        };
+        let names: Vec<&str> = list.service.iter().map(|s| s.name.as_str()).collect();
+        assert!(names.contains(&"vamos.v1.Monitor"), "{names:?}");
+        assert!(names.contains(&"grpc.health.v1.Health"), "{names:?}");
+        let Some(MessageResponse::FileDescriptorResponse(files)) =
+            answers.next().await.unwrap().unwrap().message_response
+        else {
+            panic!("no file descriptor");
+        };
+        let fd = <prost_types::FileDescriptorProto as prost::Message>::decode(
+            files.file_descriptor_proto[0].as_slice(),
+        )
+        .unwrap();
+        assert_eq!(fd.package(), "vamos.v1");
+        let methods: Vec<&str> = fd.service[0].method.iter().map(|m| m.name()).collect();
+        assert_eq!(methods, ["Stream", "ScoreEpisode"]);
+    }
+    {
+        use tonic_reflection::pb::v1alpha::{
+            ServerReflectionRequest, server_reflection_client::ServerReflectionClient,
+            server_reflection_request::MessageRequest, server_reflection_response::MessageResponse,
+        };
+        let mut client = ServerReflectionClient::new(channel);
+        let mut answers = client
+            .server_reflection_info(tokio_stream::iter([ServerReflectionRequest {
+                host: String::new(),
+                message_request: Some(MessageRequest::ListServices(String::new())),
+            }]))
+            .await
+            .unwrap()
+            .into_inner();
+        let Some(MessageResponse::ListServicesResponse(list)) =
+            answers.next().await.unwrap().unwrap().message_response
+        else {
+            panic!("no service list (v1alpha)");
+        };
+        assert!(list.service.iter().any(|s| s.name == "vamos.v1.Monitor"));
+    }
     let ready = reqwest::get(format!("http://{}/readyz", server.rest_addr))
         .await
         .unwrap();
