@@ -150,9 +150,13 @@ enum Command {
         /// Replay at the recorded rate times this factor (1.0: real time).
         #[arg(long, default_value_t = 1.0, conflicts_with = "fast")]
         speed: f64,
-        /// As fast as the server scores (at most 4 images unanswered) instead.
+        /// As fast as the server scores instead, with at most --window images unanswered.
         #[arg(long)]
         fast: bool,
+        /// Images in flight with --fast; below the server's queue_depth (default 8) no
+        /// image is dropped.
+        #[arg(long, default_value_t = 4, requires = "fast")]
+        window: usize,
         /// Upload the whole file for batch scoring (Monitor.ScoreEpisode) instead.
         #[arg(long, conflicts_with_all = ["fast", "speed"])]
         batch: bool,
@@ -449,6 +453,7 @@ fn run(cli: Cli) -> Result<()> {
             profile,
             speed,
             fast,
+            window,
             batch,
             robot_id,
             session_id,
@@ -466,7 +471,7 @@ fn run(cli: Cli) -> Result<()> {
                 mode: if batch {
                     cli::stream::Mode::Batch
                 } else if fast {
-                    cli::stream::Mode::Pace(vamos::client::Pace::Window(4))
+                    cli::stream::Mode::Pace(vamos::client::Pace::Window(window))
                 } else {
                     cli::stream::Mode::Pace(vamos::client::Pace::Recorded { speed })
                 },

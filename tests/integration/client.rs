@@ -63,6 +63,53 @@ async fn a_window_paced_replay_drops_nothing_on_a_short_queue_and_matches_offlin
         .unwrap();
     assert_eq!(seen, batch.len());
     assert_same_scores(&batch, &offline(&f.setup, &episode(name)));
+
+    // `vamos stream` (the binary) prints one JSON line per answer: the same scores.
+    let cmd_url = url.clone();
+    let out = tokio::task::spawn_blocking(move || {
+        std::process::Command::new(env!("CARGO_BIN_EXE_vamos"))
+            .args([
+                "stream",
+                "--fast",
+                "--profile",
+                "sim-arm",
+                "--server",
+                &cmd_url,
+            ])
+            .arg(episode(name))
+            .env("VAMOS_LOG__LEVEL", "warn")
+            .output()
+            .unwrap()
+    })
+    .await
+    .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    let lines: Vec<serde_json::Value> = String::from_utf8_lossy(&out.stdout)
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    let scores: Vec<(i64, f64)> = lines
+        .iter()
+        .filter(|l| l["type"] == "score")
+        .map(|l| {
+            (
+                l["stamp_ns"].as_i64().unwrap(),
+                l["score"].as_f64().unwrap(),
+            )
+        })
+        .collect();
+    let expected: Vec<(i64, f64)> = summary
+        .scores
+        .iter()
+        .map(|s| (s.stamp_ns, s.score))
+        .collect();
+    assert_eq!(scores, expected);
+    assert_eq!(lines[0]["kind"], "KIND_OPENED");
+    assert!(
+        stderr.contains(&format!("{} scored", expected.len())),
+        "{stderr}"
+    );
     server.shutdown().await.unwrap();
 }
 
