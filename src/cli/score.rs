@@ -7,7 +7,7 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use vamos::config::Settings;
-use vamos::episode::{EpisodeFrame, ImageData, McapEpisode, ScoreBagWriter};
+use vamos::episode::{EpisodeFrame, McapEpisode, ScoreBagWriter, ScoreTopics};
 use vamos::eval::Thresholds;
 use vamos::model::FlowModel;
 use vamos::pipeline::offline::{EpisodeScores, score_episode};
@@ -156,41 +156,18 @@ fn write_outputs(
 
 /// The score topics of one frame, beside a copy of its image.
 fn write_frame(bag: &mut ScoreBagWriter, frame: &EpisodeFrame, s: &FrameScore) -> Result<()> {
-    let t = frame.stamp_ns;
-    bag.write_image(&frame.source.topic, t, ImageData::Source(&frame.source))?;
-    bag.write_f64("/vamos/score", t, s.score)?;
-    bag.write_bool("/vamos/anomaly", t, s.anomaly)?;
-    for (topic, v) in [
-        ("/vamos/e_c", s.e_c),
-        ("/vamos/e_b", s.e_b),
-        ("/vamos/e_o", s.e_o),
-    ] {
-        if let Some(v) = v {
-            bag.write_f64(topic, t, v)?;
-        }
-    }
-    if let Some(map) = &s.heatmap {
-        let side = (map.len() as f64).sqrt() as usize;
-        if side * side == map.len() {
-            let rgb = heatmap_rgb(map);
-            bag.write_heatmap("/vamos/heatmap", t, side as u32, side as u32, &rgb)?;
-        }
-    }
+    bag.write_scored_frame(
+        frame,
+        &ScoreTopics {
+            score: s.score,
+            anomaly: s.anomaly,
+            e_c: s.e_c,
+            e_b: s.e_b,
+            e_o: s.e_o,
+            heatmap: s.heatmap.as_deref(),
+        },
+    )?;
     Ok(())
-}
-
-/// Colours a squared-error map: black (0) through red and yellow to white at an RMS error
-/// of 0.25 network units (7.5 px at 640 px wide), the same scale for every frame.
-pub fn heatmap_rgb(map: &[f32]) -> Vec<u8> {
-    let mut rgb = Vec::with_capacity(map.len() * 3);
-    for &v in map {
-        let x = (v.max(0.0).sqrt() / 0.25).clamp(0.0, 1.0);
-        let r = (x * 3.0).min(1.0);
-        let g = (x * 3.0 - 1.0).clamp(0.0, 1.0);
-        let b = (x * 3.0 - 2.0).clamp(0.0, 1.0);
-        rgb.extend([(r * 255.0) as u8, (g * 255.0) as u8, (b * 255.0) as u8]);
-    }
-    rgb
 }
 
 /// `vamos score`: prints one JSON summary line per episode on stdout.

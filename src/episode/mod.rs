@@ -45,4 +45,4 @@ pub use folder::{EpisodeError, ImageSequence, SequenceFrame};
 pub use joints::{JointSample, JointTrack, interpolate_rows};
 pub use labels::Labels;
 pub use ros::CameraInfoMsg;
-pub use writer::{ImageData, ScoreBagWriter};
+pub use writer::{ImageData, ScoreBagWriter, ScoreTopics, heatmap_rgb};

@@ -32,6 +32,37 @@ pub enum ImageData<'a> {
     },
 }
 
+/// One frame's outputs as score topics (see [`ScoreBagWriter::write_scored_frame`]).
+#[derive(Debug, Clone, Copy, Default)]
+pub struct ScoreTopics<'a> {
+    /// The fused score (`/vamos/score`).
+    pub score: f64,
+    /// The alarm (`/vamos/anomaly`).
+    pub anomaly: bool,
+    /// Camera-motion error (`/vamos/e_c`), when defined.
+    pub e_c: Option<f64>,
+    /// Body-motion error (`/vamos/e_b`), when defined.
+    pub e_b: Option<f64>,
+    /// Flow-prediction error (`/vamos/e_o`), when defined.
+    pub e_o: Option<f64>,
+    /// Square squared-error map of the best prediction (`/vamos/heatmap`), when kept.
+    pub heatmap: Option<&'a [f32]>,
+}
+
+/// Colours a squared-error map: black (0) through red and yellow to white at an RMS error
+/// of 0.25 network units (7.5 px at 640 px wide), the same scale for every frame.
+pub fn heatmap_rgb(map: &[f32]) -> Vec<u8> {
+    let mut rgb = Vec::with_capacity(map.len() * 3);
+    for &v in map {
+        let x = (v.max(0.0).sqrt() / 0.25).clamp(0.0, 1.0);
+        let r = (x * 3.0).min(1.0);
+        let g = (x * 3.0 - 1.0).clamp(0.0, 1.0);
+        let b = (x * 3.0 - 2.0).clamp(0.0, 1.0);
+        rgb.extend([(r * 255.0) as u8, (g * 255.0) as u8, (b * 255.0) as u8]);
+    }
+    rgb
+}
+
 /// Writes a score bag. Call [`ScoreBagWriter::finish`] to complete the file (a writer
 /// dropped without it leaves a file without summary, which readers scan linearly).
 pub struct ScoreBagWriter {
@@ -291,6 +322,36 @@ impl ScoreBagWriter {
             message_encoding,
         )?;
         self.write(id, log_time_ns, message)
+    }
+
+    /// A scored frame: a copy of its image message on its own topic, then the score
+    /// topics at its stamp.
+    pub fn write_scored_frame(
+        &mut self,
+        frame: &super::bag::EpisodeFrame,
+        s: &ScoreTopics<'_>,
+    ) -> Result<(), EpisodeError> {
+        let t = frame.stamp_ns;
+        self.write_image(&frame.source.topic, t, ImageData::Source(&frame.source))?;
+        self.write_f64("/vamos/score", t, s.score)?;
+        self.write_bool("/vamos/anomaly", t, s.anomaly)?;
+        for (topic, v) in [
+            ("/vamos/e_c", s.e_c),
+            ("/vamos/e_b", s.e_b),
+            ("/vamos/e_o", s.e_o),
+        ] {
+            if let Some(v) = v {
+                self.write_f64(topic, t, v)?;
+            }
+        }
+        if let Some(map) = s.heatmap {
+            let side = (map.len() as f64).sqrt() as usize;
+            if side * side == map.len() {
+                let rgb = heatmap_rgb(map);
+                self.write_heatmap("/vamos/heatmap", t, side as u32, side as u32, &rgb)?;
+            }
+        }
+        Ok(())
     }
 
     /// Completes the file (summary, indexes, footer).

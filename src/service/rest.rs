@@ -443,19 +443,135 @@ async fn score_episode(
             .map_err(|e| ApiError::new(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?;
     }
     let name = q.name.unwrap_or_default();
+    let wants_mcap = headers
+        .get(header::ACCEPT)
+        .and_then(|v| v.to_str().ok())
+        .is_some_and(|v| v.contains("mcap"));
+    // The scored bag copies the input's images: keep a second name for the upload,
+    // since scoring consumes (and removes) the first.
+    let input = if wants_mcap {
+        let original = file.path().to_path_buf();
+        let kept = tempfile::Builder::new()
+            .prefix("episode-in-")
+            .suffix(".mcap")
+            .make_in(s.upload_dir(), |p| {
+                std::fs::hard_link(&original, p)?;
+                std::fs::File::open(p)
+            })
+            .map_err(internal)?;
+        Some(kept)
+    } else {
+        None
+    };
+    let config = profile.setup.episode.clone();
     let mut scores = score_episode_file(s.hub.clone(), profile, file, name).await?;
     let mut frames = Vec::new();
     let mut damage = None;
     while let Some(item) = scores.next().await {
         match item {
-            Ok(f) => frames.push(score_json(&f)),
+            Ok(f) => frames.push(f),
             Err(status) => {
                 damage = Some(status.message().to_string());
                 break;
             }
         }
     }
-    Ok(Json(json!({ "frames": frames, "damage": damage })).into_response())
+    match input {
+        None => {
+            let frames: Vec<_> = frames.iter().map(score_json).collect();
+            Ok(Json(json!({ "frames": frames, "damage": damage })).into_response())
+        }
+        Some(input) => {
+            let dir = s.upload_dir();
+            let out = tokio::task::spawn_blocking(move || {
+                scored_bag(input.path(), &config, &frames, &dir)
+            })
+            .await
+            .map_err(internal)??;
+            let mut response = file_body(out).await?;
+            if let Some(d) = damage
+                && let Ok(v) = header::HeaderValue::from_str(&d.replace(['\r', '\n'], " "))
+            {
+                response.headers_mut().insert("x-vamos-damage", v);
+            }
+            Ok(response)
+        }
+    }
+}
+
+/// Writes the scored bag of `input` (its images and the score topics of `frames`, matched
+/// by stamp) into a temporary file in `dir`.
+fn scored_bag(
+    input: &std::path::Path,
+    config: &crate::episode::EpisodeConfig,
+    frames: &[proto::FrameScore],
+    dir: &std::path::Path,
+) -> Result<tempfile::NamedTempFile, ApiError> {
+    use crate::episode::{McapEpisode, ScoreBagWriter, ScoreTopics};
+    let episode = McapEpisode::open(input, config).map_err(bad_request)?;
+    let out = tempfile::Builder::new()
+        .prefix("scored-")
+        .suffix(".mcap")
+        .tempfile_in(dir)
+        .map_err(internal)?;
+    let mut bag = ScoreBagWriter::create(out.path(), Some(&episode.info())).map_err(internal)?;
+    let by_stamp: std::collections::HashMap<i64, &proto::FrameScore> =
+        frames.iter().map(|f| (f.stamp_ns, f)).collect();
+    for frame in episode.frames() {
+        // Frames that were refused or lie after damage have no score and are left out.
+        let Ok(frame) = frame else { continue };
+        if let Some(f) = by_stamp.get(&frame.stamp_ns) {
+            bag.write_scored_frame(
+                &frame,
+                &ScoreTopics {
+                    score: f.score,
+                    anomaly: f.anomaly,
+                    e_c: f.e_c,
+                    e_b: f.e_b,
+                    e_o: f.e_o,
+                    heatmap: None,
+                },
+            )
+            .map_err(internal)?;
+        }
+    }
+    bag.finish().map_err(internal)?;
+    Ok(out)
+}
+
+/// A response streaming `file` (removed once sent) as `application/x-mcap`.
+async fn file_body(file: tempfile::NamedTempFile) -> Result<Response, ApiError> {
+    use tokio::io::AsyncReadExt;
+    let len = file.as_file().metadata().map_err(internal)?.len();
+    let (path, handle) = (file.path().to_path_buf(), file);
+    let mut reader = tokio::fs::File::open(&path).await.map_err(internal)?;
+    let (tx, rx) = tokio::sync::mpsc::channel::<Result<Vec<u8>, std::io::Error>>(4);
+    tokio::spawn(async move {
+        let _keep = handle;
+        loop {
+            let mut buf = vec![0u8; 256 << 10];
+            match reader.read(&mut buf).await {
+                Ok(0) => return,
+                Ok(n) => {
+                    buf.truncate(n);
+                    if tx.send(Ok(buf)).await.is_err() {
+                        return;
+                    }
+                }
+                Err(e) => {
+                    let _ = tx.send(Err(e)).await;
+                    return;
+                }
+            }
+        }
+    });
+    Response::builder()
+        .header(header::CONTENT_TYPE, "application/x-mcap")
+        .header(header::CONTENT_LENGTH, len)
+        .body(Body::from_stream(
+            tokio_stream::wrappers::ReceiverStream::new(rx),
+        ))
+        .map_err(internal)
 }
 
 // ---- Administration of the data directory ----

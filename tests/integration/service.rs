@@ -331,6 +331,48 @@ async fn two_robots_at_once_each_get_their_own_scores_and_episode_upload_matches
         assert_eq!(j["score"].as_f64().unwrap(), o.score);
         assert_eq!(j["stamp_ns"].as_i64().unwrap(), o.stamp_ns);
     }
+    // The same as a scored MCAP bag (Accept: application/x-mcap): the input's images and
+    // one /vamos/score message per scored frame, readable as an episode again.
+    let response = http
+        .post(format!(
+            "http://{}/v1/episodes:score?profile=sim-arm&name={b}",
+            server.rest_addr
+        ))
+        .header("accept", "application/x-mcap")
+        .body(bytes.clone())
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(response.status(), 200);
+    assert_eq!(
+        response.headers()["content-type"].to_str().unwrap(),
+        "application/x-mcap"
+    );
+    let scored = response.bytes().await.unwrap();
+    let out = tempfile::Builder::new().suffix(".mcap").tempfile().unwrap();
+    std::fs::write(out.path(), &scored).unwrap();
+    let bag = McapEpisode::open(out.path(), &Default::default()).unwrap();
+    let info = bag.info();
+    let count = |topic: &str| {
+        info.topics
+            .iter()
+            .find(|t| t.name == topic)
+            .map_or(0, |t| t.message_count)
+    };
+    assert_eq!(count("/vamos/score"), expected.len() as u64);
+    assert_eq!(count("/vamos/anomaly"), expected.len() as u64);
+    let image_topic = info
+        .topics
+        .iter()
+        .find(|t| t.schema == "sensor_msgs/msg/Image");
+    assert_eq!(image_topic.unwrap().message_count, expected.len() as u64);
+    // No upload is left behind in the data directory's tmp/.
+    assert_eq!(
+        std::fs::read_dir(server.shared.upload_dir())
+            .unwrap()
+            .count(),
+        0
+    );
     // A truncated upload: the frames before the damage, then the damage reported.
     let cut = &bytes[..bytes.len() * 2 / 3];
     let body: serde_json::Value = http
