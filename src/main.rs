@@ -459,29 +459,23 @@ fn run(cli: Cli) -> Result<()> {
             session_id,
             token,
             ca,
-        } => {
-            let runtime = tokio::runtime::Builder::new_multi_thread()
-                .enable_all()
-                .build()
-                .context("cannot start the async runtime")?;
-            runtime.block_on(cli::stream::run(cli::stream::StreamOptions {
-                episode,
-                server,
-                profile,
-                mode: if batch {
-                    cli::stream::Mode::Batch
-                } else if fast {
-                    cli::stream::Mode::Pace(vamos::client::Pace::Window(window))
-                } else {
-                    cli::stream::Mode::Pace(vamos::client::Pace::Recorded { speed })
-                },
-                robot_id,
-                session_id,
-                token,
-                ca,
-                episode_config: settings.episode.clone(),
-            }))
-        }
+        } => async_runtime()?.block_on(cli::stream::run(cli::stream::StreamOptions {
+            episode,
+            server,
+            profile,
+            mode: if batch {
+                cli::stream::Mode::Batch
+            } else if fast {
+                cli::stream::Mode::Pace(vamos::client::Pace::Window(window))
+            } else {
+                cli::stream::Mode::Pace(vamos::client::Pace::Recorded { speed })
+            },
+            robot_id,
+            session_id,
+            token,
+            ca,
+            episode_config: settings.episode.clone(),
+        })),
         Command::Loadgen {
             episodes,
             server,
@@ -491,22 +485,16 @@ fn run(cli: Cli) -> Result<()> {
             speed,
             duration,
             token,
-        } => {
-            let runtime = tokio::runtime::Builder::new_multi_thread()
-                .enable_all()
-                .build()
-                .context("cannot start the async runtime")?;
-            runtime.block_on(cli::loadgen::run(cli::loadgen::LoadOptions {
-                server,
-                metrics,
-                profile,
-                robots,
-                speed,
-                duration_s: duration,
-                token,
-                episodes,
-            }))
-        }
+        } => async_runtime()?.block_on(cli::loadgen::run(cli::loadgen::LoadOptions {
+            server,
+            metrics,
+            profile,
+            robots,
+            speed,
+            duration_s: duration,
+            token,
+            episodes,
+        })),
         Command::Serve {
             grpc_addr,
             rest_addr,
@@ -523,11 +511,7 @@ fn run(cli: Cli) -> Result<()> {
                 settings.service.data_dir = d;
             }
             settings.service.profiles.extend(profiles);
-            let runtime = tokio::runtime::Builder::new_multi_thread()
-                .enable_all()
-                .build()
-                .context("cannot start the async runtime")?;
-            runtime.block_on(vamos::service::serve(settings))?;
+            async_runtime()?.block_on(vamos::service::serve(settings))?;
             Ok(())
         }
         Command::Score {
@@ -774,11 +758,7 @@ fn run(cli: Cli) -> Result<()> {
                     &settings.vision.registration,
                 );
             }
-            let runtime = tokio::runtime::Builder::new_multi_thread()
-                .enable_all()
-                .build()
-                .context("cannot start the async runtime")?;
-            runtime.block_on(cli::demo::run(
+            async_runtime()?.block_on(cli::demo::run(
                 &settings,
                 cli::demo::DemoOptions {
                     out,
@@ -802,6 +782,14 @@ fn flow_of(a: &GrayImage, b: &GrayImage, params: &FlowParams) -> Result<FlowFiel
     est.push(a)?;
     est.push(b)?
         .context("the estimator returned no flow for the second frame")
+}
+
+/// The multi-threaded tokio runtime of the async sub-commands.
+fn async_runtime() -> Result<tokio::runtime::Runtime> {
+    tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()
+        .context("cannot start the async runtime")
 }
 
 fn resolve_threads(n: usize) -> usize {

@@ -6,6 +6,7 @@
 //! report (markdown + PNG plots + JSON).
 
 use super::eval::{Timeline, write_plots};
+use super::score::expand_episodes;
 use anyhow::{Context, Result, bail};
 use serde_json::json;
 use std::collections::BTreeMap;
@@ -91,28 +92,6 @@ fn unpack(dir: &Path) -> Result<PathBuf> {
     Ok(dir.join("profile.toml"))
 }
 
-/// Episode files: `.mcap` files given, and those inside folders given (sorted).
-fn episode_files(paths: &[PathBuf]) -> Result<Vec<PathBuf>> {
-    let mut files = Vec::new();
-    for p in paths {
-        if p.is_dir() {
-            let mut inside: Vec<PathBuf> = std::fs::read_dir(p)
-                .with_context(|| format!("cannot list {}", p.display()))?
-                .filter_map(|e| e.ok().map(|e| e.path()))
-                .filter(|f| f.extension().is_some_and(|x| x == "mcap"))
-                .collect();
-            inside.sort();
-            files.extend(inside);
-        } else {
-            files.push(p.clone());
-        }
-    }
-    if files.is_empty() {
-        bail!("no episodes (.mcap) found in {paths:?}");
-    }
-    Ok(files)
-}
-
 /// Runs the demo.
 pub async fn run(settings: &Settings, opts: DemoOptions) -> Result<()> {
     let started = Instant::now();
@@ -123,15 +102,15 @@ pub async fn run(settings: &Settings, opts: DemoOptions) -> Result<()> {
             if opts.episodes.is_empty() {
                 bail!("--profile needs --episodes (labelled .mcap files or folders)");
             }
-            (p.clone(), episode_files(&opts.episodes)?)
+            (p.clone(), expand_episodes(&opts.episodes)?)
         }
         None => {
             let assets = opts.out.join("assets");
             let profile = unpack(&assets)?;
             let episodes = if opts.episodes.is_empty() {
-                episode_files(&[assets.join("episodes")])?
+                expand_episodes(&[assets.join("episodes")])?
             } else {
-                episode_files(&opts.episodes)?
+                expand_episodes(&opts.episodes)?
             };
             (profile, episodes)
         }

@@ -41,18 +41,10 @@ pub struct StreamOptions {
 }
 
 fn score_json(s: &proto::FrameScore) -> serde_json::Value {
-    let detector = match proto::Detector::try_from(s.detector) {
-        Ok(proto::Detector::Camera) => Some("camera"),
-        Ok(proto::Detector::Body) => Some("body"),
-        Ok(proto::Detector::Flow) => Some("flow"),
-        _ => None,
-    };
-    json!({
-        "type": "score", "stamp_ns": s.stamp_ns, "index": s.index, "frame": s.frame,
-        "score": s.score, "e_c": s.e_c, "e_b": s.e_b, "e_o": s.e_o, "anomaly": s.anomaly,
-        "detector": detector, "warming_up": s.warming_up, "latency_s": s.latency_s,
-        "compute_s": s.compute_s,
-    })
+    let mut v = proto::score_json(s);
+    v["type"] = json!("score");
+    v["latency_s"] = json!(s.latency_s);
+    v
 }
 
 fn event_json(e: &proto::SessionEvent) -> serde_json::Value {

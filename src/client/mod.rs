@@ -210,6 +210,10 @@ impl Client {
         // Images sent and not yet answered (scored, refused or dropped), oldest first.
         let mut pending: BTreeSet<(u64, i64)> = BTreeSet::new();
         let mut next = 0usize;
+        if recording.messages.is_empty() {
+            // Nothing to send: end the request side now, or the server waits for more.
+            session.finish();
+        }
         let start = tokio::time::Instant::now();
         loop {
             let sendable = recording
@@ -271,9 +275,6 @@ impl Client {
                     }
                 }
             }
-        }
-        if recording.messages.is_empty() {
-            session.finish();
         }
         summary.elapsed = started.elapsed();
         Ok(summary)

@@ -332,6 +332,16 @@ impl Scorer {
         self.last_stamp_ns = None;
     }
 
+    /// Takes over the stream position of `previous` (the image and frame counters and
+    /// the last stamp) with none of its history: a scorer that replaces another mid-stream
+    /// (another model version) keeps the indices going and the stamp order checked, and
+    /// warms up like a new stream.
+    pub fn continue_after(&mut self, previous: &Scorer) {
+        self.images = previous.images;
+        self.frames = previous.frames;
+        self.last_stamp_ns = previous.last_stamp_ns;
+    }
+
     /// Pushes the next image. `Ok(None)` for images the stride skips.
     pub fn push(&mut self, input: &FrameInput<'_>) -> Result<Option<FrameScore>, ScorerError> {
         let start = Instant::now();

@@ -63,6 +63,10 @@ pub struct ServiceConfig {
     pub max_model_bytes: u64,
     /// Largest robot package upload, bytes.
     pub max_robot_bytes: u64,
+    /// Calibration jobs running at once; more are refused (HTTP 429) until one ends.
+    pub max_jobs: usize,
+    /// Largest calibration upload (all the episodes of one multipart request), bytes.
+    pub max_calibration_bytes: u64,
     /// sha256 digests (hex) of admin tokens; `VAMOS_ADMIN_TOKEN` adds plain tokens.
     pub admin_token_sha256: Vec<String>,
     /// sha256 digests (hex) of robot tokens; `VAMOS_ROBOT_TOKEN` adds plain tokens.
@@ -94,6 +98,8 @@ impl Default for ServiceConfig {
             max_episode_bytes: 4 << 30,
             max_model_bytes: 512 << 20,
             max_robot_bytes: 512 << 20,
+            max_jobs: 2,
+            max_calibration_bytes: 16 << 30,
             admin_token_sha256: Vec::new(),
             robot_token_sha256: Vec::new(),
             allow_unauthenticated_remote: false,

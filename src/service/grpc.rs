@@ -174,7 +174,9 @@ impl Monitor for MonitorService {
         };
         let detail = format!(
             "session {} profile {} model {}",
-            session.id, session.profile.name, session.profile.model_label
+            session.id,
+            session.profile_name,
+            session.profile().model_label
         );
         let _ = tx
             .send(Ok(proto::StreamResponse {

@@ -248,6 +248,8 @@ pub struct SessionSummary {
     pub age_s: f64,
     /// The latest score.
     pub latest: Option<LatestScore>,
+    /// Times the session was moved to its profile's stored state ([`Hub::reload`]).
+    pub reloads: u64,
 }
 
 struct SessionState {
@@ -281,11 +283,19 @@ pub struct Session {
     pub resumable: bool,
     /// Whether it scores an uploaded episode.
     pub episode: bool,
-    /// The profile it was opened with.
-    pub profile: Arc<LoadedProfile>,
+    /// The name of its profile (fixed for the session's life).
+    pub profile_name: String,
+    /// The profile it scores with: the one it was opened with, until a reload
+    /// ([`Hub::reload`]) moves it to the profile as stored now.
+    profile: Mutex<Arc<LoadedProfile>>,
+    /// What seeds the predictor's sampling (kept for a reload's new scorer).
+    seed_key: String,
     /// The camera of the open message, else the profile's.
     camera: Option<Intrinsics>,
-    needs_joints: bool,
+    /// Whether images wait for joint states (the profile has a robot).
+    needs_joints: AtomicBool,
+    /// Reloads so far.
+    reloads: AtomicU64,
     opened: Instant,
     state: Mutex<SessionState>,
     space: Condvar,
@@ -296,13 +306,24 @@ pub struct Session {
 }
 
 impl Session {
-    fn summary(&self) -> SessionSummary {
+    /// The profile the session scores with now.
+    pub fn profile(&self) -> Arc<LoadedProfile> {
+        lock(&self.profile).clone()
+    }
+
+    fn needs_joints(&self) -> bool {
+        self.needs_joints.load(Ordering::Relaxed)
+    }
+
+    /// The session as listed by the REST API.
+    pub fn summary(&self) -> SessionSummary {
+        let model = self.profile().model_label.clone();
         let st = lock(&self.state);
         SessionSummary {
             id: self.id.clone(),
             robot_id: self.robot_id.clone(),
-            profile: self.profile.name.clone(),
-            model: self.profile.model_label.clone(),
+            profile: self.profile_name.clone(),
+            model,
             task: self.task.clone(),
             phase: st.phase.clone(),
             state: if self.episode {
@@ -319,6 +340,7 @@ impl Session {
             queued: st.queue.len() + st.pending.len(),
             age_s: self.opened.elapsed().as_secs_f64(),
             latest: st.latest,
+            reloads: self.reloads.load(Ordering::Relaxed),
         }
     }
 
@@ -445,10 +467,10 @@ impl Hub {
         if !id.is_empty()
             && let Some(s) = sessions.get(&id)
         {
-            if s.profile.name != profile.name {
+            if s.profile_name != profile.name {
                 return Err(OpenError::ProfileMismatch {
                     id,
-                    profile: s.profile.name.clone(),
+                    profile: s.profile_name.clone(),
                 });
             }
             let mut st = lock(&s.state);
@@ -483,9 +505,10 @@ impl Hub {
                     .map_or(0, |d| d.as_nanos() as u64 & 0xffff_ffff)
             )
         };
+        let seed_key = req.seed_key.unwrap_or_else(|| id.clone());
         let scorer = profile
             .setup
-            .calibrated_scorer(req.seed_key.as_deref().unwrap_or(&id), false)
+            .calibrated_scorer(&seed_key, false)
             .map_err(|e| OpenError::Scorer(e.to_string()))?;
         let session = Arc::new(Session {
             id: id.clone(),
@@ -493,7 +516,10 @@ impl Hub {
             task: req.task,
             resumable,
             episode: req.episode,
-            needs_joints: profile.setup.robot.is_some(),
+            needs_joints: AtomicBool::new(profile.setup.robot.is_some()),
+            reloads: AtomicU64::new(0),
+            seed_key,
+            profile_name: profile.name.clone(),
             camera: req.camera,
             opened: Instant::now(),
             state: Mutex::new(SessionState {
@@ -518,18 +544,18 @@ impl Hub {
             frames_scored: AtomicU64::new(0),
             dropped: AtomicU64::new(0),
             anomalies: AtomicU64::new(0),
-            profile,
+            profile: Mutex::new(profile),
         });
         sessions.insert(id.clone(), session.clone());
         self.metrics
             .sessions_active
-            .with_label_values(&[&session.profile.name])
+            .with_label_values(&[&session.profile_name])
             .inc();
         self.metrics
             .sessions_opened
-            .with_label_values(&[&session.profile.name, "ok"])
+            .with_label_values(&[&session.profile_name, "ok"])
             .inc();
-        tracing::info!(session = %id, robot = %session.robot_id, profile = %session.profile.name, "session opened");
+        tracing::info!(session = %id, robot = %session.robot_id, profile = %session.profile_name, "session opened");
         Ok((session, false))
     }
 
@@ -539,6 +565,58 @@ impl Hub {
         let mut out: Vec<SessionSummary> = sessions.iter().map(|s| s.summary()).collect();
         out.sort_by(|a, b| a.id.cmp(&b.id));
         out
+    }
+
+    /// The open session `id` (streaming, detached or an episode upload).
+    pub fn session(&self, id: &str) -> Option<Arc<Session>> {
+        lock(&self.sessions).get(id).cloned()
+    }
+
+    /// Moves session `s` to `profile` (the same profile as stored now: another model
+    /// version, thresholds or calibration) from its next frame on. The new scorer starts
+    /// with an empty history, so the flow predictor warms up again (`warming_up` is
+    /// reported anew); frames already queued are scored by the new scorer. The client
+    /// gets a `KIND_RELOADED` event naming the new model. Refused for another profile's
+    /// name and for a closed session.
+    pub fn reload(&self, s: &Arc<Session>, profile: Arc<LoadedProfile>) -> Result<(), OpenError> {
+        if profile.name != s.profile_name {
+            return Err(OpenError::ProfileMismatch {
+                id: s.id.clone(),
+                profile: s.profile_name.clone(),
+            });
+        }
+        let mut scorer = profile
+            .setup
+            .calibrated_scorer(&s.seed_key, false)
+            .map_err(|e| OpenError::Scorer(e.to_string()))?;
+        if lock(&s.state).closed {
+            return Err(OpenError::Scorer(format!("session {:?} is closed", s.id)));
+        }
+        let model = profile.model_label.clone();
+        {
+            // The scorer's lock first: a worker scoring a frame finishes it with the old
+            // scorer, the next frame sees the new one.
+            let mut current = lock(&s.scorer);
+            scorer.continue_after(&current);
+            *current = scorer;
+            s.needs_joints
+                .store(profile.setup.robot.is_some(), Ordering::Relaxed);
+            *lock(&s.profile) = profile;
+        }
+        lock(&s.state).warm_reported = false;
+        let n = s.reloads.fetch_add(1, Ordering::Relaxed) + 1;
+        tracing::info!(session = %s.id, model = %model, reloads = n, "session reloaded");
+        self.send(
+            s,
+            event(
+                &s.id,
+                proto::session_event::Kind::Reloaded,
+                format!("session {} profile {} model {model}", s.id, s.profile_name),
+                0,
+                n,
+            ),
+        );
+        Ok(())
     }
 
     /// Number of open sessions.
@@ -554,7 +632,7 @@ impl Hub {
             s.dropped.fetch_add(1, Ordering::Relaxed);
             self.metrics
                 .drops
-                .with_label_values(&[&s.profile.name, "undelivered"])
+                .with_label_values(&[&s.profile_name, "undelivered"])
                 .inc();
         }
     }
@@ -563,7 +641,7 @@ impl Hub {
         tracing::debug!(session = %s.id, kind, "{detail}");
         self.metrics
             .message_errors
-            .with_label_values(&[&s.profile.name, kind])
+            .with_label_values(&[&s.profile_name, kind])
             .inc();
         self.send(
             s,
@@ -583,7 +661,7 @@ impl Hub {
         s.dropped.fetch_add(1, Ordering::Relaxed);
         self.metrics
             .drops
-            .with_label_values(&[&s.profile.name, "bad_message"])
+            .with_label_values(&[&s.profile_name, "bad_message"])
             .inc();
         self.message_error(s, kind, detail, stamp_ns);
     }
@@ -665,7 +743,7 @@ impl Hub {
         let mut rejected = 0;
         while let Some(front) = st.pending.front() {
             let t = front.stamp_ns;
-            let ready = !s.needs_joints
+            let ready = !s.needs_joints()
                 || flush
                 || st.joints.newest_ns().is_some_and(|n| n >= t)
                 || st.newest_ns.saturating_sub(t) > wait_ns
@@ -676,7 +754,7 @@ impl Hub {
             let Some(mut frame) = st.pending.pop_front() else {
                 break;
             };
-            if s.needs_joints {
+            if s.needs_joints() {
                 frame.joints = st.joints.at(t);
                 st.joints.trim_before(t);
             }
@@ -711,7 +789,7 @@ impl Hub {
             let total = s.dropped.fetch_add(n, Ordering::Relaxed) + n;
             self.metrics
                 .drops
-                .with_label_values(&[&s.profile.name, reason])
+                .with_label_values(&[&s.profile_name, reason])
                 .inc_by(n);
             self.send(
                 s,
@@ -820,7 +898,7 @@ impl Hub {
         if lock(&self.sessions).remove(&s.id).is_some() {
             self.metrics
                 .sessions_active
-                .with_label_values(&[&s.profile.name])
+                .with_label_values(&[&s.profile_name])
                 .dec();
         }
         tracing::info!(
@@ -1033,7 +1111,7 @@ impl Hub {
         decode_s: f64,
     ) {
         let m = &self.metrics;
-        let profile = s.profile.name.as_str();
+        let profile = s.profile_name.as_str();
         m.frames.with_label_values(&[profile]).inc();
         s.frames_scored.fetch_add(1, Ordering::Relaxed);
         let t = &score.timings;
@@ -1051,9 +1129,10 @@ impl Hub {
         ] {
             m.stage_seconds.with_label_values(&[stage]).observe(v);
         }
-        if s.profile.setup.model.is_some() {
+        let current = s.profile();
+        if current.setup.model.is_some() {
             m.inference_seconds
-                .with_label_values(&[&s.profile.model_label])
+                .with_label_values(&[&current.model_label])
                 .observe(us(t.model_us));
         }
         let detector = match score.triggered {

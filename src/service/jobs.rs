@@ -1,103 +1,127 @@
-//! Background jobs started through REST (profile calibrations). They live in memory: a
-//! restart forgets them (a finished calibration is in the data directory, a running one
-//! is lost and must be started again).
+//! Background jobs started through REST (profile calibrations). Their records live in
+//! the data directory ([`Store::start_job`]), so the job list survives a restart; a job
+//! that was running when the server stopped is reported `failed` (interrupted) after it.
+//! At most `max_jobs` run at once; a running job can be cancelled (it stops before its
+//! next episode).
 
 use crate::pipeline::Calibration;
-use serde::Serialize;
-use std::collections::BTreeMap;
-use std::sync::Mutex;
+use crate::store::{JobInfo, JobState, Store, StoreError};
+use std::collections::HashMap;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
 
-/// Where a job is.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
-#[serde(rename_all = "snake_case")]
-pub enum JobState {
-    /// Still working.
-    Running,
-    /// Done; its result is recorded.
-    Succeeded,
-    /// Ended with an error.
-    Failed,
+/// Why a job cannot start.
+#[derive(Debug, thiserror::Error)]
+pub enum JobError {
+    /// `max_jobs` jobs are running.
+    #[error(
+        "{running} calibration job(s) are running, the most this server runs at once; retry when one has ended"
+    )]
+    Busy {
+        /// How many run.
+        running: usize,
+    },
+    /// The data directory refused the record.
+    #[error(transparent)]
+    Store(#[from] StoreError),
 }
 
-/// A job as `GET /v1/jobs/{id}` shows it.
-#[derive(Debug, Clone, Serialize)]
-pub struct JobInfo {
-    /// Its id.
+/// A running job's handle: its id and its cancel flag.
+#[derive(Debug, Clone)]
+pub struct JobHandle {
+    /// The job's id.
     pub id: u64,
-    /// Where it is.
-    pub state: JobState,
-    /// The profile it calibrates.
-    pub profile: String,
-    /// Started, seconds since the Unix epoch.
-    pub started_unix_s: u64,
-    /// Why it failed.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub error: Option<String>,
-    /// The calibration saved, once it succeeded.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub calibration: Option<Calibration>,
-    /// Remarks of the calibration (no conformal threshold and why, ...).
-    #[serde(skip_serializing_if = "Vec::is_empty")]
-    pub notes: Vec<String>,
+    cancel: Arc<AtomicBool>,
 }
 
-/// The jobs of this process.
-#[derive(Debug, Default)]
+impl JobHandle {
+    /// Whether the job was asked to stop.
+    pub fn cancelled(&self) -> bool {
+        self.cancel.load(Ordering::SeqCst)
+    }
+}
+
+/// The jobs of this server: the stored records and the running jobs' cancel flags.
+#[derive(Debug)]
 pub struct Jobs {
-    inner: Mutex<BTreeMap<u64, JobInfo>>,
+    store: Store,
+    max_running: usize,
+    running: Mutex<HashMap<u64, Arc<AtomicBool>>>,
 }
 
 impl Jobs {
-    fn lock(&self) -> std::sync::MutexGuard<'_, BTreeMap<u64, JobInfo>> {
-        self.inner.lock().unwrap_or_else(|e| e.into_inner())
+    /// Jobs over `store`, at most `max_running` at once (0 counts as 1).
+    pub fn new(store: Store, max_running: usize) -> Self {
+        Self {
+            store,
+            max_running: max_running.max(1),
+            running: Mutex::new(HashMap::new()),
+        }
     }
 
-    /// Records a new running job for `profile` and returns its id.
-    pub fn start(&self, profile: &str) -> u64 {
-        let mut jobs = self.lock();
-        let id = jobs.keys().next_back().map_or(1, |k| k + 1);
-        let started_unix_s = std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map_or(0, |d| d.as_secs());
-        jobs.insert(
-            id,
-            JobInfo {
-                id,
-                state: JobState::Running,
-                profile: profile.into(),
-                started_unix_s,
-                error: None,
-                calibration: None,
-                notes: Vec::new(),
-            },
-        );
-        id
+    fn running(&self) -> std::sync::MutexGuard<'_, HashMap<u64, Arc<AtomicBool>>> {
+        self.running.lock().unwrap_or_else(|e| e.into_inner())
     }
 
-    /// Records the end of job `id`.
-    pub fn finish(&self, id: u64, result: Result<(Calibration, Vec<String>), String>) {
-        if let Some(job) = self.lock().get_mut(&id) {
-            match result {
-                Ok((calibration, notes)) => {
-                    job.state = JobState::Succeeded;
-                    job.calibration = Some(calibration);
-                    job.notes = notes;
-                }
-                Err(e) => {
-                    job.state = JobState::Failed;
-                    job.error = Some(e);
-                }
+    /// Records a new running job for `profile` with its inputs' names.
+    pub fn start(
+        &self,
+        profile: &str,
+        episodes: Vec<String>,
+        holdout: Vec<String>,
+    ) -> Result<JobHandle, JobError> {
+        let mut running = self.running();
+        if running.len() >= self.max_running {
+            return Err(JobError::Busy {
+                running: running.len(),
+            });
+        }
+        let job = self.store.start_job(profile, episodes, holdout)?;
+        let cancel = Arc::new(AtomicBool::new(false));
+        running.insert(job.id, cancel.clone());
+        Ok(JobHandle { id: job.id, cancel })
+    }
+
+    /// Records the end of a job: succeeded with its calibration, or failed (cancelled
+    /// when its cancel flag was set) with the reason.
+    pub fn finish(&self, job: &JobHandle, result: Result<(Calibration, Vec<String>), String>) {
+        let result = result.map_err(|e| {
+            if job.cancelled() {
+                (JobState::Cancelled, "cancelled through the API".to_string())
+            } else {
+                (JobState::Failed, e)
             }
+        });
+        if let Err(e) = self.store.finish_job(job.id, result) {
+            tracing::error!(job = job.id, "cannot record the end of the job: {e}");
+        }
+        self.running().remove(&job.id);
+    }
+
+    /// Asks running job `id` to stop; `Ok(false)` when it has already ended.
+    pub fn cancel(&self, id: u64) -> Result<bool, StoreError> {
+        let job = self.store.job(id)?;
+        match self.running().get(&id) {
+            Some(flag) if !job.state.is_final() => {
+                flag.store(true, Ordering::SeqCst);
+                Ok(true)
+            }
+            _ => Ok(false),
         }
     }
 
     /// Job `id`.
-    pub fn get(&self, id: u64) -> Option<JobInfo> {
-        self.lock().get(&id).cloned()
+    pub fn get(&self, id: u64) -> Result<JobInfo, StoreError> {
+        self.store.job(id)
     }
 
     /// Every job, oldest first.
     pub fn list(&self) -> Vec<JobInfo> {
-        self.lock().values().cloned().collect()
+        self.store.jobs()
+    }
+
+    /// Removes a finished job's record.
+    pub fn delete(&self, id: u64) -> Result<(), StoreError> {
+        self.store.delete_job(id)
     }
 }

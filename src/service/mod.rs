@@ -98,7 +98,7 @@ pub struct Shared {
     pub profiles: ProfileCatalog,
     /// The data directory: models, robots, profiles, calibrations.
     pub store: Store,
-    /// Calibration jobs (in memory: a restart forgets them).
+    /// Calibration jobs (their records are in the data directory).
     pub jobs: jobs::Jobs,
     /// Bearer tokens.
     pub tokens: Tokens,
@@ -236,7 +236,7 @@ impl Server {
             settings,
             hub,
             profiles,
-            jobs: jobs::Jobs::default(),
+            jobs: jobs::Jobs::new(store.clone(), cfg.max_jobs),
             store,
             tokens,
             stop,

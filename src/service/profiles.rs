@@ -65,6 +65,9 @@ struct StoredProfiles {
     store: Store,
     settings: Settings,
     cache: Mutex<Cache>,
+    /// One lock per profile name being loaded: sessions that miss the cache at once wait
+    /// for one load instead of each loading the model.
+    loading: Mutex<HashMap<String, Arc<Mutex<()>>>>,
 }
 
 #[derive(Default)]
@@ -92,6 +95,18 @@ impl StoredProfiles {
     /// Resolves and loads `name` (blocking), caching it unless something changed
     /// meanwhile.
     fn load(&self, name: &str) -> Result<Arc<LoadedProfile>, ProfileLookupError> {
+        if let Some(p) = self.cached(name) {
+            return Ok(p);
+        }
+        let gate = self
+            .loading
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .entry(name.to_string())
+            .or_default()
+            .clone();
+        let _one_at_a_time = gate.lock().unwrap_or_else(|e| e.into_inner());
+        // Loaded by the caller we waited for.
         if let Some(p) = self.cached(name) {
             return Ok(p);
         }
@@ -204,6 +219,7 @@ impl ProfileCatalog {
             store,
             settings,
             cache: Mutex::new(Cache::default()),
+            loading: Mutex::new(HashMap::new()),
         }));
         self
     }

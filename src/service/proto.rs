@@ -5,3 +5,31 @@ tonic::include_proto!("vamos.v1");
 /// The encoded `FileDescriptorSet` of `vamos.v1`, served by gRPC reflection.
 pub const FILE_DESCRIPTOR_SET: &[u8] =
     include_bytes!(concat!(env!("OUT_DIR"), "/vamos_descriptor.bin"));
+
+/// The name of a `Detector` code as JSON outputs write it (`camera`, `body`, `flow`);
+/// `None` for unspecified or unknown codes.
+pub fn detector_name(code: i32) -> Option<&'static str> {
+    match Detector::try_from(code) {
+        Ok(Detector::Camera) => Some("camera"),
+        Ok(Detector::Body) => Some("body"),
+        Ok(Detector::Flow) => Some("flow"),
+        _ => None,
+    }
+}
+
+/// A frame's score as the JSON object the REST API and `vamos stream` print.
+pub fn score_json(s: &FrameScore) -> serde_json::Value {
+    serde_json::json!({
+        "stamp_ns": s.stamp_ns,
+        "index": s.index,
+        "frame": s.frame,
+        "score": s.score,
+        "e_c": s.e_c,
+        "e_b": s.e_b,
+        "e_o": s.e_o,
+        "anomaly": s.anomaly,
+        "detector": detector_name(s.detector),
+        "warming_up": s.warming_up,
+        "compute_s": s.compute_s,
+    })
+}

@@ -121,6 +121,7 @@ pub const ROUTES: &[(&str, &str, Access)] = &[
     ("GET", "/metrics", Access::Open),
     ("GET", "/openapi.json", Access::Open),
     ("GET", "/v1/sessions", Access::Admin),
+    ("POST", "/v1/sessions/{id}/reload", Access::Admin),
     ("POST", "/v1/episodes:score", Access::Robot),
     ("GET", "/v1/models", Access::Robot),
     ("GET", "/v1/models/{name}", Access::Robot),
@@ -144,6 +145,7 @@ pub const ROUTES: &[(&str, &str, Access)] = &[
     ("POST", "/v1/profiles/{name}/calibrate", Access::Admin),
     ("GET", "/v1/jobs", Access::Admin),
     ("GET", "/v1/jobs/{id}", Access::Admin),
+    ("DELETE", "/v1/jobs/{id}", Access::Admin),
 ];
 
 /// The OpenAPI 3.0 description served at `/openapi.json`.
@@ -158,6 +160,7 @@ pub fn handler(method: &str, path: &str) -> Option<MethodRouter<Arc<Shared>>> {
         ("GET", "/metrics") => get(metrics),
         ("GET", "/openapi.json") => get(openapi),
         ("GET", "/v1/sessions") => get(sessions),
+        ("POST", "/v1/sessions/{id}/reload") => post(reload_session),
         ("POST", "/v1/episodes:score") => post(score_episode),
         ("GET", "/v1/models") => get(list_models),
         ("GET", "/v1/models/{name}") => get(get_model),
@@ -177,6 +180,7 @@ pub fn handler(method: &str, path: &str) -> Option<MethodRouter<Arc<Shared>>> {
         ("POST", "/v1/profiles/{name}/calibrate") => post(start_calibration),
         ("GET", "/v1/jobs") => get(list_jobs),
         ("GET", "/v1/jobs/{id}") => get(get_job),
+        ("DELETE", "/v1/jobs/{id}") => delete(delete_job),
         _ => return None,
     })
 }
@@ -376,28 +380,6 @@ struct ScoreQuery {
     name: Option<String>,
 }
 
-fn score_json(s: &proto::FrameScore) -> serde_json::Value {
-    let detector = match proto::Detector::try_from(s.detector) {
-        Ok(proto::Detector::Camera) => Some("camera"),
-        Ok(proto::Detector::Body) => Some("body"),
-        Ok(proto::Detector::Flow) => Some("flow"),
-        _ => None,
-    };
-    json!({
-        "stamp_ns": s.stamp_ns,
-        "index": s.index,
-        "frame": s.frame,
-        "score": s.score,
-        "e_c": s.e_c,
-        "e_b": s.e_b,
-        "e_o": s.e_o,
-        "anomaly": s.anomaly,
-        "detector": detector,
-        "warming_up": s.warming_up,
-        "compute_s": s.compute_s,
-    })
-}
-
 /// `POST /v1/episodes:score?profile=P[&name=N]` with an MCAP body: the scores as JSON
 /// (`{"frames": [...]}`), streamed to disk first (size-limited).
 async fn score_episode(
@@ -478,7 +460,7 @@ async fn score_episode(
     }
     match input {
         None => {
-            let frames: Vec<_> = frames.iter().map(score_json).collect();
+            let frames: Vec<_> = frames.iter().map(proto::score_json).collect();
             Ok(Json(json!({ "frames": frames, "damage": damage })).into_response())
         }
         Some(input) => {
@@ -539,15 +521,17 @@ fn scored_bag(
     Ok(out)
 }
 
-/// A response streaming `file` (removed once sent) as `application/x-mcap`.
+/// A response streaming `file` as `application/x-mcap`. Its name is removed before the
+/// response is returned (the open handle keeps the data readable), so nothing is left in
+/// the upload folder however the transfer ends.
 async fn file_body(file: tempfile::NamedTempFile) -> Result<Response, ApiError> {
     use tokio::io::AsyncReadExt;
-    let len = file.as_file().metadata().map_err(internal)?.len();
-    let (path, handle) = (file.path().to_path_buf(), file);
-    let mut reader = tokio::fs::File::open(&path).await.map_err(internal)?;
+    let mut std_file = file.into_file();
+    let len = std_file.metadata().map_err(internal)?.len();
+    std::io::Seek::rewind(&mut std_file).map_err(internal)?;
+    let mut reader = tokio::fs::File::from_std(std_file);
     let (tx, rx) = tokio::sync::mpsc::channel::<Result<Vec<u8>, std::io::Error>>(4);
     tokio::spawn(async move {
-        let _keep = handle;
         loop {
             let mut buf = vec![0u8; 256 << 10];
             match reader.read(&mut buf).await {
@@ -717,6 +701,10 @@ async fn delete_model_version(
 #[serde(deny_unknown_fields)]
 struct ActiveRequest {
     version: u32,
+    /// Also move the running sessions whose profile uses this model to the new version
+    /// (by default they keep the version they opened with).
+    #[serde(default)]
+    reload_sessions: bool,
 }
 
 async fn set_active_model(
@@ -733,7 +721,75 @@ async fn set_active_model(
     })
     .await?;
     s.profiles.invalidate_model(&name);
-    Ok(Json(model).into_response())
+    let mut body = to_json(&model)?;
+    if req.reload_sessions {
+        let mut reloaded = Vec::new();
+        let mut failed = serde_json::Map::new();
+        for summary in s.hub.sessions() {
+            let uses = summary.model.split('@').next() == Some(name.as_str());
+            if !uses || s.profiles.is_file(&summary.profile) {
+                continue;
+            }
+            match reload_one(&s, &summary.id).await {
+                Ok(Some(_)) => reloaded.push(summary.id),
+                // Closed meanwhile, or already on the current version.
+                Ok(None) => {}
+                Err(e) => {
+                    failed.insert(summary.id, json!(e.message));
+                }
+            }
+        }
+        body["reloaded_sessions"] = json!(reloaded);
+        if !failed.is_empty() {
+            body["reload_errors"] = serde_json::Value::Object(failed);
+        }
+    }
+    Ok(Json(body).into_response())
+}
+
+/// Moves session `id` to its profile as loaded now. `Ok(None)`: the session is gone, or
+/// it already scores with that very profile (nothing changed since it opened).
+async fn reload_one(s: &Arc<Shared>, id: &str) -> Result<Option<String>, ApiError> {
+    let Some(session) = s.hub.session(id) else {
+        return Ok(None);
+    };
+    let profile = s
+        .profiles
+        .get_async(&session.profile_name)
+        .await
+        .map_err(|e| ApiError::new(StatusCode::CONFLICT, e.to_string()))?;
+    if Arc::ptr_eq(&profile, &session.profile()) {
+        return Ok(None);
+    }
+    let model = profile.model_label.clone();
+    let hub = s.hub.clone();
+    tokio::task::spawn_blocking(move || hub.reload(&session, profile))
+        .await
+        .map_err(internal)?
+        .map_err(|e| ApiError::new(StatusCode::CONFLICT, e.to_string()))?;
+    Ok(Some(model))
+}
+
+/// `POST /v1/sessions/{id}/reload`: the session scores with its profile as stored now
+/// (a new active model version, new thresholds or calibration) from its next frame; its
+/// flow predictor warms up again. `reloaded: false` when nothing changed since it opened.
+async fn reload_session(
+    State(s): State<Arc<Shared>>,
+    Path(id): Path<String>,
+) -> Result<Response, ApiError> {
+    if s.hub.session(&id).is_none() {
+        return Err(ApiError::new(
+            StatusCode::NOT_FOUND,
+            format!("no open session {id:?}"),
+        ));
+    }
+    let reloaded = reload_one(&s, &id).await?;
+    let summary = s.hub.session(&id).map(|x| x.summary());
+    Ok(Json(json!({
+        "reloaded": reloaded.is_some(),
+        "session": summary,
+    }))
+    .into_response())
 }
 
 async fn list_robots(State(s): State<Arc<Shared>>) -> Result<Response, ApiError> {
@@ -905,8 +961,8 @@ fn default_alpha() -> f64 {
     0.1
 }
 
-/// Body of `POST /v1/profiles/{name}/calibrate`: episode files or folders of `.mcap`
-/// files on the server.
+/// Body of `POST /v1/profiles/{name}/calibrate` as JSON: episode files or folders of
+/// `.mcap` files on the server.
 #[derive(Debug, serde::Deserialize)]
 #[serde(deny_unknown_fields)]
 struct CalibrateRequest {
@@ -939,11 +995,12 @@ fn expand(paths: &[PathBuf]) -> Result<Vec<PathBuf>, String> {
 }
 
 /// The calibration job's work (blocking): scores the episodes with the profile, saves
-/// the calibration.
+/// the calibration. Stops before the next episode once `job` is cancelled.
 fn run_calibration(
     s: &Shared,
     name: &str,
     req: &CalibrateRequest,
+    job: &super::jobs::JobHandle,
 ) -> Result<(crate::pipeline::Calibration, Vec<String>), String> {
     let profile = s.profiles.get(name).map_err(|e| e.to_string())?;
     let setup = &profile.setup;
@@ -962,6 +1019,9 @@ fn run_calibration(
             episodes
                 .iter()
                 .map(|path| {
+                    if job.cancelled() {
+                        return Err("cancelled".to_string());
+                    }
                     let what = |e: &dyn std::fmt::Display| format!("{}: {e}", path.display());
                     let episode = McapEpisode::open(path, &setup.episode).map_err(|e| what(&e))?;
                     let mut scorer = setup
@@ -973,33 +1033,194 @@ fn run_calibration(
                 .collect()
         },
     )?;
+    if job.cancelled() {
+        return Err("cancelled".into());
+    }
     s.store
         .save_calibration(name, outcome.calibration.clone())
         .map_err(|e| e.to_string())?;
     Ok((outcome.calibration, outcome.notes))
 }
 
-/// `POST /v1/profiles/{name}/calibrate`: starts a calibration job (202 `{"job": id}`).
+/// Episodes uploaded with a calibration request, in a temporary folder of the upload
+/// directory that is removed when the job ends (and, after a crash, when the store
+/// opens).
+struct CalibrationUpload {
+    dir: tempfile::TempDir,
+    request: CalibrateRequest,
+    episodes: Vec<String>,
+    holdout: Vec<String>,
+}
+
+/// A part's file name as a safe episode file name (`[A-Za-z0-9._-]`, ending in `.mcap`);
+/// the episode is named after its stem, as on the command line.
+fn episode_file_name(raw: Option<&str>, index: usize) -> String {
+    let base = raw
+        .and_then(|n| n.rsplit(['/', '\\']).next())
+        .unwrap_or("")
+        .trim_end_matches(".mcap");
+    let mut clean: String = base
+        .chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || matches!(c, '.' | '_' | '-') {
+                c
+            } else {
+                '_'
+            }
+        })
+        .take(100)
+        .collect();
+    if clean.trim_matches('.').is_empty() {
+        clean = format!("episode_{index:04}");
+    }
+    format!("{clean}.mcap")
+}
+
+/// Receives a `multipart/form-data` calibration request: file parts `episodes` (one or
+/// more, nominal training episodes) and `holdout` (held-out nominal episodes), an
+/// optional text part `alpha`. Each file streams to disk, limited to
+/// `max_episode_bytes`, all of them together to `max_calibration_bytes`.
+async fn receive_calibration(
+    s: &Shared,
+    content_type: &str,
+    body: Body,
+) -> Result<CalibrationUpload, ApiError> {
+    use tokio::io::AsyncWriteExt;
+    let boundary = multer::parse_boundary(content_type)
+        .map_err(|e| bad_request(format!("bad multipart content type: {e}")))?;
+    let cfg = s.hub.config();
+    let (per_file, total_limit) = (cfg.max_episode_bytes, cfg.max_calibration_bytes);
+    let dir = tempfile::Builder::new()
+        .prefix("calibrate-")
+        .tempdir_in(s.upload_dir())
+        .map_err(internal)?;
+    for sub in ["episodes", "holdout"] {
+        std::fs::create_dir(dir.path().join(sub)).map_err(internal)?;
+    }
+    let mut multipart = multer::Multipart::new(body.into_data_stream(), boundary);
+    let mut request = CalibrateRequest {
+        episodes: Vec::new(),
+        holdout: Vec::new(),
+        alpha: default_alpha(),
+    };
+    let (mut episodes, mut holdout) = (Vec::new(), Vec::new());
+    let mut total = 0u64;
+    let part_error = |e: multer::Error| bad_request(format!("bad multipart body: {e}"));
+    let mut index = 0;
+    while let Some(mut field) = multipart.next_field().await.map_err(part_error)? {
+        let part = field.name().unwrap_or("").to_string();
+        let (paths, names) = match part.as_str() {
+            "episodes" => (&mut request.episodes, &mut episodes),
+            "holdout" => (&mut request.holdout, &mut holdout),
+            "alpha" => {
+                let text = field.text().await.map_err(part_error)?;
+                request.alpha = text
+                    .trim()
+                    .parse()
+                    .map_err(|_| bad_request(format!("alpha {text:?} is not a number")))?;
+                continue;
+            }
+            other => {
+                return Err(bad_request(format!(
+                    "unknown part {other:?}: expected files `episodes` and `holdout`, text `alpha`"
+                )));
+            }
+        };
+        index += 1;
+        let file_name = episode_file_name(field.file_name(), index);
+        if names.contains(&file_name) {
+            return Err(bad_request(format!(
+                "two `{part}` files are named {file_name:?}: episodes are told apart by name"
+            )));
+        }
+        let path = dir.path().join(&part).join(&file_name);
+        let mut file = tokio::fs::File::create(&path).await.map_err(internal)?;
+        let mut size = 0u64;
+        while let Some(chunk) = field.chunk().await.map_err(part_error)? {
+            size += chunk.len() as u64;
+            total += chunk.len() as u64;
+            if size > per_file {
+                return Err(ApiError::new(
+                    StatusCode::PAYLOAD_TOO_LARGE,
+                    format!("episode {file_name:?} is larger than the limit of {per_file} bytes"),
+                ));
+            }
+            if total > total_limit {
+                return Err(ApiError::new(
+                    StatusCode::PAYLOAD_TOO_LARGE,
+                    format!(
+                        "the calibration upload is larger than the limit of {total_limit} bytes"
+                    ),
+                ));
+            }
+            file.write_all(&chunk).await.map_err(internal)?;
+        }
+        file.flush().await.map_err(internal)?;
+        if size == 0 {
+            return Err(bad_request(format!("episode {file_name:?} is empty")));
+        }
+        paths.push(path);
+        names.push(file_name);
+    }
+    Ok(CalibrationUpload {
+        dir,
+        request,
+        episodes,
+        holdout,
+    })
+}
+
+/// `POST /v1/profiles/{name}/calibrate`: starts a calibration job (202 `{"job": id}`)
+/// over episodes on the server (JSON body) or uploaded with the request
+/// (`multipart/form-data`).
 async fn start_calibration(
     State(s): State<Arc<Shared>>,
     Path(name): Path<String>,
-    body: Bytes,
+    headers: HeaderMap,
+    body: Body,
 ) -> Result<Response, ApiError> {
     refuse_file_profile(&s, &name)?;
-    let req: CalibrateRequest = json_body(&body)?;
+    let store = s.store.clone();
+    let n = name.clone();
+    blocking(move || store.profile(&n)).await?;
+    let content_type = headers
+        .get(header::CONTENT_TYPE)
+        .and_then(|v| v.to_str().ok())
+        .unwrap_or("");
+    let (req, upload, episodes, holdout) = if content_type
+        .to_ascii_lowercase()
+        .starts_with("multipart/form-data")
+    {
+        let up = receive_calibration(&s, content_type, body).await?;
+        (up.request, Some(up.dir), up.episodes, up.holdout)
+    } else {
+        let bytes = axum::body::to_bytes(body, 1 << 20)
+            .await
+            .map_err(|e| bad_request(format!("cannot read the body: {e}")))?;
+        let req: CalibrateRequest = json_body(&bytes)?;
+        let show = |v: &[PathBuf]| v.iter().map(|p| p.display().to_string()).collect();
+        let (e, h) = (show(&req.episodes), show(&req.holdout));
+        (req, None, e, h)
+    };
     if req.episodes.is_empty() {
         return Err(bad_request("`episodes` is empty"));
     }
     if !(req.alpha > 0.0 && req.alpha < 1.0) {
         return Err(bad_request(format!("alpha {} is not in (0, 1)", req.alpha)));
     }
-    let store = s.store.clone();
-    let n = name.clone();
-    blocking(move || store.profile(&n)).await?;
-    let id = s.jobs.start(&name);
+    let job = s
+        .jobs
+        .start(&name, episodes, holdout)
+        .map_err(|e| match e {
+            super::jobs::JobError::Busy { .. } => {
+                ApiError::new(StatusCode::TOO_MANY_REQUESTS, e.to_string())
+            }
+            super::jobs::JobError::Store(e) => e.into(),
+        })?;
+    let id = job.id;
     let shared = s.clone();
     tokio::task::spawn_blocking(move || {
-        let result = run_calibration(&shared, &name, &req);
+        let result = run_calibration(&shared, &name, &req, &job);
         match &result {
             Ok(_) => {
                 shared.profiles.invalidate_profile(&name);
@@ -1007,7 +1228,9 @@ async fn start_calibration(
             }
             Err(e) => tracing::warn!(job = id, profile = %name, "calibration job failed: {e}"),
         }
-        shared.jobs.finish(id, result);
+        shared.jobs.finish(&job, result);
+        // The uploaded episodes go with the job.
+        drop(upload);
     });
     Ok((StatusCode::ACCEPTED, Json(json!({ "job": id }))).into_response())
 }
@@ -1016,15 +1239,40 @@ async fn list_jobs(State(s): State<Arc<Shared>>) -> Response {
     Json(json!({ "jobs": s.jobs.list() })).into_response()
 }
 
+fn job_id(id: &str) -> Result<u64, ApiError> {
+    id.parse::<u64>()
+        .map_err(|_| ApiError::new(StatusCode::NOT_FOUND, format!("no job {id:?}")))
+}
+
 async fn get_job(
     State(s): State<Arc<Shared>>,
     Path(id): Path<String>,
 ) -> Result<Response, ApiError> {
-    id.parse::<u64>()
-        .ok()
-        .and_then(|id| s.jobs.get(id))
-        .map(|j| Json(j).into_response())
-        .ok_or_else(|| ApiError::new(StatusCode::NOT_FOUND, format!("no job {id:?}")))
+    let id = job_id(&id)?;
+    let jobs = s.clone();
+    let job = blocking(move || jobs.jobs.get(id)).await?;
+    Ok(Json(job).into_response())
+}
+
+/// `DELETE /v1/jobs/{id}`: cancels a running job (202; it stops before its next episode
+/// and is then `cancelled`), or removes a finished job's record (204).
+async fn delete_job(
+    State(s): State<Arc<Shared>>,
+    Path(id): Path<String>,
+) -> Result<Response, ApiError> {
+    let id = job_id(&id)?;
+    let jobs = s.clone();
+    let cancelled = blocking(move || jobs.jobs.cancel(id)).await?;
+    if cancelled {
+        return Ok((
+            StatusCode::ACCEPTED,
+            Json(json!({ "job": id, "cancelling": true })),
+        )
+            .into_response());
+    }
+    let jobs = s.clone();
+    blocking(move || jobs.jobs.delete(id)).await?;
+    Ok(StatusCode::NO_CONTENT.into_response())
 }
 
 #[cfg(test)]

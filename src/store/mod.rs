@@ -16,6 +16,7 @@
 //! <dir>/robots/<name>/<revision>.<ext>     the package: .urdf, .tar.gz or .zip
 //! <dir>/profiles/<name>/profile.json       the ProfileSpec and timestamps
 //! <dir>/profiles/<name>/calibration.json   the profile's Calibration, once saved
+//! <dir>/jobs/<id>.json                     a background job's record (calibrations)
 //! ```
 //!
 //! Every metadata file (`*.json`) is an envelope `{"format": "vamos-store/1", "sha256":
@@ -58,6 +59,7 @@
 
 mod error;
 mod files;
+mod jobs;
 mod models;
 mod profiles;
 mod robots;
@@ -69,6 +71,7 @@ mod validate;
 mod tests;
 
 pub use error::{StoreError, StoreErrorKind};
+pub use jobs::{JobInfo, JobState, KEPT_JOBS};
 pub use types::{
     ModelInfo, ModelRef, ModelVersionInfo, OpenReport, ProfileInfo, ProfileSpec, ResolvedModel,
     ResolvedProfile, RobotInfo, StoreLimits, StoreProblem, ThresholdsPatch,
@@ -119,6 +122,10 @@ struct State {
     quarantined: BTreeMap<(&'static str, String), StoreProblem>,
     /// Entries that are no store object (foreign files, bad names).
     strays: Vec<StoreProblem>,
+    /// Job records by id.
+    jobs: BTreeMap<u64, JobInfo>,
+    /// The next job id.
+    next_job: u64,
 }
 
 #[derive(Debug, Clone)]
@@ -146,6 +153,7 @@ const MODEL: &str = "model";
 const MODEL_VERSION: &str = "model version";
 const ROBOT: &str = "robot";
 const PROFILE: &str = "profile";
+const JOB: &str = "job";
 
 impl Store {
     /// Opens (creating when needed) the data directory `dir`: takes its lock, removes the
@@ -172,7 +180,7 @@ impl Store {
             }
             Err(std::fs::TryLockError::Error(e)) => return Err(StoreError::io(&lock_path, e)),
         }
-        for sub in ["tmp", "models", "robots", "profiles"] {
+        for sub in ["tmp", "models", "robots", "profiles", "jobs"] {
             let p = dir.join(sub);
             std::fs::create_dir_all(&p).map_err(|e| StoreError::io(&p, e))?;
         }
@@ -192,6 +200,7 @@ impl Store {
         scan_models(&dir, &mut state, &mut report)?;
         scan_robots(&dir, &mut state, &mut report)?;
         scan_profiles(&dir, &mut state, &mut report)?;
+        jobs::scan_jobs(&dir, &mut state)?;
         let store = Self {
             inner: Arc::new(Inner {
                 dir,

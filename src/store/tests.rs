@@ -932,3 +932,80 @@ fn concurrent_commits_of_one_name_get_distinct_versions() {
     }
     assert!(store.problems().is_empty());
 }
+
+#[test]
+fn job_records_survive_a_restart_and_a_running_one_is_marked_interrupted() {
+    let dir = tempfile::tempdir().unwrap();
+    let store = open(dir.path());
+    let done = store
+        .start_job("p", vec!["a.mcap".into()], Vec::new())
+        .unwrap();
+    assert_eq!(done.id, 1);
+    assert_eq!(done.state, JobState::Running);
+    let cal = calibration(None);
+    let ended = store
+        .finish_job(done.id, Ok((cal.clone(), vec!["note".into()])))
+        .unwrap();
+    assert_eq!(ended.state, JobState::Succeeded);
+    assert!(ended.finished_unix_s.is_some());
+    // Ending twice changes nothing.
+    let again = store
+        .finish_job(done.id, Err((JobState::Failed, "late".into())))
+        .unwrap();
+    assert_eq!(again, ended);
+    let cancelled = store.start_job("p", Vec::new(), Vec::new()).unwrap();
+    store
+        .finish_job(cancelled.id, Err((JobState::Cancelled, "asked".into())))
+        .unwrap();
+    // A job still running when the server stops (a crash: the store is dropped).
+    let running = store
+        .start_job(
+            "q",
+            vec!["/data/x.mcap".into()],
+            vec!["/data/h.mcap".into()],
+        )
+        .unwrap();
+    assert!(matches!(
+        store.delete_job(running.id),
+        Err(StoreError::InUse { .. })
+    ));
+    drop(store);
+
+    let store = open(dir.path());
+    let jobs = store.jobs();
+    assert_eq!(jobs.len(), 3);
+    assert_eq!(jobs[0], ended);
+    assert_eq!(jobs[0].calibration.as_ref(), Some(&cal));
+    assert_eq!(jobs[1].state, JobState::Cancelled);
+    let interrupted = &jobs[2];
+    assert_eq!(interrupted.state, JobState::Failed);
+    assert!(
+        interrupted
+            .error
+            .as_deref()
+            .is_some_and(|e| e.contains("interrupted")),
+        "{interrupted:?}"
+    );
+    assert_eq!(interrupted.holdout, vec!["/data/h.mcap".to_string()]);
+    // Ids go on after the largest kept; removing a record is durable.
+    assert_eq!(store.start_job("p", Vec::new(), Vec::new()).unwrap().id, 4);
+    store.delete_job(1).unwrap();
+    assert!(matches!(store.job(1), Err(StoreError::NotFound { .. })));
+    drop(store);
+    let store = open(dir.path());
+    assert_eq!(
+        store.jobs().iter().map(|j| j.id).collect::<Vec<_>>(),
+        vec![2, 3, 4]
+    );
+    // A damaged record is reported, not served.
+    std::fs::write(dir.path().join("jobs/2.json"), b"{ nope").unwrap();
+    drop(store);
+    let store = open(dir.path());
+    assert!(store.job(2).is_err());
+    assert!(
+        store
+            .problems()
+            .iter()
+            .any(|p| p.kind == "job" && p.name == "2")
+    );
+}

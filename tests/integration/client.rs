@@ -71,6 +71,9 @@ async fn a_window_paced_replay_drops_nothing_on_a_short_queue_and_matches_offlin
             .args([
                 "stream",
                 "--fast",
+                // Below the queue of 3: the default window (4) could lose frames here.
+                "--window",
+                "2",
                 "--profile",
                 "sim-arm",
                 "--server",

@@ -401,9 +401,298 @@ async fn stored_profiles_serve_sessions_swap_models_calibrate_and_survive_a_rest
     let p = api.get("/v1/profiles/arm-store").await;
     assert_eq!(p["profile"]["calibration"], *cal);
     assert_eq!(p["alarm_threshold"], 3.5);
-    // Jobs live in memory only.
-    assert_eq!(api.get("/v1/jobs").await["jobs"], json!([]));
+    // The job's record is kept in the data directory.
+    let jobs = api.get("/v1/jobs").await;
+    assert_eq!(jobs["jobs"].as_array().unwrap().len(), 1, "{jobs}");
+    assert_eq!(jobs["jobs"][0]["state"], "succeeded");
     let (_, _, opened) = open_session(server.grpc_addr, "arm-store", "c", camera_info).await;
     assert!(opened.detail.contains("model tiny@2"), "{}", opened.detail);
+    server.shutdown().await.unwrap();
+}
+
+/// Robot `arm`, model `tiny` (version 1) and the stored profile `arm-store` on them.
+async fn stored_profile(api: &Api) -> Vec<u8> {
+    let urdf = std::fs::read(fixture().join("robot/vamos_arm.urdf")).unwrap();
+    let (status, robot) = api
+        .call(Method::PUT, "/v1/robots/arm?format=urdf", Some(urdf))
+        .await;
+    assert_eq!(status, StatusCode::CREATED, "{robot}");
+    let bundle = std::fs::read(model_fixture("tiny_trained.vamos")).unwrap();
+    let (status, v1) = api
+        .call(Method::PUT, "/v1/models/tiny", Some(bundle.clone()))
+        .await;
+    assert_eq!(status, StatusCode::CREATED, "{v1}");
+    let camera: Value =
+        serde_json::from_str(&std::fs::read_to_string(fixture().join("camera.json")).unwrap())
+            .unwrap();
+    let spec = json!({
+        "robot": "arm",
+        "camera": camera,
+        "model": { "name": "tiny" },
+        "flow_preset": "realtime",
+        "pipeline": { "stride": 1, "frames": { "width": 160, "height": 120, "variant": "masked" } },
+    });
+    let (status, p) = api.json(Method::PUT, "/v1/profiles/arm-store", spec).await;
+    assert_eq!(status, StatusCode::OK, "{p}");
+    bundle
+}
+
+/// Polls job `id` until it has ended.
+async fn wait_job(api: &Api, id: u64) -> Value {
+    let deadline = std::time::Instant::now() + Duration::from_secs(600);
+    loop {
+        let j = api.get(&format!("/v1/jobs/{id}")).await;
+        if j["state"] != "running" {
+            return j;
+        }
+        assert!(std::time::Instant::now() < deadline, "job {id} too slow");
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_running_session_moves_to_a_new_model_version_when_asked() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = start(&settings(dir.path())).await;
+    let api = Api::new(&server);
+    let bundle = stored_profile(&api).await;
+    let (messages, camera_info) = episode_messages(&episode("test_0000"));
+    let half = messages.len() / 2;
+    let (tx, task, opened) = open_session(server.grpc_addr, "arm-store", "a", camera_info).await;
+    assert!(opened.detail.contains("model tiny@1"), "{}", opened.detail);
+    // A session that keeps its version, for comparison.
+    let (tx_keep, task_keep, _) =
+        open_session(server.grpc_addr, "arm-store", "keep", camera_info).await;
+    send_all(&tx, &messages[..half]).await;
+    send_all(&tx_keep, &messages[..half]).await;
+
+    // Nothing changed yet: a reload is a no-op. Unknown sessions are 404.
+    let (status, r) = api.call(Method::POST, "/v1/sessions/a/reload", None).await;
+    assert_eq!(status, StatusCode::OK, "{r}");
+    assert_eq!(r["reloaded"], false);
+    let (status, _) = api
+        .call(Method::POST, "/v1/sessions/nobody/reload", None)
+        .await;
+    assert_eq!(status, StatusCode::NOT_FOUND);
+
+    // Version 2, made active with `reload_sessions`: both running sessions move.
+    let (status, v2) = api.call(Method::PUT, "/v1/models/tiny", Some(bundle)).await;
+    assert_eq!(status, StatusCode::CREATED, "{v2}");
+    let (status, m) = api
+        .json(
+            Method::POST,
+            "/v1/models/tiny/active",
+            json!({ "version": 2, "reload_sessions": true }),
+        )
+        .await;
+    assert_eq!(status, StatusCode::OK, "{m}");
+    assert_eq!(m["active"], 2);
+    let mut moved: Vec<&str> = m["reloaded_sessions"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_str().unwrap())
+        .collect();
+    moved.sort();
+    assert_eq!(moved, ["a", "keep"]);
+    let listed = api.get("/v1/sessions").await;
+    let a = listed["sessions"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|s| s["id"] == "a")
+        .unwrap()
+        .clone();
+    assert_eq!(a["model"], "tiny@2", "{a}");
+    assert_eq!(a["reloads"], 1, "{a}");
+    // Asked again: already on the current version.
+    let (_, r) = api.call(Method::POST, "/v1/sessions/a/reload", None).await;
+    assert_eq!(r["reloaded"], false, "{r}");
+
+    send_all(&tx, &messages[half..]).await;
+    send_all(&tx_keep, &messages[half..]).await;
+    drop(tx);
+    drop(tx_keep);
+    let (scores, events, err) = task.await.unwrap();
+    let (scores_keep, _, err_keep) = task_keep.await.unwrap();
+    assert!(err.is_none(), "{err:?}");
+    assert!(err_keep.is_none(), "{err_keep:?}");
+    // Every frame scored, indices going on across the reload.
+    assert_eq!(scores.len(), images(&messages));
+    assert!(scores.windows(2).all(|w| w[1].index == w[0].index + 1));
+    assert!(scores.windows(2).all(|w| w[1].frame == w[0].frame + 1));
+    use proto::session_event::Kind;
+    let reloaded: Vec<&proto::SessionEvent> = events
+        .iter()
+        .filter(|e| e.kind == Kind::Reloaded as i32)
+        .collect();
+    assert_eq!(reloaded.len(), 1, "{events:?}");
+    assert!(
+        reloaded[0].detail.contains("model tiny@2"),
+        "{:?}",
+        reloaded[0]
+    );
+    assert_eq!(reloaded[0].count, 1);
+    // The predictor warms up again after the reload, and e_o comes back after that.
+    let warm = events
+        .iter()
+        .filter(|e| e.kind == Kind::WarmingUp as i32)
+        .count();
+    assert_eq!(warm, 2, "{events:?}");
+    let after: Vec<&proto::FrameScore> = scores.iter().filter(|s| s.warming_up).collect();
+    assert!(after.len() > 1);
+    assert!(
+        scores[half.min(scores.len() - 1)..]
+            .iter()
+            .any(|s| s.e_o.is_some())
+    );
+    assert_eq!(scores_keep.len(), scores.len());
+    server.shutdown().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn calibration_from_uploaded_episodes_with_job_limits_cancel_and_restart() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut settings = settings(dir.path());
+    settings.service.max_jobs = 1;
+    let server = start(&settings).await;
+    let api = Api::new(&server);
+    stored_profile(&api).await;
+
+    // Episodes uploaded with the request (multipart/form-data).
+    let part = |name: &str| {
+        let bytes = std::fs::read(fixture().join("train").join(name)).unwrap();
+        reqwest::multipart::Part::bytes(bytes)
+            .file_name(name.to_string())
+            .mime_str("application/x-mcap")
+            .unwrap()
+    };
+    let form = reqwest::multipart::Form::new()
+        .part("episodes", part("train_0000.mcap"))
+        .part("episodes", part("train_0001.mcap"))
+        .text("alpha", "0.2");
+    let resp = api
+        .http
+        .post(format!("{}/v1/profiles/arm-store/calibrate", api.base))
+        .bearer_auth(ADMIN)
+        .multipart(form)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(resp.status(), StatusCode::ACCEPTED);
+    let first = resp.json::<Value>().await.unwrap()["job"].as_u64().unwrap();
+
+    // One job at a time here: a second one is refused while the first runs.
+    let train = fixture().join("train");
+    let many = json!({ "episodes": [&train, &train, &train, &train] });
+    let (status, e) = api
+        .json(
+            Method::POST,
+            "/v1/profiles/arm-store/calibrate",
+            many.clone(),
+        )
+        .await;
+    // (The first job still running after the refused request was running during it.)
+    let first_state = api.get(&format!("/v1/jobs/{first}")).await["state"].clone();
+    if first_state == "running" {
+        assert_eq!(status, StatusCode::TOO_MANY_REQUESTS, "{e}");
+        assert!(e["error"].as_str().unwrap().contains("at once"), "{e}");
+    } else if status == StatusCode::ACCEPTED {
+        wait_job(&api, e["job"].as_u64().unwrap()).await;
+    }
+    let job = wait_job(&api, first).await;
+    assert_eq!(job["state"], "succeeded", "{job}");
+    assert_eq!(
+        job["episodes"],
+        json!(["train_0000.mcap", "train_0001.mcap"])
+    );
+    let cal = &job["calibration"];
+    assert_eq!(
+        cal["training_episodes"],
+        json!(["train_0000", "train_0001"])
+    );
+    assert!(cal["training_frames"].as_u64().unwrap() > 0);
+    let p = api.get("/v1/profiles/arm-store").await;
+    assert_eq!(p["profile"]["calibration"], *cal);
+    // The uploads went with the job.
+    let deadline = std::time::Instant::now() + Duration::from_secs(10);
+    let leftovers = || {
+        std::fs::read_dir(server.shared.upload_dir())
+            .unwrap()
+            .count()
+    };
+    while leftovers() > 0 && std::time::Instant::now() < deadline {
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    assert_eq!(leftovers(), 0);
+
+    // Bad uploads are refused before any job starts.
+    let form = reqwest::multipart::Form::new().part("weights", part("train_0000.mcap"));
+    let resp = api
+        .http
+        .post(format!("{}/v1/profiles/arm-store/calibrate", api.base))
+        .bearer_auth(ADMIN)
+        .multipart(form)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(resp.status(), StatusCode::BAD_REQUEST);
+    let text = resp.text().await.unwrap();
+    assert!(text.contains("unknown part"), "{text}");
+    let form = reqwest::multipart::Form::new()
+        .part("episodes", part("train_0000.mcap"))
+        .part("episodes", part("train_0000.mcap"));
+    let resp = api
+        .http
+        .post(format!("{}/v1/profiles/arm-store/calibrate", api.base))
+        .bearer_auth(ADMIN)
+        .multipart(form)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(resp.status(), StatusCode::BAD_REQUEST);
+
+    // A long job, cancelled: it stops before its next episode and saves nothing.
+    let (status, j) = api
+        .json(Method::POST, "/v1/profiles/arm-store/calibrate", many)
+        .await;
+    assert_eq!(status, StatusCode::ACCEPTED, "{j}");
+    let long = j["job"].as_u64().unwrap();
+    let (status, _) = api
+        .call(Method::DELETE, &format!("/v1/jobs/{long}"), None)
+        .await;
+    if status == StatusCode::ACCEPTED {
+        let ended = wait_job(&api, long).await;
+        assert_eq!(ended["state"], "cancelled", "{ended}");
+        assert!(ended.get("calibration").is_none(), "{ended}");
+        let p = api.get("/v1/profiles/arm-store").await;
+        assert_eq!(
+            p["profile"]["calibration"], *cal,
+            "a cancelled job saved nothing"
+        );
+    } else {
+        // It ended before the cancel arrived and its record was removed instead.
+        assert_eq!(status, StatusCode::NO_CONTENT);
+    }
+    // A finished job's record can be removed; an unknown job is 404.
+    let (status, _) = api.call(Method::DELETE, "/v1/jobs/999", None).await;
+    assert_eq!(status, StatusCode::NOT_FOUND);
+
+    // The job list survives a restart.
+    let before = api.get("/v1/jobs").await;
+    server.shutdown().await.unwrap();
+    let server = start(&settings).await;
+    let api = Api::new(&server);
+    let after = api.get("/v1/jobs").await;
+    assert_eq!(after, before);
+    assert_eq!(after["jobs"][0]["id"], first);
+    let (status, _) = api
+        .call(Method::DELETE, &format!("/v1/jobs/{first}"), None)
+        .await;
+    assert_eq!(status, StatusCode::NO_CONTENT);
+    let (status, _) = api
+        .call(Method::GET, &format!("/v1/jobs/{first}"), None)
+        .await;
+    assert_eq!(status, StatusCode::NOT_FOUND);
     server.shutdown().await.unwrap();
 }
