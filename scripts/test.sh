@@ -24,7 +24,7 @@ fi
 # No pip cache: the wheels would take another ~3 GB beside the installed packages.
 export PIP_NO_CACHE_DIR=1
 .venv/bin/python -m pip install --quiet --upgrade pip
-.venv/bin/python -m pip install --quiet './clients/python[train,sim,test]'
+.venv/bin/python -m pip install --quiet './clients/python[train,sim,client,test]'
 
 echo "== Python tests"
 VAMOS_BIN="$PWD/target/release/vamos" .venv/bin/python -m pytest clients/python/tests -q

@@ -250,18 +250,10 @@ async fn stored_profiles_serve_sessions_swap_models_calibrate_and_survive_a_rest
     assert_eq!(model["versions"].as_array().unwrap().len(), 1);
 
     // A profile: the fixture's camera and pipeline section, the stored robot and model.
-    let camera: Value =
-        serde_json::from_str(&std::fs::read_to_string(fixture().join("camera.json")).unwrap())
-            .unwrap();
     assert!(PROFILE.contains("width = 160") && PROFILE.contains("variant = \"masked\""));
-    let spec = json!({
-        "robot": "arm",
-        "camera": camera,
-        "model": { "name": "tiny" },
-        "flow_preset": "realtime",
-        "pipeline": { "stride": 1, "frames": { "width": 160, "height": 120, "variant": "masked" } },
-    });
-    let (status, p) = api.json(Method::PUT, "/v1/profiles/arm-store", spec).await;
+    let (status, p) = api
+        .json(Method::PUT, "/v1/profiles/arm-store", profile_spec())
+        .await;
     assert_eq!(status, StatusCode::OK, "{p}");
     assert_eq!(p["load_error"], Value::Null, "{p}");
     assert_eq!(p["model"], "tiny@1");
@@ -410,6 +402,21 @@ async fn stored_profiles_serve_sessions_swap_models_calibrate_and_survive_a_rest
     server.shutdown().await.unwrap();
 }
 
+/// A ProfileSpec on robot `arm` and model `tiny`: the fixture's camera and the pipeline
+/// section of [`PROFILE`].
+fn profile_spec() -> Value {
+    let camera: Value =
+        serde_json::from_str(&std::fs::read_to_string(fixture().join("camera.json")).unwrap())
+            .unwrap();
+    json!({
+        "robot": "arm",
+        "camera": camera,
+        "model": { "name": "tiny" },
+        "flow_preset": "realtime",
+        "pipeline": { "stride": 1, "frames": { "width": 160, "height": 120, "variant": "masked" } },
+    })
+}
+
 /// Robot `arm`, model `tiny` (version 1) and the stored profile `arm-store` on them.
 async fn stored_profile(api: &Api) -> Vec<u8> {
     let urdf = std::fs::read(fixture().join("robot/vamos_arm.urdf")).unwrap();
@@ -422,17 +429,9 @@ async fn stored_profile(api: &Api) -> Vec<u8> {
         .call(Method::PUT, "/v1/models/tiny", Some(bundle.clone()))
         .await;
     assert_eq!(status, StatusCode::CREATED, "{v1}");
-    let camera: Value =
-        serde_json::from_str(&std::fs::read_to_string(fixture().join("camera.json")).unwrap())
-            .unwrap();
-    let spec = json!({
-        "robot": "arm",
-        "camera": camera,
-        "model": { "name": "tiny" },
-        "flow_preset": "realtime",
-        "pipeline": { "stride": 1, "frames": { "width": 160, "height": 120, "variant": "masked" } },
-    });
-    let (status, p) = api.json(Method::PUT, "/v1/profiles/arm-store", spec).await;
+    let (status, p) = api
+        .json(Method::PUT, "/v1/profiles/arm-store", profile_spec())
+        .await;
     assert_eq!(status, StatusCode::OK, "{p}");
     bundle
 }

@@ -1,7 +1,6 @@
 """A session driven from Python over gRPC against the real ``vamos serve``.
 
-Stubs are generated from ``proto/vamos/v1/monitor.proto`` with grpcio-tools into a
-temporary folder. A simulated episode (tests/fixtures/sim) is streamed message by message
+The raw generated stubs (``vamos.v1``) are used here, without the client library. A simulated episode (tests/fixtures/sim) is streamed message by message
 as a robot would; the scores must equal those of ``vamos score`` for the same episode.
 
 Needs ``VAMOS_BIN`` (``scripts/test.sh`` sets it); skipped without it.
@@ -9,20 +8,16 @@ Needs ``VAMOS_BIN`` (``scripts/test.sh`` sets it); skipped without it.
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import os
 import socket
 import subprocess
-import sys
-import types
 
 from pathlib import Path
 
 import pytest
 
 grpc = pytest.importorskip("grpc")
-grpc_tools = pytest.importorskip("grpc_tools.protoc")
 mcap_reader = pytest.importorskip("mcap.reader")
 mcap_ros2_decoder = pytest.importorskip("mcap_ros2.decoder")
 
@@ -42,33 +37,11 @@ def vamos_bin() -> Path:
 
 
 @pytest.fixture(scope="module")
-def stubs(tmp_path_factory: pytest.TempPathFactory):
-    out = tmp_path_factory.mktemp("stubs")
-    rc = grpc_tools.main([
-        "grpc_tools.protoc",
-        f"-I{ROOT / 'proto'}",
-        f"--python_out={out}",
-        f"--grpc_python_out={out}",
-        str(ROOT / "proto" / "vamos" / "v1" / "monitor.proto"),
-    ])
-    assert rc == 0, "protoc failed"
-    # `vamos` is also this package's name: load the generated modules by path, under
-    # names of their own (the grpc module imports `vamos.v1.monitor_pb2`, so register it).
-    def load(name: str, file: Path):
-        spec = importlib.util.spec_from_file_location(name, file)
-        assert spec is not None and spec.loader is not None
-        module = importlib.util.module_from_spec(spec)
-        sys.modules[name] = module
-        spec.loader.exec_module(module)
-        return module
+def stubs():
+    # The committed stubs (src/vamos/v1, kept in step with the proto by test_client_stubs).
+    from vamos.v1 import monitor_pb2, monitor_pb2_grpc
 
-    package = types.ModuleType("vamos.v1")
-    package.__path__ = [str(out / "vamos" / "v1")]
-    sys.modules["vamos.v1"] = package
-    pb = load("vamos.v1.monitor_pb2", out / "vamos" / "v1" / "monitor_pb2.py")
-    package.monitor_pb2 = pb  # type: ignore[attr-defined]
-    pb_grpc = load("vamos.v1.monitor_pb2_grpc", out / "vamos" / "v1" / "monitor_pb2_grpc.py")
-    return pb, pb_grpc
+    return monitor_pb2, monitor_pb2_grpc
 
 
 def _profile(tmp: Path) -> Path:

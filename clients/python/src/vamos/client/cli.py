@@ -1,0 +1,213 @@
+"""``vamos-client``: replay bags as live robots, score episodes, administer a server.
+
+    vamos-client stream BAG.mcap --profile P [--server 127.0.0.1:8081] [--rate 1.0 | --fast]
+    vamos-client score BAG.mcap --profile P
+    vamos-client models list | upload NAME FILE | activate NAME VERSION [--reload-sessions] | delete NAME
+    vamos-client robots list | upload NAME PATH | delete NAME
+    vamos-client profiles list | get NAME | put NAME SPEC.json | delete NAME
+    vamos-client thresholds PROFILE [--e-c X] [--e-b X] [--alarm X] (or "none" to clear)
+    vamos-client calibrate PROFILE EPISODE... [--holdout EPISODE...] [--alpha 0.1] [--server-paths] [--no-wait]
+    vamos-client jobs [ID] [--cancel]
+    vamos-client sessions [--reload ID]
+
+Scores and events are printed as JSON lines on stdout, everything else as JSON; a summary
+goes to stderr. The token comes from --token, else VAMOS_TOKEN, else the first of
+VAMOS_ADMIN_TOKEN. Exit codes: 0 done, 1 an error the server reported, 2 bad usage.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from typing import Any, Optional, Sequence
+
+from ._types import FrameScore, SessionEvent, VamosError
+from .admin import AdminClient, token_from_env
+
+
+def _print(v: Any) -> None:
+    print(json.dumps(v, sort_keys=True), flush=True)
+
+
+def _update_json(u: Any) -> dict[str, Any]:
+    if isinstance(u, FrameScore):
+        return {"type": "score", **u.to_dict()}
+    if isinstance(u, SessionEvent):
+        return {"type": "event", **u.to_dict()}
+    return {"type": "unknown"}
+
+
+def _threshold(text: str) -> Optional[float]:
+    if text.lower() in ("none", "null", "clear"):
+        return None
+    return float(text)
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="vamos-client", description=__doc__.split("\n\n")[0])
+    p.add_argument("--server", default="127.0.0.1:8081", help="gRPC address (default %(default)s)")
+    p.add_argument("--api", default="http://127.0.0.1:8080", help="REST address (default %(default)s)")
+    p.add_argument("--token", default=None, help="bearer token (default: $VAMOS_TOKEN)")
+    p.add_argument("--ca", default=None, help="PEM CA certificate for TLS servers")
+    sub = p.add_subparsers(dest="command", required=True)
+
+    s = sub.add_parser("stream", help="replay a bag as a live robot and print every score")
+    s.add_argument("episode")
+    s.add_argument("--profile", required=True)
+    pace = s.add_mutually_exclusive_group()
+    pace.add_argument("--rate", type=float, default=1.0, help="recorded pace x this (default 1.0)")
+    pace.add_argument("--fast", action="store_true", help="as fast as the server scores")
+    s.add_argument("--window", type=int, default=4, help="images unanswered with --fast (default 4)")
+    s.add_argument("--session-id", default=None, help="default: the bag's file stem")
+    s.add_argument("--robot-id", default="vamos-client")
+
+    s = sub.add_parser("score", help="upload a bag whole and print every frame's score")
+    s.add_argument("episode")
+    s.add_argument("--profile", required=True)
+
+    s = sub.add_parser("models", help="stored models")
+    ms = s.add_subparsers(dest="action", required=True)
+    ms.add_parser("list")
+    x = ms.add_parser("upload")
+    x.add_argument("name")
+    x.add_argument("file")
+    x = ms.add_parser("activate")
+    x.add_argument("name")
+    x.add_argument("version", type=int)
+    x.add_argument("--reload-sessions", action="store_true", help="move running sessions too")
+    x = ms.add_parser("delete")
+    x.add_argument("name")
+    x.add_argument("--version", type=int, default=None)
+
+    s = sub.add_parser("robots", help="stored robots")
+    rs = s.add_subparsers(dest="action", required=True)
+    rs.add_parser("list")
+    x = rs.add_parser("upload")
+    x.add_argument("name")
+    x.add_argument("path", help="URDF, .tar.gz, .zip or a package folder")
+    x = rs.add_parser("delete")
+    x.add_argument("name")
+
+    s = sub.add_parser("profiles", help="stored profiles")
+    ps = s.add_subparsers(dest="action", required=True)
+    ps.add_parser("list")
+    for action in ("get", "delete"):
+        x = ps.add_parser(action)
+        x.add_argument("name")
+    x = ps.add_parser("put")
+    x.add_argument("name")
+    x.add_argument("spec", help="ProfileSpec JSON file")
+
+    s = sub.add_parser("thresholds", help="override a profile's thresholds")
+    s.add_argument("profile")
+    for flag in ("--e-c", "--e-b", "--alarm"):
+        s.add_argument(flag, type=_threshold, default=argparse.SUPPRESS, help="a number, or none to clear")
+
+    s = sub.add_parser("calibrate", help="calibrate a stored profile on nominal episodes")
+    s.add_argument("profile")
+    s.add_argument("episodes", nargs="+")
+    s.add_argument("--holdout", nargs="*", default=[])
+    s.add_argument("--alpha", type=float, default=0.1)
+    s.add_argument("--server-paths", action="store_true", help="the episodes are paths on the server")
+    s.add_argument("--no-wait", action="store_true", help="print the job id and return")
+
+    s = sub.add_parser("jobs", help="calibration jobs")
+    s.add_argument("id", nargs="?", type=int)
+    s.add_argument("--cancel", action="store_true")
+
+    s = sub.add_parser("sessions", help="sessions open now")
+    s.add_argument("--reload", metavar="ID", default=None, help="move session ID to its profile as stored now")
+    return p
+
+
+def _run(args: argparse.Namespace) -> int:
+    token = args.token or token_from_env()
+    ca = open(args.ca, "rb").read() if args.ca else None
+    if args.command in ("stream", "score"):
+        from .monitor import MonitorClient
+
+        with MonitorClient(args.server, token=token, root_certificates=ca) as client:
+            if args.command == "score":
+                n = 0
+                for s in client.iter_score_episode(args.episode, args.profile):
+                    _print(_update_json(s))
+                    n += 1
+                print(f"{n} frames scored", file=sys.stderr)
+                return 0
+            summary = client.replay(args.episode, args.profile, rate=None if args.fast else args.rate,
+                                    window=args.window, session_id=args.session_id,
+                                    robot_id=args.robot_id, on_update=lambda u: _print(_update_json(u)))
+            anomalies = sum(1 for s in summary.scores if s.anomaly)
+            print(f"session {summary.session_id}: {summary.images_sent} images sent, "
+                  f"{len(summary.scores)} scored, {anomalies} anomalous, {summary.dropped} dropped, "
+                  f"{len(summary.message_errors)} refused, {summary.reconnects} reconnects, "
+                  f"{summary.elapsed_s:.1f} s", file=sys.stderr)
+            return 0
+    admin = AdminClient(args.api, token=token, ca_file=args.ca)
+    cmd, action = args.command, getattr(args, "action", None)
+    if cmd == "models":
+        if action == "list":
+            _print(admin.models())
+        elif action == "upload":
+            _print(admin.upload_model(args.name, args.file))
+        elif action == "activate":
+            _print(admin.activate_model(args.name, args.version, reload_sessions=args.reload_sessions))
+        else:
+            admin.delete_model(args.name, args.version)
+    elif cmd == "robots":
+        if action == "list":
+            _print(admin.robots())
+        elif action == "upload":
+            _print(admin.upload_robot(args.name, args.path))
+        else:
+            admin.delete_robot(args.name)
+    elif cmd == "profiles":
+        if action == "list":
+            _print(admin.profiles())
+        elif action == "get":
+            _print(admin.profile(args.name))
+        elif action == "put":
+            with open(args.spec) as fh:
+                _print(admin.put_profile(args.name, json.load(fh)))
+        else:
+            admin.delete_profile(args.name)
+    elif cmd == "thresholds":
+        given = {k: getattr(args, k) for k in ("e_c", "e_b", "alarm") if hasattr(args, k)}
+        if not given:
+            print("error: give at least one of --e-c, --e-b, --alarm", file=sys.stderr)
+            return 2
+        _print(admin.set_thresholds(args.profile, **given))
+    elif cmd == "calibrate":
+        job = admin.calibrate(args.profile, args.episodes, args.holdout, alpha=args.alpha,
+                              upload=not args.server_paths)
+        if args.no_wait:
+            _print({"job": job})
+        else:
+            print(f"calibration job {job} started; waiting", file=sys.stderr)
+            _print(admin.wait_job(job))
+    elif cmd == "jobs":
+        if args.id is None:
+            _print(admin.jobs())
+        elif args.cancel:
+            _print({"job": args.id, "cancelling": admin.cancel_job(args.id)})
+        else:
+            _print(admin.job(args.id))
+    elif cmd == "sessions":
+        _print(admin.reload_session(args.reload) if args.reload else admin.sessions())
+    return 0
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    args = _parser().parse_args(argv)
+    try:
+        return _run(args)
+    except (VamosError, OSError, ValueError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
