@@ -1085,7 +1085,6 @@ async fn receive_calibration(
     content_type: &str,
     body: Body,
 ) -> Result<CalibrationUpload, ApiError> {
-    use tokio::io::AsyncWriteExt;
     let boundary = multer::parse_boundary(content_type)
         .map_err(|e| bad_request(format!("bad multipart content type: {e}")))?;
     let cfg = s.hub.config();
@@ -1098,6 +1097,50 @@ async fn receive_calibration(
         std::fs::create_dir(dir.path().join(sub)).map_err(internal)?;
     }
     let mut multipart = multer::Multipart::new(body.into_data_stream(), boundary);
+    match read_calibration_parts(&mut multipart, dir.path(), per_file, total_limit).await {
+        Ok((request, episodes, holdout)) => Ok(CalibrationUpload {
+            dir,
+            request,
+            episodes,
+            holdout,
+        }),
+        Err(e) => {
+            // A request refused for what it says (not for its size or a broken body):
+            // read the rest, so the connection stays usable for the client's next call.
+            if e.status == StatusCode::BAD_REQUEST && !e.message.starts_with(BROKEN_MULTIPART) {
+                drain(&mut multipart, DRAIN_LIMIT_BYTES).await;
+            }
+            Err(e)
+        }
+    }
+}
+
+/// The start of the message of a body multer cannot parse.
+const BROKEN_MULTIPART: &str = "bad multipart body";
+
+/// At most this much of a refused upload is read before answering (beyond it the
+/// connection is closed instead).
+const DRAIN_LIMIT_BYTES: u64 = 64 << 20;
+
+async fn drain(multipart: &mut multer::Multipart<'_>, mut budget: u64) {
+    while let Ok(Some(mut field)) = multipart.next_field().await {
+        while let Ok(Some(chunk)) = field.chunk().await {
+            budget = budget.saturating_sub(chunk.len() as u64);
+            if budget == 0 {
+                return;
+            }
+        }
+    }
+}
+
+/// The parts of a calibration upload, each file written into `dir`.
+async fn read_calibration_parts(
+    multipart: &mut multer::Multipart<'_>,
+    dir: &std::path::Path,
+    per_file: u64,
+    total_limit: u64,
+) -> Result<(CalibrateRequest, Vec<String>, Vec<String>), ApiError> {
+    use tokio::io::AsyncWriteExt;
     let mut request = CalibrateRequest {
         episodes: Vec::new(),
         holdout: Vec::new(),
@@ -1105,7 +1148,7 @@ async fn receive_calibration(
     };
     let (mut episodes, mut holdout) = (Vec::new(), Vec::new());
     let mut total = 0u64;
-    let part_error = |e: multer::Error| bad_request(format!("bad multipart body: {e}"));
+    let part_error = |e: multer::Error| bad_request(format!("{BROKEN_MULTIPART}: {e}"));
     let mut index = 0;
     while let Some(mut field) = multipart.next_field().await.map_err(part_error)? {
         let part = field.name().unwrap_or("").to_string();
@@ -1133,7 +1176,7 @@ async fn receive_calibration(
                 "two `{part}` files are named {file_name:?}: episodes are told apart by name"
             )));
         }
-        let path = dir.path().join(&part).join(&file_name);
+        let path = dir.join(&part).join(&file_name);
         let mut file = tokio::fs::File::create(&path).await.map_err(internal)?;
         let mut size = 0u64;
         while let Some(chunk) = field.chunk().await.map_err(part_error)? {
@@ -1162,12 +1205,7 @@ async fn receive_calibration(
         paths.push(path);
         names.push(file_name);
     }
-    Ok(CalibrationUpload {
-        dir,
-        request,
-        episodes,
-        holdout,
-    })
+    Ok((request, episodes, holdout))
 }
 
 /// `POST /v1/profiles/{name}/calibrate`: starts a calibration job (202 `{"job": id}`)
