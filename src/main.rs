@@ -136,6 +136,23 @@ enum Command {
         #[arg(long = "profile")]
         profiles: Vec<PathBuf>,
     },
+    /// Ask a running server's gRPC health service (grpc.health.v1) whether it serves;
+    /// prints one JSON object, exits 0 when SERVING and 1 otherwise (container and
+    /// service-manager health checks).
+    Health {
+        /// gRPC address of the server.
+        #[arg(long, default_value = "http://127.0.0.1:8081")]
+        server: String,
+        /// Service to ask about ("" is the whole server).
+        #[arg(long, default_value = "vamos.v1.Monitor")]
+        service: String,
+        /// PEM file of the CA for an https:// server.
+        #[arg(long)]
+        ca: Option<PathBuf>,
+        /// Give up after this many seconds.
+        #[arg(long, default_value_t = 5.0)]
+        timeout: f64,
+    },
     /// Stream a recorded episode (MCAP) to a running server as a live robot and print
     /// every answer as a JSON line (scores and session events); a summary goes to stderr.
     Stream {
@@ -445,6 +462,60 @@ fn run(cli: Cli) -> Result<()> {
         },
         Command::Config => {
             print!("{}", toml::to_string_pretty(&settings)?);
+            Ok(())
+        }
+        Command::Health {
+            server,
+            service,
+            ca,
+            timeout,
+        } => {
+            let ca_pem = match ca {
+                Some(p) => Some(
+                    std::fs::read(&p).with_context(|| format!("cannot read {}", p.display()))?,
+                ),
+                None => None,
+            };
+            let limit = std::time::Duration::from_secs_f64(timeout.clamp(0.1, 3600.0));
+            let status = async_runtime()?.block_on(async {
+                tokio::time::timeout(limit, async {
+                    let client = vamos::client::Client::connect(
+                        &server,
+                        vamos::client::ClientOptions {
+                            ca_pem,
+                            connect_timeout: Some(limit),
+                            ..Default::default()
+                        },
+                    )
+                    .await?;
+                    client.health(&service).await
+                })
+                .await
+            });
+            let status = match status {
+                Ok(Ok(s)) => s,
+                Ok(Err(e)) => {
+                    println!(
+                        "{}",
+                        serde_json::json!({ "server": server, "status": "ERROR", "error": e.to_string() })
+                    );
+                    std::process::exit(1);
+                }
+                Err(_) => {
+                    println!(
+                        "{}",
+                        serde_json::json!({ "server": server, "status": "UNREACHABLE", "error": format!("no answer within {timeout} s") })
+                    );
+                    std::process::exit(1);
+                }
+            };
+            println!(
+                "{}",
+                serde_json::json!({ "server": server, "service": service, "status": status })
+            );
+            if status != "SERVING" {
+                std::process::exit(1);
+            }
             Ok(())
         }
         Command::Stream {

@@ -69,6 +69,7 @@ pub struct ClientOptions {
 #[derive(Clone)]
 pub struct Client {
     inner: MonitorClient<Channel>,
+    channel: Channel,
     token: Option<MetadataValue<Ascii>>,
 }
 
@@ -150,11 +151,34 @@ impl Client {
             None => None,
         };
         Ok(Self {
-            inner: MonitorClient::new(channel)
+            inner: MonitorClient::new(channel.clone())
                 .max_decoding_message_size(limit)
                 .max_encoding_message_size(limit),
+            channel,
             token,
         })
+    }
+
+    /// The serving status the server's standard gRPC health service reports for
+    /// `service` (`""`: the whole server, `vamos.v1.Monitor`: the monitor), as its
+    /// `grpc.health.v1` name (`SERVING`, `NOT_SERVING`, ...).
+    pub async fn health(&self, service: &str) -> Result<String, ClientError> {
+        use tonic_health::pb::HealthCheckRequest;
+        use tonic_health::pb::health_client::HealthClient;
+        let mut health = HealthClient::new(self.channel.clone());
+        let answer = health
+            .check(self.request(HealthCheckRequest {
+                service: service.to_string(),
+            }))
+            .await?
+            .into_inner();
+        Ok(
+            tonic_health::pb::health_check_response::ServingStatus::try_from(answer.status)
+                .map_or_else(
+                    |_| format!("UNKNOWN({})", answer.status),
+                    |s| s.as_str_name().to_string(),
+                ),
+        )
     }
 
     fn request<T>(&self, body: T) -> tonic::Request<T> {

@@ -8,6 +8,7 @@ mod camera_motion;
 mod cli;
 mod client;
 mod demo;
+mod deploy;
 mod detect_cli;
 mod detect_episode;
 mod episode_mcap;

@@ -650,6 +650,23 @@ async fn health_reflection_readiness_and_one_port() {
         r.status,
         tonic_health::pb::health_check_response::ServingStatus::Serving as i32
     );
+    // `vamos health` (the containers' health check) says the same, and exit code 1 for a
+    // service the server does not have.
+    let probe = |service: &'static str| {
+        let url = format!("http://{}", server.grpc_addr);
+        tokio::task::spawn_blocking(move || {
+            std::process::Command::new(env!("CARGO_BIN_EXE_vamos"))
+                .args(["health", "--server", &url, "--service", service])
+                .output()
+                .unwrap()
+        })
+    };
+    let out = probe("vamos.v1.Monitor").await.unwrap();
+    assert!(out.status.success(), "{out:?}");
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v["status"], "SERVING");
+    let out = probe("no.such.Service").await.unwrap();
+    assert_eq!(out.status.code(), Some(1), "{out:?}");
     // Server reflection, as grpcurl uses it: list the services, then fetch the file that
     // declares Monitor (v1 and v1alpha).
     let channel = tonic::transport::Endpoint::from_shared(format!("http://{}", server.grpc_addr))
