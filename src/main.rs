@@ -493,18 +493,16 @@ fn run(cli: Cli) -> Result<()> {
                 .await
             });
             let status = match status {
-                Ok(Ok(s)) => s,
-                Ok(Err(e)) => {
+                Ok(Ok(s)) => Ok(s),
+                Ok(Err(e)) => Err(("ERROR", e.to_string())),
+                Err(_) => Err(("UNREACHABLE", format!("no answer within {timeout} s"))),
+            };
+            let status = match status {
+                Ok(s) => s,
+                Err((status, error)) => {
                     println!(
                         "{}",
-                        serde_json::json!({ "server": server, "status": "ERROR", "error": e.to_string() })
-                    );
-                    std::process::exit(1);
-                }
-                Err(_) => {
-                    println!(
-                        "{}",
-                        serde_json::json!({ "server": server, "status": "UNREACHABLE", "error": format!("no answer within {timeout} s") })
+                        serde_json::json!({ "server": server, "status": status, "error": error })
                     );
                     std::process::exit(1);
                 }

@@ -76,6 +76,17 @@ impl Api {
             .await
     }
 
+    /// `POST /v1/profiles/arm-store/calibrate` with a multipart body.
+    async fn calibrate_form(&self, form: reqwest::multipart::Form) -> reqwest::Response {
+        self.http
+            .post(format!("{}/v1/profiles/arm-store/calibrate", self.base))
+            .bearer_auth(ADMIN)
+            .multipart(form)
+            .send()
+            .await
+            .unwrap()
+    }
+
     async fn get(&self, path: &str) -> Value {
         let (status, v) = self.call(Method::GET, path, None).await;
         assert_eq!(status, StatusCode::OK, "GET {path}: {v}");
@@ -570,14 +581,7 @@ async fn calibration_from_uploaded_episodes_with_job_limits_cancel_and_restart()
         .part("episodes", part("train_0000.mcap"))
         .part("episodes", part("train_0001.mcap"))
         .text("alpha", "0.2");
-    let resp = api
-        .http
-        .post(format!("{}/v1/profiles/arm-store/calibrate", api.base))
-        .bearer_auth(ADMIN)
-        .multipart(form)
-        .send()
-        .await
-        .unwrap();
+    let resp = api.calibrate_form(form).await;
     assert_eq!(resp.status(), StatusCode::ACCEPTED);
     let first = resp.json::<Value>().await.unwrap()["job"].as_u64().unwrap();
 
@@ -627,28 +631,14 @@ async fn calibration_from_uploaded_episodes_with_job_limits_cancel_and_restart()
 
     // Bad uploads are refused before any job starts.
     let form = reqwest::multipart::Form::new().part("weights", part("train_0000.mcap"));
-    let resp = api
-        .http
-        .post(format!("{}/v1/profiles/arm-store/calibrate", api.base))
-        .bearer_auth(ADMIN)
-        .multipart(form)
-        .send()
-        .await
-        .unwrap();
+    let resp = api.calibrate_form(form).await;
     assert_eq!(resp.status(), StatusCode::BAD_REQUEST);
     let text = resp.text().await.unwrap();
     assert!(text.contains("unknown part"), "{text}");
     let form = reqwest::multipart::Form::new()
         .part("episodes", part("train_0000.mcap"))
         .part("episodes", part("train_0000.mcap"));
-    let resp = api
-        .http
-        .post(format!("{}/v1/profiles/arm-store/calibrate", api.base))
-        .bearer_auth(ADMIN)
-        .multipart(form)
-        .send()
-        .await
-        .unwrap();
+    let resp = api.calibrate_form(form).await;
     assert_eq!(resp.status(), StatusCode::BAD_REQUEST);
 
     // A long job, cancelled: it stops before its next episode and saves nothing.
