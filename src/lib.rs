@@ -30,11 +30,15 @@
 //!   generator.
 //! - [`config`]: service settings composed of each module's `*Config`.
 //! - [`telemetry`]: `tracing` set-up (human or JSON logs).
+//! - `fuzz` (hidden): one entry point per parser of outside bytes, for the `cargo fuzz`
+//!   targets in `fuzz/` and the corpus regression test; imports the modules it fuzzes.
 
 pub mod client;
 pub mod config;
 pub mod episode;
 pub mod eval;
+#[doc(hidden)]
+pub mod fuzz;
 pub mod model;
 pub mod pipeline;
 pub mod robot;

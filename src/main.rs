@@ -218,6 +218,10 @@ enum Command {
         /// Bearer token (robot role).
         #[arg(long, env = "VAMOS_LOADGEN_TOKEN")]
         token: Option<String>,
+        /// Seconds between the samples of the report's `timeline` (scores/s, server CPU
+        /// and RSS per interval; 0: none).
+        #[arg(long, default_value_t = 60.0)]
+        sample_every: f64,
     },
     /// Score recorded episodes (ROS 2 bags in MCAP) with a profile: one JSON summary line
     /// per episode; with --out the per-frame scores (JSON lines) and, with --mcap, a bag of
@@ -554,6 +558,7 @@ fn run(cli: Cli) -> Result<()> {
             speed,
             duration,
             token,
+            sample_every,
         } => async_runtime()?.block_on(cli::loadgen::run(cli::loadgen::LoadOptions {
             server,
             metrics,
@@ -563,6 +568,7 @@ fn run(cli: Cli) -> Result<()> {
             duration_s: duration,
             token,
             episodes,
+            sample_s: sample_every,
         })),
         Command::Serve {
             grpc_addr,

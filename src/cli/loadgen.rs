@@ -7,6 +7,7 @@ use serde_json::json;
 use std::collections::HashMap;
 use std::path::PathBuf;
 use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 use tokio::sync::Mutex;
 use vamos::client::{Client, ClientOptions, Pace, Update};
@@ -31,6 +32,15 @@ pub struct LoadOptions {
     pub token: Option<String>,
     /// Episodes (MCAP) to replay, round-robin.
     pub episodes: Vec<PathBuf>,
+    /// Seconds between the samples of the report's `timeline` (0: no timeline).
+    pub sample_s: f64,
+}
+
+/// What the robots' tasks share: the tally at session ends and a live score count.
+#[derive(Default)]
+struct Shared {
+    tally: Mutex<Tally>,
+    live_scores: AtomicU64,
 }
 
 #[derive(Default)]
@@ -59,7 +69,7 @@ async fn one_session(
     n: usize,
     rec: &Recording,
     deadline: Instant,
-    tally: &Mutex<Tally>,
+    shared: &Shared,
 ) -> Result<()> {
     // What fits before the deadline at this speed is what a robot would send.
     let left = deadline.saturating_duration_since(Instant::now());
@@ -91,6 +101,7 @@ async fn one_session(
                     sent_at.insert(*stamp_ns, Instant::now());
                 }
                 Update::Score(s) => {
+                    shared.live_scores.fetch_add(1, Ordering::Relaxed);
                     local.server_latencies_s.push(s.latency_s);
                     if let Some(t) = sent_at.remove(&s.stamp_ns) {
                         local.latencies_s.push(t.elapsed().as_secs_f64());
@@ -100,7 +111,7 @@ async fn one_session(
             },
         )
         .await;
-    let mut t = tally.lock().await;
+    let mut t = shared.tally.lock().await;
     t.latencies_s.extend(local.latencies_s);
     t.server_latencies_s.extend(local.server_latencies_s);
     let summary = result?;
@@ -186,7 +197,7 @@ pub async fn run(opts: LoadOptions) -> Result<()> {
     };
     let started = Instant::now();
     let deadline = started + Duration::from_secs_f64(opts.duration_s.max(0.0));
-    let tally = Arc::new(Mutex::new(Tally::default()));
+    let shared = Arc::new(Shared::default());
     let opts = Arc::new(opts);
     let recordings = Arc::new(recordings);
     let connect = ClientOptions {
@@ -195,15 +206,16 @@ pub async fn run(opts: LoadOptions) -> Result<()> {
     };
     let mut tasks = Vec::new();
     for robot in 0..opts.robots {
-        let (o, recordings, tally) = (opts.clone(), recordings.clone(), tally.clone());
+        let (o, recordings, shared) = (opts.clone(), recordings.clone(), shared.clone());
         // One connection per robot, as separate robots would have.
         let client = Client::connect(&opts.server, connect.clone()).await?;
         tasks.push(tokio::spawn(async move {
             let mut n = 0;
             while Instant::now() < deadline {
                 let rec = &recordings[(robot + n) % recordings.len()];
-                if let Err(e) = one_session(&client, &o, robot, n, rec, deadline, &tally).await {
-                    tally
+                if let Err(e) = one_session(&client, &o, robot, n, rec, deadline, &shared).await {
+                    shared
+                        .tally
                         .lock()
                         .await
                         .errors
@@ -219,15 +231,36 @@ pub async fn run(opts: LoadOptions) -> Result<()> {
     }
     let mut peak_rss = before.map_or(0.0, |s| s.rss_bytes);
     let mut middle_rss = None;
+    // The timeline: per interval, the scores received and the server's CPU and RSS, so a
+    // long (soak) run shows whether throughput stays steady and memory flat.
+    let mut timeline = Vec::new();
+    let mut last_sample = (started, 0u64, before);
     while tasks.iter().any(|t| !t.is_finished()) {
         tokio::time::sleep(Duration::from_millis(500)).await;
-        if let Some(u) = &opts.metrics
-            && let Some(s) = scrape(u).await
-        {
+        let sample = match &opts.metrics {
+            Some(u) => scrape(u).await,
+            None => None,
+        };
+        if let Some(s) = sample {
             peak_rss = peak_rss.max(s.rss_bytes);
             if middle_rss.is_none() && started.elapsed().as_secs_f64() >= opts.duration_s / 2.0 {
                 middle_rss = Some(s.rss_bytes);
             }
+        }
+        let since = last_sample.0.elapsed().as_secs_f64();
+        if opts.sample_s > 0.0 && since >= opts.sample_s {
+            let scores = shared.live_scores.load(Ordering::Relaxed);
+            let cpu = match (last_sample.2, sample) {
+                (Some(a), Some(b)) => Some((b.cpu_s - a.cpu_s) / since),
+                _ => None,
+            };
+            timeline.push(json!({
+                "t_s": (started.elapsed().as_secs_f64() * 10.0).round() / 10.0,
+                "scores_per_s": (scores - last_sample.1) as f64 / since,
+                "server_cpu_cores": cpu,
+                "rss_mib": sample.map(|s| (s.rss_bytes / (1 << 20) as f64 * 10.0).round() / 10.0),
+            }));
+            last_sample = (Instant::now(), scores, sample.or(last_sample.2));
         }
     }
     for t in tasks {
@@ -238,7 +271,7 @@ pub async fn run(opts: LoadOptions) -> Result<()> {
         Some(u) => scrape(u).await,
         None => None,
     };
-    let mut t = tally.lock().await;
+    let mut t = shared.tally.lock().await;
     t.latencies_s.sort_by(f64::total_cmp);
     t.server_latencies_s.sort_by(f64::total_cmp);
     let mb = |b: f64| (b / (1 << 20) as f64 * 10.0).round() / 10.0;
@@ -276,6 +309,7 @@ pub async fn run(opts: LoadOptions) -> Result<()> {
             "p99": ms(percentile(&t.server_latencies_s, 0.99)),
         },
         "server": server,
+        "timeline": timeline,
         "errors": t.errors.iter().take(10).collect::<Vec<_>>(),
         "error_count": t.errors.len(),
     });

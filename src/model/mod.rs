@@ -15,7 +15,7 @@
 
 pub mod bundle;
 pub mod network;
-mod onnx_proto;
+pub(crate) mod onnx_proto;
 pub mod predictor;
 pub mod rng;
 pub mod runtime;

@@ -18,6 +18,19 @@ use super::{ModelError, bundle::Manifest};
 use std::collections::VecDeque;
 use std::sync::Arc;
 
+/// Largest past offset `A + B`, processed frames (100 s at 10 Hz): the predictor keeps the
+/// encoder outputs of that many past frames. Model bundles and pipeline overrides come
+/// from outside (uploads, stored profiles), so a value beyond it is refused rather than
+/// allocated.
+pub const MAX_PAST_OFFSET: usize = 1000;
+
+/// Most prior samples `M` per past offset.
+pub const MAX_SAMPLES: usize = 1000;
+
+/// Most head rows `(B + 1) * M` one frame may need (the paper's 5 offsets x 10 samples
+/// need 50).
+pub const MAX_HEAD_ROWS: usize = 10_000;
+
 /// Temporal parameters of a predictor.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
 pub struct PredictorParams {
@@ -54,6 +67,39 @@ impl PredictorParams {
             return Err(ModelError::InvalidParams {
                 field: "samples",
                 reason: "at least one prior sample is needed".into(),
+            });
+        }
+        if self
+            .a
+            .checked_add(self.b)
+            .is_none_or(|n| n > MAX_PAST_OFFSET)
+        {
+            return Err(ModelError::InvalidParams {
+                field: "a, b",
+                reason: format!(
+                    "past offsets up to A + B = {} + {} exceed the limit of {MAX_PAST_OFFSET} frames",
+                    self.a, self.b
+                ),
+            });
+        }
+        if self.samples > MAX_SAMPLES {
+            return Err(ModelError::InvalidParams {
+                field: "samples",
+                reason: format!(
+                    "{} prior samples exceed the limit of {MAX_SAMPLES}",
+                    self.samples
+                ),
+            });
+        }
+        // b <= MAX_PAST_OFFSET and samples <= MAX_SAMPLES here: no overflow.
+        if (self.b + 1) * self.samples > MAX_HEAD_ROWS {
+            return Err(ModelError::InvalidParams {
+                field: "b, samples",
+                reason: format!(
+                    "(B + 1) x M = {} x {} head rows per frame exceed the limit of {MAX_HEAD_ROWS}",
+                    self.b + 1,
+                    self.samples
+                ),
             });
         }
         Ok(())

@@ -149,6 +149,33 @@ pub struct FrameProcessorParams {
     pub variant: FlowVariant,
 }
 
+/// Largest processing width or height, pixels (4K; the paper processes 640x480). Every
+/// stage allocates images and flow fields of the processing resolution, and a stored
+/// profile comes from outside: a larger one is refused rather than allocated.
+pub const MAX_PROCESSING_SIDE: usize = 4096;
+
+impl FrameProcessorParams {
+    /// Refuses a processing resolution below 16x16 or above [`MAX_PROCESSING_SIDE`] a side.
+    pub fn validate(&self) -> Result<(), PipelineError> {
+        let (w, h) = (self.width, self.height);
+        if w < 16 || h < 16 {
+            return Err(PipelineError::InvalidParams {
+                name: "width/height",
+                reason: format!("processing resolution {w}x{h} is below 16x16"),
+            });
+        }
+        if w > MAX_PROCESSING_SIDE || h > MAX_PROCESSING_SIDE {
+            return Err(PipelineError::InvalidParams {
+                name: "width/height",
+                reason: format!(
+                    "processing resolution {w}x{h} is above {MAX_PROCESSING_SIDE}x{MAX_PROCESSING_SIDE}"
+                ),
+            });
+        }
+        Ok(())
+    }
+}
+
 impl Default for FrameProcessorParams {
     fn default() -> Self {
         Self {
@@ -209,15 +236,7 @@ impl FrameProcessor {
         registration: RegistrationParams,
         network: NetworkInputParams,
     ) -> Result<Self, PipelineError> {
-        if params.width < 16 || params.height < 16 {
-            return Err(PipelineError::InvalidParams {
-                name: "width/height",
-                reason: format!(
-                    "processing resolution {}x{} is below 16x16",
-                    params.width, params.height
-                ),
-            });
-        }
+        params.validate()?;
         Ok(Self {
             params,
             network,
@@ -380,6 +399,34 @@ mod tests {
             NetworkInputParams::default(),
         )
         .unwrap()
+    }
+
+    #[test]
+    fn processing_resolution_is_bounded() {
+        let params = |width, height| FrameProcessorParams {
+            width,
+            height,
+            ..FrameProcessorParams::default()
+        };
+        assert!(params(160, 120).validate().is_ok());
+        assert!(params(MAX_PROCESSING_SIDE, 16).validate().is_ok());
+        for (w, h) in [
+            (15, 120),
+            (160, 0),
+            (MAX_PROCESSING_SIDE + 1, 120),
+            (160, 100_000),
+        ] {
+            assert!(
+                matches!(
+                    params(w, h).validate(),
+                    Err(PipelineError::InvalidParams {
+                        name: "width/height",
+                        ..
+                    })
+                ),
+                "{w}x{h}"
+            );
+        }
     }
 
     #[test]

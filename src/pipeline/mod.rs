@@ -76,6 +76,29 @@ impl Default for DetectorSwitches {
     }
 }
 
+impl PipelineConfig {
+    /// Refuses sizes no scorer is built with: a processing resolution out of range
+    /// ([`FrameProcessorParams::validate`]) or a past offset override beyond
+    /// [`crate::model::predictor::MAX_PAST_OFFSET`]. The scorer checks them again when it
+    /// is built (with the model's own offsets); the store checks a profile's pipeline when
+    /// the profile is stored, so that it is refused then rather than when a robot first
+    /// uses it.
+    pub fn check_limits(&self) -> Result<(), String> {
+        self.frames.validate().map_err(|e| e.to_string())?;
+        let max = crate::model::predictor::MAX_PAST_OFFSET;
+        for (name, value) in [("offset_a", self.offset_a), ("offset_b", self.offset_b)] {
+            if let Some(v) = value
+                && v > max
+            {
+                return Err(format!(
+                    "pipeline parameter {name} = {v} is above the limit of {max} frames"
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
 impl Default for PipelineConfig {
     fn default() -> Self {
         Self {

@@ -30,14 +30,30 @@ pub fn mesh_from_bytes(
     }
     let loader = mesh_loader::Loader::default();
     // No material files: the reader refuses, which mesh-loader treats as "no materials".
-    let scene = loader
-        .load_from_slice_with_reader(bytes, path, |_| {
+    // mesh-loader 0.1 panics on some malformed files (a COLLADA index past its positions,
+    // found by the `mesh` fuzz target): a panic is this file's error, not the process's.
+    let parsed = std::panic::catch_unwind(|| {
+        loader.load_from_slice_with_reader(bytes, path, |_| {
             Err(std::io::Error::from(std::io::ErrorKind::NotFound))
         })
-        .map_err(|e| RobotError::MeshUnreadable {
+    });
+    let scene = match parsed {
+        Ok(r) => r.map_err(|e| RobotError::MeshUnreadable {
             path: name.clone(),
             message: e.to_string(),
-        })?;
+        })?,
+        Err(panic) => {
+            let what = panic
+                .downcast_ref::<String>()
+                .map(String::as_str)
+                .or_else(|| panic.downcast_ref::<&str>().copied())
+                .unwrap_or("the mesh parser failed");
+            return Err(RobotError::MeshUnreadable {
+                path: name,
+                message: format!("malformed mesh ({what})"),
+            });
+        }
+    };
     let triangles: usize = scene.meshes.iter().map(|m| m.faces.len()).sum();
     if triangles > cfg.max_mesh_triangles {
         return Err(RobotError::TooManyTriangles {

@@ -46,7 +46,7 @@ impl MonitorService {
     }
 }
 
-fn intrinsics_of(c: &proto::CameraInfo) -> Result<Intrinsics, Status> {
+pub(crate) fn intrinsics_of(c: &proto::CameraInfo) -> Result<Intrinsics, Status> {
     Intrinsics::new(c.width, c.height, c.fx, c.fy, c.cx, c.cy)
         .map_err(|e| Status::invalid_argument(format!("camera_info: {e}")))
 }
@@ -112,6 +112,19 @@ async fn read_session(
             },
             Ok(Ok(None)) => {
                 hub.finish(&session);
+                return;
+            }
+            Ok(Err(status)) if status.code() == tonic::Code::OutOfRange => {
+                // A message over `max_message_bytes` (refused before it was decoded): the
+                // client's doing, not a broken link, so the session ends and says why.
+                tracing::info!(session = %session.id, "message refused: {}", status.message());
+                hub.close(
+                    &session,
+                    Some(Status::out_of_range(format!(
+                        "message refused (service.max_message_bytes): {}",
+                        status.message()
+                    ))),
+                );
                 return;
             }
             Ok(Err(status)) => {

@@ -115,7 +115,7 @@ struct JointGroup {
 
 /// Joint states of a session, grouped by their name lists.
 #[derive(Default)]
-struct JointBuffer {
+pub(crate) struct JointBuffer {
     groups: Vec<JointGroup>,
 }
 
@@ -127,7 +127,7 @@ impl JointBuffer {
             .min()
     }
 
-    fn push(
+    pub(crate) fn push(
         &mut self,
         stamp_ns: i64,
         names: Vec<String>,
@@ -175,7 +175,7 @@ impl JointBuffer {
 
     /// Joint positions at `stamp_ns`: each group interpolated (nearest outside its span),
     /// names concatenated.
-    fn at(&self, stamp_ns: i64) -> Option<(Vec<String>, Vec<f64>)> {
+    pub(crate) fn at(&self, stamp_ns: i64) -> Option<(Vec<String>, Vec<f64>)> {
         if self.groups.is_empty() {
             return None;
         }
@@ -191,7 +191,7 @@ impl JointBuffer {
 
     /// Forgets samples that can no longer be the neighbours of an image at or after
     /// `stamp_ns` (keeps the last one before it).
-    fn trim_before(&mut self, stamp_ns: i64) {
+    pub(crate) fn trim_before(&mut self, stamp_ns: i64) {
         for g in &mut self.groups {
             let keep_from = g
                 .stamps_ns
@@ -204,6 +204,43 @@ impl JointBuffer {
             }
         }
     }
+}
+
+/// A streamed image decoded to gray: raw ROS encodings (a zero `step` means packed rows)
+/// and PNG / JPEG files, at most `max_pixels`.
+pub(crate) fn decode_image(image: proto::Image, max_pixels: usize) -> Result<GrayImage, String> {
+    let enc = image.encoding.to_ascii_lowercase();
+    if matches!(enc.as_str(), "jpeg" | "jpg" | "png") {
+        let msg = CompressedImageMsg {
+            header: Header::from_stamp_ns(image.stamp_ns, ""),
+            format: enc,
+            data: &image.data,
+        };
+        return msg.to_gray(max_pixels).map_err(|e| e.to_string());
+    }
+    let bpp = match enc.as_str() {
+        "rgb8" | "bgr8" => 3,
+        "rgba8" | "bgra8" => 4,
+        "mono8" | "8uc1" => 1,
+        "mono16" | "16uc1" => 2,
+        "32fc1" => 4,
+        _ => 0,
+    };
+    let step = if image.step == 0 {
+        image.width.saturating_mul(bpp)
+    } else {
+        image.step
+    };
+    let msg = ImageMsg {
+        header: Header::from_stamp_ns(image.stamp_ns, ""),
+        height: image.height,
+        width: image.width,
+        encoding: image.encoding.clone(),
+        is_bigendian: image.big_endian,
+        step,
+        data: &image.data,
+    };
+    msg.to_gray(max_pixels).map_err(|e| e.to_string())
 }
 
 /// The latest score of a session, for listings.
@@ -1029,47 +1066,12 @@ impl Hub {
         }
     }
 
-    fn decode(image: proto::Image) -> Result<GrayImage, String> {
-        let enc = image.encoding.to_ascii_lowercase();
-        if matches!(enc.as_str(), "jpeg" | "jpg" | "png") {
-            let msg = CompressedImageMsg {
-                header: Header::from_stamp_ns(image.stamp_ns, ""),
-                format: enc,
-                data: &image.data,
-            };
-            return msg.to_gray(MAX_PIXELS).map_err(|e| e.to_string());
-        }
-        let bpp = match enc.as_str() {
-            "rgb8" | "bgr8" => 3,
-            "rgba8" | "bgra8" => 4,
-            "mono8" | "8uc1" => 1,
-            "mono16" | "16uc1" => 2,
-            "32fc1" => 4,
-            _ => 0,
-        };
-        let step = if image.step == 0 {
-            image.width.saturating_mul(bpp)
-        } else {
-            image.step
-        };
-        let msg = ImageMsg {
-            header: Header::from_stamp_ns(image.stamp_ns, ""),
-            height: image.height,
-            width: image.width,
-            encoding: image.encoding.clone(),
-            is_bigendian: image.big_endian,
-            step,
-            data: &image.data,
-        };
-        msg.to_gray(MAX_PIXELS).map_err(|e| e.to_string())
-    }
-
     fn score(&self, s: &Arc<Session>, frame: ReadyFrame) {
         let stamp = frame.stamp_ns;
         let started = Instant::now();
         let (image, frame_camera) = match frame.image {
             ImagePayload::Decoded(img, k) => (img, k),
-            ImagePayload::Message(msg) => match Self::decode(msg) {
+            ImagePayload::Message(msg) => match decode_image(msg, MAX_PIXELS) {
                 Ok(img) => (img, None),
                 Err(e) => {
                     self.refuse(s, "image", format!("image refused: {e}"), stamp);

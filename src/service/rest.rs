@@ -567,6 +567,7 @@ impl From<StoreError> for ApiError {
             StoreErrorKind::BadRequest => StatusCode::BAD_REQUEST,
             StoreErrorKind::TooLarge => StatusCode::PAYLOAD_TOO_LARGE,
             StoreErrorKind::Conflict => StatusCode::CONFLICT,
+            StoreErrorKind::StorageFull => StatusCode::INSUFFICIENT_STORAGE,
             StoreErrorKind::Internal => StatusCode::INTERNAL_SERVER_ERROR,
         };
         Self::new(status, e.to_string())
@@ -621,7 +622,24 @@ async fn receive(
     let mut stream = body.into_data_stream();
     while let Some(chunk) = stream.next().await {
         let chunk = chunk.map_err(bad_request)?;
-        upload = blocking(move || upload.write_chunk(&chunk).map(|()| upload)).await?;
+        match blocking(move || upload.write_chunk(&chunk).map(|()| upload)).await {
+            Ok(u) => upload = u,
+            Err(e) => {
+                // The upload is gone (its file removed). A full disk is not the client's
+                // doing: read the rest (bounded) so the 507 reaches it on a usable
+                // connection.
+                if e.status == StatusCode::INSUFFICIENT_STORAGE {
+                    let mut budget = DRAIN_LIMIT_BYTES;
+                    while let Some(Ok(chunk)) = stream.next().await {
+                        budget = budget.saturating_sub(chunk.len() as u64);
+                        if budget == 0 {
+                            break;
+                        }
+                    }
+                }
+                return Err(e);
+            }
+        }
     }
     Ok(upload)
 }
@@ -973,6 +991,29 @@ struct CalibrateRequest {
     alpha: f64,
 }
 
+fn check_calibrate_request(req: &CalibrateRequest) -> Result<(), ApiError> {
+    if req.episodes.is_empty() {
+        return Err(bad_request("`episodes` is empty"));
+    }
+    if !(req.alpha > 0.0 && req.alpha < 1.0) {
+        return Err(bad_request(format!("alpha {} is not in (0, 1)", req.alpha)));
+    }
+    Ok(())
+}
+
+/// A JSON calibration body, parsed and checked as `POST /v1/profiles/{name}/calibrate`
+/// does before it starts a job (for the fuzz targets).
+pub(crate) fn parse_calibrate_request(body: &[u8]) -> Result<(), ApiError> {
+    let req: CalibrateRequest = json_body(&Bytes::copy_from_slice(body))?;
+    check_calibrate_request(&req)
+}
+
+/// A `POST /v1/models/{name}/active` body, parsed as the handler does (for the fuzz
+/// targets).
+pub(crate) fn parse_active_request(body: &[u8]) -> Result<(), ApiError> {
+    json_body::<ActiveRequest>(&Bytes::copy_from_slice(body)).map(|_| ())
+}
+
 /// Folders become the `.mcap` files directly inside them (sorted).
 fn expand(paths: &[PathBuf]) -> Result<Vec<PathBuf>, String> {
     let mut out = Vec::new();
@@ -1240,12 +1281,7 @@ async fn start_calibration(
         let (e, h) = (show(&req.episodes), show(&req.holdout));
         (req, None, e, h)
     };
-    if req.episodes.is_empty() {
-        return Err(bad_request("`episodes` is empty"));
-    }
-    if !(req.alpha > 0.0 && req.alpha < 1.0) {
-        return Err(bad_request(format!("alpha {} is not in (0, 1)", req.alpha)));
-    }
+    check_calibrate_request(&req)?;
     let job = s
         .jobs
         .start(&name, episodes, holdout)

@@ -80,6 +80,8 @@ pub enum StoreErrorKind {
     TooLarge,
     /// [`StoreError::InUse`] (HTTP 409).
     Conflict,
+    /// [`StoreError::Io`] because the disk is full (HTTP 507).
+    StorageFull,
     /// [`StoreError::Io`], [`StoreError::Corrupt`], [`StoreError::Locked`] (HTTP 500).
     Internal,
 }
@@ -92,6 +94,9 @@ impl StoreError {
             Self::BadName { .. } | Self::Invalid { .. } => StoreErrorKind::BadRequest,
             Self::TooLarge { .. } => StoreErrorKind::TooLarge,
             Self::InUse { .. } => StoreErrorKind::Conflict,
+            Self::Io { source, .. } if source.kind() == std::io::ErrorKind::StorageFull => {
+                StoreErrorKind::StorageFull
+            }
             Self::Io { .. } | Self::Corrupt { .. } | Self::Locked { .. } => {
                 StoreErrorKind::Internal
             }

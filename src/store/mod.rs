@@ -110,6 +110,8 @@ struct Inner {
     state: Mutex<State>,
     /// Held open for its lock; released when the last clone is dropped.
     _lock: std::fs::File,
+    /// Fault injection for tests: uploads fail as on a full disk past this many bytes.
+    storage_full_after: std::sync::atomic::AtomicU64,
 }
 
 /// What is stored, as read at open and kept in step with every change.
@@ -208,6 +210,7 @@ impl Store {
                 report,
                 state: Mutex::new(state),
                 _lock: lock,
+                storage_full_after: std::sync::atomic::AtomicU64::new(u64::MAX),
             }),
         };
         let problems = store.problems();
@@ -328,7 +331,20 @@ impl Store {
             UploadKind::Model => self.inner.limits.max_model_bytes,
             UploadKind::Robot { .. } => self.inner.limits.max_robot_bytes,
         };
-        Upload::create(&self.tmp_dir(), kind, limit)
+        let full_after = self
+            .inner
+            .storage_full_after
+            .load(std::sync::atomic::Ordering::Relaxed);
+        Upload::create(&self.tmp_dir(), kind, limit, full_after)
+    }
+
+    /// Fault injection for tests: every upload begun from now on fails once it has
+    /// written `bytes` (`u64::MAX`: never), with the error a full disk gives (`ENOSPC`).
+    #[doc(hidden)]
+    pub fn inject_storage_full_after(&self, bytes: u64) {
+        self.inner
+            .storage_full_after
+            .store(bytes, std::sync::atomic::Ordering::Relaxed);
     }
 
     /// Checks that `upload` is this store's and of `kind`, and finishes it.

@@ -103,6 +103,9 @@ impl State {
         if let Some(preset) = &spec.flow_preset {
             FlowParams::preset(preset).map_err(|e| StoreError::invalid(e.to_string()))?;
         }
+        if let Some(pipeline) = &spec.pipeline {
+            pipeline.check_limits().map_err(StoreError::invalid)?;
+        }
         check_overrides(&spec.thresholds)
     }
 }

@@ -481,6 +481,21 @@ fn profiles_check_their_references_and_protect_what_they_use() {
         store.put_profile("p", bad_preset),
         Err(StoreError::Invalid { .. })
     ));
+    // Sizes no scorer is built with (a processing resolution of 100000 x 100000 pixels
+    // once made scoring abort the server on a 40 GB allocation).
+    for pipeline in [
+        r#"{"frames": {"width": 100000, "height": 100000}}"#,
+        r#"{"frames": {"width": 8, "height": 8}}"#,
+        r#"{"offset_a": 1000000000000}"#,
+        r#"{"offset_b": 18446744073709551615}"#,
+    ] {
+        let spec = ProfileSpec {
+            pipeline: Some(serde_json::from_str(pipeline).unwrap()),
+            ..Default::default()
+        };
+        let e = store.put_profile("p", spec).unwrap_err();
+        assert!(matches!(e, StoreError::Invalid { .. }), "{pipeline}: {e}");
+    }
     assert!(store.profiles().is_empty());
 
     let pinned = store.put_profile("pinned", model("m", Some(2))).unwrap();

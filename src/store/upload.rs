@@ -72,6 +72,8 @@ pub struct Upload {
     hasher: Sha256,
     bytes: u64,
     limit_bytes: u64,
+    /// Fault injection: writes past this many bytes fail as on a full disk.
+    storage_full_after: u64,
     /// Set once the limit was passed: the file is gone, the upload is dead.
     too_large: bool,
     /// Set once the file was moved into the store: `Drop` leaves it alone.
@@ -90,6 +92,7 @@ impl Upload {
         tmp_dir: &Path,
         kind: UploadKind,
         limit_bytes: u64,
+        storage_full_after: u64,
     ) -> Result<Self, StoreError> {
         // The extension tells validators such as `Robot::load` what the file is.
         let ext = match kind {
@@ -109,6 +112,7 @@ impl Upload {
             hasher: Sha256::new(),
             bytes: 0,
             limit_bytes,
+            storage_full_after,
             too_large: false,
             moved: false,
         })
@@ -147,6 +151,13 @@ impl Upload {
         let Some(file) = self.file.as_mut() else {
             return Err(StoreError::invalid("the upload is already finished"));
         };
+        if self.bytes.saturating_add(chunk.len() as u64) > self.storage_full_after {
+            // Injected (tests): what `write` reports on a full disk.
+            return Err(StoreError::io(
+                &self.path,
+                std::io::Error::from_raw_os_error(28),
+            ));
+        }
         file.write_all(chunk)
             .map_err(|e| StoreError::io(&self.path, e))?;
         self.hasher.update(chunk);

@@ -3,6 +3,7 @@
 // Test code may unwrap: a failure is a test failure with a backtrace.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
+mod abuse;
 mod architecture;
 mod camera_motion;
 mod cli;
@@ -14,8 +15,10 @@ mod detect_episode;
 mod episode_mcap;
 mod eval_metrics;
 mod export_dataset;
+mod faults;
 mod flow_accuracy;
 mod flow_golden;
+mod fuzz_corpus;
 mod model;
 mod model_trained;
 mod registration_accuracy;

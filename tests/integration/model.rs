@@ -9,7 +9,7 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::sync::Arc;
-use vamos::model::predictor::naive_score;
+use vamos::model::predictor::{MAX_PAST_OFFSET, MAX_SAMPLES, naive_score};
 use vamos::model::rng::NormalRng;
 use vamos::model::{
     FlowModel, LoadOptions, ModelError, ModelSlot, Prediction, Predictor, PredictorParams,
@@ -223,7 +223,35 @@ fn masks_and_bad_input() {
     let out = pred.push(&frames[4], Some(&none)).unwrap();
     assert_eq!(out, Prediction::NoValidPixels { frame: 4 });
     assert_eq!(pred.frames_seen(), 5);
-    // Bad parameters.
+    // Bad parameters: offsets and samples beyond the limits (from a model bundle or a
+    // profile) are refused before anything is allocated.
+    for bad in [
+        PredictorParams {
+            a: usize::MAX,
+            ..params
+        },
+        PredictorParams {
+            b: MAX_PAST_OFFSET,
+            ..params
+        },
+        PredictorParams {
+            samples: MAX_SAMPLES + 1,
+            ..params
+        },
+        PredictorParams {
+            b: 99,
+            samples: 101,
+            ..params
+        },
+    ] {
+        assert!(
+            matches!(
+                Predictor::new(model.clone(), bad, 0),
+                Err(ModelError::InvalidParams { .. })
+            ),
+            "{bad:?}"
+        );
+    }
     let bad = PredictorParams { a: 0, ..params };
     assert!(matches!(
         Predictor::new(model, bad, 0),

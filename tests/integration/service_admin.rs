@@ -19,7 +19,7 @@ use vamos::service::proto::{self, stream_request::Message as In};
 use vamos::service::rest::{Access, ROUTES};
 use vamos::service::{RunningServer, Server, profiles::ProfileCatalog};
 
-fn settings(dir: &std::path::Path) -> Settings {
+pub(crate) fn settings(dir: &std::path::Path) -> Settings {
     let mut s = Settings::default();
     s.service.grpc_addr = "127.0.0.1:0".into();
     s.service.rest_addr = "127.0.0.2:0".into();
@@ -32,32 +32,42 @@ fn settings(dir: &std::path::Path) -> Settings {
     s
 }
 
-async fn start(settings: &Settings) -> RunningServer {
+pub(crate) async fn start(settings: &Settings) -> RunningServer {
     Server::start(settings.clone(), ProfileCatalog::from_setups(Vec::new()))
         .await
         .unwrap()
 }
 
-fn model_fixture(name: &str) -> PathBuf {
+pub(crate) fn model_fixture(name: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
         .join("tests/fixtures/model")
         .join(name)
 }
 
-struct Api {
+pub(crate) struct Api {
     http: Client,
     base: String,
 }
 
 impl Api {
-    fn new(server: &RunningServer) -> Self {
+    pub(crate) fn new(server: &RunningServer) -> Self {
+        Self::at(format!("http://{}", server.rest_addr))
+    }
+
+    /// The API at a base URL (`http://host:port`).
+    pub(crate) fn at(base: String) -> Self {
         Self {
             http: Client::new(),
-            base: format!("http://{}", server.rest_addr),
+            base,
         }
     }
 
-    async fn call(&self, method: Method, path: &str, body: Option<Vec<u8>>) -> (StatusCode, Value) {
+    pub(crate) async fn call(
+        &self,
+        method: Method,
+        path: &str,
+        body: Option<Vec<u8>>,
+    ) -> (StatusCode, Value) {
         let mut req = self
             .http
             .request(method, format!("{}{path}", self.base))
@@ -71,7 +81,12 @@ impl Api {
         (status, serde_json::from_str(&text).unwrap_or(Value::Null))
     }
 
-    async fn json(&self, method: Method, path: &str, body: Value) -> (StatusCode, Value) {
+    pub(crate) async fn json(
+        &self,
+        method: Method,
+        path: &str,
+        body: Value,
+    ) -> (StatusCode, Value) {
         self.call(method, path, Some(serde_json::to_vec(&body).unwrap()))
             .await
     }
@@ -87,7 +102,7 @@ impl Api {
             .unwrap()
     }
 
-    async fn get(&self, path: &str) -> Value {
+    pub(crate) async fn get(&self, path: &str) -> Value {
         let (status, v) = self.call(Method::GET, path, None).await;
         assert_eq!(status, StatusCode::OK, "GET {path}: {v}");
         v
@@ -152,7 +167,7 @@ async fn every_route_refuses_missing_and_insufficient_tokens() {
 
 /// A session on `profile` fed by a channel; returns the sender and a task collecting
 /// (scores, events, error).
-async fn open_session(
+pub(crate) async fn open_session(
     addr: std::net::SocketAddr,
     profile: &str,
     session_id: &str,
@@ -202,7 +217,7 @@ async fn open_session(
     (tx, task, opened)
 }
 
-async fn send_all(tx: &mpsc::Sender<proto::StreamRequest>, messages: &[In]) {
+pub(crate) async fn send_all(tx: &mpsc::Sender<proto::StreamRequest>, messages: &[In]) {
     for m in messages {
         tx.send(proto::StreamRequest {
             message: Some(m.clone()),
@@ -212,7 +227,7 @@ async fn send_all(tx: &mpsc::Sender<proto::StreamRequest>, messages: &[In]) {
     }
 }
 
-fn images(messages: &[In]) -> usize {
+pub(crate) fn images(messages: &[In]) -> usize {
     messages
         .iter()
         .filter(|m| matches!(m, In::Image(_)))
@@ -429,7 +444,7 @@ fn profile_spec() -> Value {
 }
 
 /// Robot `arm`, model `tiny` (version 1) and the stored profile `arm-store` on them.
-async fn stored_profile(api: &Api) -> Vec<u8> {
+pub(crate) async fn stored_profile(api: &Api) -> Vec<u8> {
     let urdf = std::fs::read(fixture().join("robot/vamos_arm.urdf")).unwrap();
     let (status, robot) = api
         .call(Method::PUT, "/v1/robots/arm?format=urdf", Some(urdf))
@@ -448,7 +463,7 @@ async fn stored_profile(api: &Api) -> Vec<u8> {
 }
 
 /// Polls job `id` until it has ended.
-async fn wait_job(api: &Api, id: u64) -> Value {
+pub(crate) async fn wait_job(api: &Api, id: u64) -> Value {
     let deadline = std::time::Instant::now() + Duration::from_secs(600);
     loop {
         let j = api.get(&format!("/v1/jobs/{id}")).await;

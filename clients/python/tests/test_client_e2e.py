@@ -22,6 +22,7 @@ import pytest
 pytest.importorskip("grpc")
 pytest.importorskip("mcap_ros2.decoder")
 
+from _server import ADMIN, ROBOT, ROOT, SIM, Server, vamos_bin  # noqa: E402
 from vamos.client import (  # noqa: E402
     AdminClient,
     AsyncMonitorClient,
@@ -36,65 +37,12 @@ from vamos.client import (  # noqa: E402
     read_episode,
 )
 
-ROOT = Path(__file__).resolve().parents[3]
-SIM = ROOT / "tests" / "fixtures" / "sim"
 EPISODE = SIM / "test" / "test_0001_external_push.mcap"
-ADMIN, ROBOT = "py-admin-token", "py-robot-token"
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
-class Server:
-    def __init__(self, bin: Path, tmp: Path) -> None:
-        self.bin, self.tmp = bin, tmp
-        self.profile = tmp / "sim-arm.toml"
-        self.profile.write_text(
-            f'name = "sim-arm"\nrobot = "{SIM / "robot" / "vamos_arm.urdf"}"\n'
-            f'camera = "{SIM / "camera.json"}"\nflow_preset = "realtime"\n'
-            '[pipeline]\nstride = 1\n[pipeline.frames]\nwidth = 160\nheight = 120\nvariant = "masked"\n')
-        self.env = {k: v for k, v in os.environ.items() if not k.startswith("VAMOS_")}
-        self.env.update(VAMOS_LOG__LEVEL="warn", VAMOS_ADMIN_TOKEN=ADMIN, VAMOS_ROBOT_TOKEN=ROBOT)
-        self.grpc_port, self.rest_port = _free_port(), _free_port()
-        self.grpc = f"127.0.0.1:{self.grpc_port}"
-        self.rest = f"http://127.0.0.1:{self.rest_port}"
-        self.proc = subprocess.Popen(
-            [str(bin), "serve", "--profile", str(self.profile), "--data-dir", str(tmp / "data"),
-             "--grpc-addr", self.grpc, "--rest-addr", f"127.0.0.1:{self.rest_port}"],
-            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=self.env)
-        admin = AdminClient(self.rest, token=ADMIN, timeout=5)
-        deadline = time.monotonic() + 60
-        while not admin.ready():
-            assert self.proc.poll() is None, self.proc.stderr.read().decode() if self.proc.stderr else ""
-            assert time.monotonic() < deadline, "the server did not become ready"
-            time.sleep(0.1)
-
-    def offline(self, episode: Path) -> list[dict]:
-        out = self.tmp / f"offline-{episode.stem}"
-        run = subprocess.run([str(self.bin), "score", "--profile", str(self.profile), str(episode),
-                              "--out", str(out)], capture_output=True, text=True, env=self.env)
-        assert run.returncode == 0, run.stderr
-        return [json.loads(line) for line in (out / f"{episode.stem}.scores.jsonl").read_text().splitlines()]
-
-    def stop(self) -> str:
-        self.proc.terminate()
-        try:
-            _, err = self.proc.communicate(timeout=30)
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
-            _, err = self.proc.communicate()
-        return err.decode(errors="replace")
 
 
 @pytest.fixture(scope="module")
 def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
-    value = os.environ.get("VAMOS_BIN")
-    if not value:
-        pytest.skip("VAMOS_BIN is not set (scripts/test.sh sets it)")
-    s = Server(Path(value), tmp_path_factory.mktemp("client-e2e"))
+    s = Server(vamos_bin(), tmp_path_factory.mktemp("client-e2e"))
     yield s
     stderr = s.stop()
     assert s.proc.returncode == 0, stderr
