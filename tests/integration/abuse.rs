@@ -120,6 +120,31 @@ async fn oversized_uploads_are_refused_before_their_body_is_read() {
     server.shutdown().await.unwrap();
 }
 
+/// Opens a session on its own connection and holds it open: the response stream (or the
+/// refusal) and the request sender that keeps it alive.
+async fn open_held(
+    url: String,
+    id: String,
+) -> (
+    Result<tonic::Streaming<proto::StreamResponse>, tonic::Status>,
+    tokio::sync::mpsc::Sender<proto::StreamRequest>,
+) {
+    let mut client = MonitorClient::connect(url).await.unwrap();
+    let (tx, rx) = tokio::sync::mpsc::channel(4);
+    tx.send(proto::StreamRequest {
+        message: Some(open_msg("sim-arm", &id, None)),
+    })
+    .await
+    .unwrap();
+    let r = client
+        .stream(authed(
+            tokio_stream::wrappers::ReceiverStream::new(rx),
+            Some(ROBOT),
+        ))
+        .await;
+    (r.map(|r| r.into_inner()), tx)
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_flood_of_session_opens_is_held_to_max_sessions() {
     let f = fixture_setup(4, true);
@@ -128,23 +153,7 @@ async fn a_flood_of_session_opens_is_held_to_max_sessions() {
     // 40 robots open at once and hold their streams.
     let mut opens = Vec::new();
     for i in 0..40 {
-        let url = url.clone();
-        opens.push(tokio::spawn(async move {
-            let mut client = MonitorClient::connect(url).await.unwrap();
-            let (tx, rx) = tokio::sync::mpsc::channel(4);
-            tx.send(proto::StreamRequest {
-                message: Some(open_msg("sim-arm", &format!("flood-{i}"), None)),
-            })
-            .await
-            .unwrap();
-            let r = client
-                .stream(authed(
-                    tokio_stream::wrappers::ReceiverStream::new(rx),
-                    Some(ROBOT),
-                ))
-                .await;
-            (r.map(|r| r.into_inner()), tx)
-        }));
+        opens.push(tokio::spawn(open_held(url.clone(), format!("flood-{i}"))));
     }
     let mut accepted = Vec::new();
     let mut refused = 0;
@@ -167,20 +176,8 @@ async fn a_flood_of_session_opens_is_held_to_max_sessions() {
         assert!(Instant::now() < deadline, "sessions not released");
         tokio::time::sleep(Duration::from_millis(20)).await;
     }
-    let mut client = MonitorClient::connect(url).await.unwrap();
-    let (tx, rx) = tokio::sync::mpsc::channel(4);
-    tx.send(proto::StreamRequest {
-        message: Some(open_msg("sim-arm", "after-flood", None)),
-    })
-    .await
-    .unwrap();
-    let r = client
-        .stream(authed(
-            tokio_stream::wrappers::ReceiverStream::new(rx),
-            Some(ROBOT),
-        ))
-        .await;
-    assert!(r.is_ok(), "{:?}", r.err());
+    let (after, tx) = open_held(url, "after-flood".into()).await;
+    assert!(after.is_ok(), "{:?}", after.err());
     drop(tx);
     server.shutdown().await.unwrap();
 }
