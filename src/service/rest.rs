@@ -589,6 +589,27 @@ async fn blocking<T: Send + 'static>(
     Ok(tokio::task::spawn_blocking(f).await.map_err(internal)??)
 }
 
+/// Largest JSON calibration request (paths on the server), bytes.
+const MAX_CALIBRATE_JSON_BYTES: usize = 1 << 20;
+
+/// Reads a JSON body of at most `limit` bytes: a longer one is refused with 413 (the
+/// size), a broken one with 400.
+async fn json_bytes(body: Body, limit: usize) -> Result<Bytes, ApiError> {
+    let mut stream = body.into_data_stream();
+    let mut out = Vec::new();
+    while let Some(chunk) = stream.next().await {
+        let chunk = chunk.map_err(|e| bad_request(format!("cannot read the body: {e}")))?;
+        if out.len() + chunk.len() > limit {
+            return Err(ApiError::new(
+                StatusCode::PAYLOAD_TOO_LARGE,
+                format!("the JSON body is over {limit} bytes"),
+            ));
+        }
+        out.extend_from_slice(&chunk);
+    }
+    Ok(Bytes::from(out))
+}
+
 fn json_body<T: serde::de::DeserializeOwned>(body: &Bytes) -> Result<T, ApiError> {
     serde_json::from_slice(body).map_err(|e| bad_request(format!("bad JSON body: {e}")))
 }
@@ -1273,9 +1294,7 @@ async fn start_calibration(
         let up = receive_calibration(&s, content_type, body).await?;
         (up.request, Some(up.dir), up.episodes, up.holdout)
     } else {
-        let bytes = axum::body::to_bytes(body, 1 << 20)
-            .await
-            .map_err(|e| bad_request(format!("cannot read the body: {e}")))?;
+        let bytes = json_bytes(body, MAX_CALIBRATE_JSON_BYTES).await?;
         let req: CalibrateRequest = json_body(&bytes)?;
         let show = |v: &[PathBuf]| v.iter().map(|p| p.display().to_string()).collect();
         let (e, h) = (show(&req.episodes), show(&req.holdout));

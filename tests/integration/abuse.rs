@@ -223,3 +223,42 @@ async fn tokens_never_reach_the_logs() {
     drop(logs);
     server.kill();
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn json_bodies_over_their_limit_are_413() {
+    use super::service_admin::{Api, settings, start};
+    let dir = tempfile::tempdir().unwrap();
+    let server = start(&settings(dir.path())).await;
+    let api = Api::new(&server);
+    let (status, p) = api
+        .json(
+            reqwest::Method::PUT,
+            "/v1/profiles/p",
+            serde_json::json!({ "flow_preset": "realtime" }),
+        )
+        .await;
+    assert_eq!(status, reqwest::StatusCode::OK, "{p}");
+    // A profile body just over axum's 2 MB, a calibration request just over its 1 MiB
+    // (just over: the client has sent its body when the answer comes), each on a new
+    // connection (the refused one is closed by the server).
+    for (method, path, body) in [
+        (
+            reqwest::Method::PUT,
+            "/v1/profiles/p",
+            serde_json::json!({ "flow_preset": "a".repeat((2 << 20) + (16 << 10)) }),
+        ),
+        (
+            reqwest::Method::POST,
+            "/v1/profiles/p/calibrate",
+            serde_json::json!({ "episodes": ["a".repeat((1 << 20) + (16 << 10))] }),
+        ),
+    ] {
+        let (status, answer) = Api::new(&server).json(method, path, body).await;
+        assert_eq!(
+            status,
+            reqwest::StatusCode::PAYLOAD_TOO_LARGE,
+            "{path}: {answer}"
+        );
+    }
+    server.shutdown().await.unwrap();
+}
