@@ -208,7 +208,7 @@ impl JointBuffer {
 
 /// A streamed image decoded to gray: raw ROS encodings (a zero `step` means packed rows)
 /// and PNG / JPEG files, at most `max_pixels`.
-pub(crate) fn decode_image(image: proto::Image, max_pixels: usize) -> Result<GrayImage, String> {
+pub(crate) fn decode_image(image: &proto::Image, max_pixels: usize) -> Result<GrayImage, String> {
     let enc = image.encoding.to_ascii_lowercase();
     if matches!(enc.as_str(), "jpeg" | "jpg" | "png") {
         let msg = CompressedImageMsg {
@@ -1071,7 +1071,7 @@ impl Hub {
         let started = Instant::now();
         let (image, frame_camera) = match frame.image {
             ImagePayload::Decoded(img, k) => (img, k),
-            ImagePayload::Message(msg) => match decode_image(msg, MAX_PIXELS) {
+            ImagePayload::Message(msg) => match decode_image(&msg, MAX_PIXELS) {
                 Ok(img) => (img, None),
                 Err(e) => {
                     self.refuse(s, "image", format!("image refused: {e}"), stamp);

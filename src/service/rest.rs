@@ -610,7 +610,7 @@ async fn json_bytes(body: Body, limit: usize) -> Result<Bytes, ApiError> {
     Ok(Bytes::from(out))
 }
 
-fn json_body<T: serde::de::DeserializeOwned>(body: &Bytes) -> Result<T, ApiError> {
+fn json_body<T: serde::de::DeserializeOwned>(body: &[u8]) -> Result<T, ApiError> {
     serde_json::from_slice(body).map_err(|e| bad_request(format!("bad JSON body: {e}")))
 }
 
@@ -645,24 +645,26 @@ async fn receive(
         let chunk = chunk.map_err(bad_request)?;
         match blocking(move || upload.write_chunk(&chunk).map(|()| upload)).await {
             Ok(u) => upload = u,
-            Err(e) => {
-                // The upload is gone (its file removed). A full disk is not the client's
-                // doing: read the rest (bounded) so the 507 reaches it on a usable
-                // connection.
-                if e.status == StatusCode::INSUFFICIENT_STORAGE {
-                    let mut budget = DRAIN_LIMIT_BYTES;
-                    while let Some(Ok(chunk)) = stream.next().await {
-                        budget = budget.saturating_sub(chunk.len() as u64);
-                        if budget == 0 {
-                            break;
-                        }
-                    }
-                }
+            // The upload is gone (its file removed). A full disk is not the client's
+            // doing: read the rest (bounded) so the 507 reaches it on a usable connection.
+            Err(e) if e.status == StatusCode::INSUFFICIENT_STORAGE => {
+                drain_data(&mut stream, DRAIN_LIMIT_BYTES).await;
                 return Err(e);
             }
+            Err(e) => return Err(e),
         }
     }
     Ok(upload)
+}
+
+/// Reads and drops up to `budget` more bytes of a body.
+async fn drain_data(stream: &mut axum::body::BodyDataStream, mut budget: u64) {
+    while let Some(Ok(chunk)) = stream.next().await {
+        budget = budget.saturating_sub(chunk.len() as u64);
+        if budget == 0 {
+            return;
+        }
+    }
 }
 
 async fn list_models(State(s): State<Arc<Shared>>) -> Result<Response, ApiError> {
@@ -1025,14 +1027,14 @@ fn check_calibrate_request(req: &CalibrateRequest) -> Result<(), ApiError> {
 /// A JSON calibration body, parsed and checked as `POST /v1/profiles/{name}/calibrate`
 /// does before it starts a job (for the fuzz targets).
 pub(crate) fn parse_calibrate_request(body: &[u8]) -> Result<(), ApiError> {
-    let req: CalibrateRequest = json_body(&Bytes::copy_from_slice(body))?;
+    let req: CalibrateRequest = json_body(body)?;
     check_calibrate_request(&req)
 }
 
 /// A `POST /v1/models/{name}/active` body, parsed as the handler does (for the fuzz
 /// targets).
 pub(crate) fn parse_active_request(body: &[u8]) -> Result<(), ApiError> {
-    json_body::<ActiveRequest>(&Bytes::copy_from_slice(body)).map(|_| ())
+    json_body::<ActiveRequest>(body).map(|_| ())
 }
 
 /// Folders become the `.mcap` files directly inside them (sorted).

@@ -68,15 +68,9 @@ async fn oversized_uploads_are_refused_before_their_body_is_read() {
     }
     assert!(t0.elapsed() < Duration::from_secs(60));
     sender.abort();
-    let models: serde_json::Value = reqwest::Client::new()
-        .get(format!("http://{addr}/v1/models"))
-        .bearer_auth(ADMIN)
-        .send()
-        .await
-        .unwrap()
-        .json()
-        .await
-        .unwrap();
+    let models = super::service_admin::Api::at(format!("http://{addr}"))
+        .get("/v1/models")
+        .await;
     assert_eq!(models["models"].as_array().unwrap().len(), 0, "{models}");
 
     // gRPC: a message over max_message_bytes is refused (the stream ends with an error),
