@@ -929,15 +929,18 @@ impl Hub {
             st.out.take()
         };
         s.space.notify_all();
-        if let (Some(out), Some(status)) = (out, status) {
-            let _ = out.try_send(Err(status));
-        }
+        // The session leaves the table before its stream ends, so a client that sees
+        // the end of its stream never finds the session still listed.
         if lock(&self.sessions).remove(&s.id).is_some() {
             self.metrics
                 .sessions_active
                 .with_label_values(&[&s.profile_name])
                 .dec();
         }
+        if let (Some(out), Some(status)) = (out.as_ref(), status) {
+            let _ = out.try_send(Err(status));
+        }
+        drop(out);
         tracing::info!(
             session = %s.id,
             frames = s.frames_scored.load(Ordering::Relaxed),
@@ -1178,7 +1181,9 @@ impl Hub {
                 ),
             );
         }
-        let latency = arrived.elapsed().as_secs_f64();
+        // One clock reading for both, so compute time never exceeds latency.
+        let now = Instant::now();
+        let latency = now.saturating_duration_since(arrived).as_secs_f64();
         m.latency_seconds
             .with_label_values(&[profile])
             .observe(latency);
@@ -1194,7 +1199,7 @@ impl Hub {
             detector: detector as i32,
             warming_up: score.warming_up,
             latency_s: latency,
-            compute_s: started.elapsed().as_secs_f64(),
+            compute_s: now.saturating_duration_since(started).as_secs_f64(),
         };
         self.send(
             s,
