@@ -24,6 +24,43 @@ pub struct TlsConfig {
     pub key: PathBuf,
 }
 
+/// What a replica does with the shared store.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum FleetRole {
+    /// Takes the REST changes and publishes its data directory (one per fleet).
+    Writer,
+    /// Mirrors what the writer published and refuses changes (any number).
+    #[default]
+    Reader,
+}
+
+/// `[service.shared_store]`: models, robots and profiles shared by a fleet of replicas
+/// (see `deploy/SCALING.md`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SharedStoreConfig {
+    /// `file:///mnt/vamos-shared` (a shared file system) or `s3://bucket/prefix` (any
+    /// S3-compatible store; endpoint, region and credentials from the standard `AWS_*`
+    /// variables).
+    pub url: String,
+    /// This replica's part.
+    pub role: FleetRole,
+    /// How often the writer looks for changes to publish and readers for a new
+    /// publication, seconds.
+    pub poll_s: f64,
+}
+
+impl Default for SharedStoreConfig {
+    fn default() -> Self {
+        Self {
+            url: String::new(),
+            role: FleetRole::Reader,
+            poll_s: 2.0,
+        }
+    }
+}
+
 /// The `[service]` section.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -77,6 +114,8 @@ pub struct ServiceConfig {
     pub tls: Option<TlsConfig>,
     /// Seconds a shutdown waits for in-flight frames before closing streams.
     pub shutdown_grace_s: f64,
+    /// A store shared with other replicas; absent: the data directory is this replica's.
+    pub shared_store: Option<SharedStoreConfig>,
 }
 
 impl Default for ServiceConfig {
@@ -105,6 +144,7 @@ impl Default for ServiceConfig {
             allow_unauthenticated_remote: false,
             tls: None,
             shutdown_grace_s: 10.0,
+            shared_store: None,
         }
     }
 }

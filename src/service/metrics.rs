@@ -2,8 +2,8 @@
 //! detector, reason; never session or robot ids.
 
 use prometheus::{
-    Encoder, GaugeVec, HistogramOpts, HistogramVec, IntCounterVec, IntGauge, IntGaugeVec, Opts,
-    Registry, TextEncoder,
+    Encoder, Gauge, GaugeVec, HistogramOpts, HistogramVec, IntCounter, IntCounterVec, IntGauge,
+    IntGaugeVec, Opts, Registry, TextEncoder,
 };
 
 /// Latency buckets, seconds: 1 ms .. 5 s.
@@ -38,6 +38,12 @@ pub struct Metrics {
     pub queue_depth: IntGauge,
     /// Build information (value 1).
     pub build_info: GaugeVec,
+    /// The shared store's generation published (writer) or applied (reader); 0 without.
+    pub shared_store_generation: IntGauge,
+    /// Failed rounds with the shared store.
+    pub shared_store_errors: IntCounter,
+    /// Last successful round with the shared store, seconds since the Unix epoch.
+    pub shared_store_last_sync: Gauge,
 }
 
 fn must<T>(r: prometheus::Result<T>) -> T {
@@ -121,6 +127,21 @@ impl Metrics {
         build_info
             .with_label_values(&[env!("CARGO_PKG_VERSION")])
             .set(1.0);
+        let shared_store_generation = must(IntGauge::new(
+            "vamos_shared_store_generation",
+            "Shared-store generation published or applied (0: none)",
+        ));
+        must(registry.register(Box::new(shared_store_generation.clone())));
+        let shared_store_errors = must(IntCounter::new(
+            "vamos_shared_store_errors_total",
+            "Failed rounds with the shared store",
+        ));
+        must(registry.register(Box::new(shared_store_errors.clone())));
+        let shared_store_last_sync = must(Gauge::new(
+            "vamos_shared_store_last_sync_timestamp_seconds",
+            "Last successful round with the shared store (Unix time; 0: never)",
+        ));
+        must(registry.register(Box::new(shared_store_last_sync.clone())));
         // process_cpu_seconds_total, process_resident_memory_bytes, ... (Linux).
         #[cfg(target_os = "linux")]
         must(registry.register(Box::new(
@@ -139,6 +160,9 @@ impl Metrics {
             sessions_opened,
             queue_depth,
             build_info,
+            shared_store_generation,
+            shared_store_errors,
+            shared_store_last_sync,
         }
     }
 

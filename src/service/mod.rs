@@ -15,6 +15,7 @@
 
 pub mod auth;
 pub mod config;
+pub mod fleet;
 pub mod grpc;
 pub mod hub;
 pub mod jobs;
@@ -39,7 +40,7 @@ use std::time::Duration;
 use tokio::net::TcpListener;
 use tonic::Status;
 
-pub use config::{QueuePolicy, ServiceConfig, TlsConfig};
+pub use config::{FleetRole, QueuePolicy, ServiceConfig, SharedStoreConfig, TlsConfig};
 
 /// Errors of the service.
 #[derive(Debug, thiserror::Error)]
@@ -69,6 +70,9 @@ pub enum ServiceError {
     /// The data directory.
     #[error("data directory: {0}")]
     Store(#[from] StoreError),
+    /// The shared store.
+    #[error("{0}")]
+    Fleet(#[from] fleet::FleetError),
     /// The gRPC transport failed.
     #[error("gRPC server: {0}")]
     Transport(String),
@@ -98,6 +102,8 @@ pub struct Shared {
     pub profiles: ProfileCatalog,
     /// The data directory: models, robots, profiles, calibrations.
     pub store: Store,
+    /// The store shared with other replicas, when configured.
+    pub fleet: Option<Arc<fleet::Fleet>>,
     /// Calibration jobs (their records are in the data directory).
     pub jobs: jobs::Jobs,
     /// Bearer tokens.
@@ -191,6 +197,21 @@ impl Server {
                 max_robot_bytes: cfg.max_robot_bytes,
             },
         )?;
+        let fleet = match &cfg.shared_store {
+            Some(c) => Some(Arc::new(fleet::Fleet::new(c, store.clone())?)),
+            None => None,
+        };
+        if let Some(f) = &fleet {
+            // Serve what the fleet has from the start; an unreachable shared store is
+            // retried in the background while the local copy serves.
+            match tokio::time::timeout(FIRST_SYNC_TIMEOUT, f.sync()).await {
+                Ok(Ok(_)) => {}
+                Ok(Err(e)) => tracing::warn!("shared store: {e} (retrying in the background)"),
+                Err(_) => tracing::warn!(
+                    "shared store: no answer in {FIRST_SYNC_TIMEOUT:?} (retrying in the background)"
+                ),
+            }
+        }
         for p in store.problems() {
             tracing::warn!(kind = p.kind, name = %p.name, "data directory: {}", p.reason);
         }
@@ -238,6 +259,7 @@ impl Server {
             profiles,
             jobs: jobs::Jobs::new(store.clone(), cfg.max_jobs),
             store,
+            fleet,
             tokens,
             stop,
             ready: AtomicBool::new(false),
@@ -325,6 +347,10 @@ impl Server {
                 }
             }
         });
+        if let Some(f) = shared.fleet.clone() {
+            record_fleet(&shared, &f);
+            tasks.push(tokio::spawn(run_fleet(shared.clone(), f)));
+        }
         shared
             .ready
             .store(true, std::sync::atomic::Ordering::SeqCst);
@@ -336,6 +362,58 @@ impl Server {
             tasks,
             transport_stop,
         })
+    }
+}
+
+/// How long the server waits for the shared store before it starts serving.
+const FIRST_SYNC_TIMEOUT: Duration = Duration::from_secs(30);
+
+/// Syncs with the shared store every poll interval until the server stops (the writer
+/// publishes once more then, so no change is left behind).
+async fn run_fleet(shared: Arc<Shared>, fleet: Arc<fleet::Fleet>) -> Result<(), ServiceError> {
+    let mut stop_rx = shared.stop.subscribe();
+    let mut tick = tokio::time::interval(fleet.poll_interval());
+    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    loop {
+        let stopping = tokio::select! {
+            _ = tick.tick() => false,
+            _ = stop_rx.wait_for(|v| *v) => true,
+        };
+        if stopping {
+            if fleet.role() == FleetRole::Writer {
+                match tokio::time::timeout(FIRST_SYNC_TIMEOUT, fleet.sync()).await {
+                    Ok(Ok(_)) => {}
+                    Ok(Err(e)) => tracing::warn!("shared store: last publication failed: {e}"),
+                    Err(_) => tracing::warn!("shared store: last publication timed out"),
+                }
+            }
+            return Ok(());
+        }
+        match fleet.sync().await {
+            Ok(change) => {
+                for (kind, name) in change.objects() {
+                    match kind.as_str() {
+                        "models" => shared.profiles.invalidate_model(&name),
+                        "robots" => shared.profiles.invalidate_robot(&name),
+                        _ => shared.profiles.invalidate_profile(&name),
+                    }
+                }
+            }
+            Err(e) => {
+                shared.metrics().shared_store_errors.inc();
+                tracing::warn!("shared store: {e}");
+            }
+        }
+        record_fleet(&shared, &fleet);
+    }
+}
+
+fn record_fleet(shared: &Shared, fleet: &fleet::Fleet) {
+    let status = fleet.status();
+    let m = shared.metrics();
+    m.shared_store_generation.set(status.generation as i64);
+    if let Some(t) = status.last_sync_unix_s {
+        m.shared_store_last_sync.set(t as f64);
     }
 }
 

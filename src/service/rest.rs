@@ -121,6 +121,7 @@ pub const ROUTES: &[(&str, &str, Access)] = &[
     ("GET", "/metrics", Access::Open),
     ("GET", "/openapi.json", Access::Open),
     ("GET", "/v1/sessions", Access::Admin),
+    ("GET", "/v1/store", Access::Admin),
     ("POST", "/v1/sessions/{id}/reload", Access::Admin),
     ("POST", "/v1/episodes:score", Access::Robot),
     ("GET", "/v1/models", Access::Robot),
@@ -160,6 +161,7 @@ pub fn handler(method: &str, path: &str) -> Option<MethodRouter<Arc<Shared>>> {
         ("GET", "/metrics") => get(metrics),
         ("GET", "/openapi.json") => get(openapi),
         ("GET", "/v1/sessions") => get(sessions),
+        ("GET", "/v1/store") => get(store_status),
         ("POST", "/v1/sessions/{id}/reload") => post(reload_session),
         ("POST", "/v1/episodes:score") => post(score_episode),
         ("GET", "/v1/models") => get(list_models),
@@ -283,6 +285,17 @@ async fn openapi() -> Response {
 
 async fn sessions(State(s): State<Arc<Shared>>) -> Result<Response, ApiError> {
     Ok(Json(json!({ "sessions": s.hub.sessions() })).into_response())
+}
+
+/// The data directory and, in a fleet, the shared store.
+async fn store_status(State(s): State<Arc<Shared>>) -> Result<Response, ApiError> {
+    Ok(Json(json!({
+        "data_dir": s.store.dir(),
+        "read_only": s.store.read_only(),
+        "problems": s.store.problems().len(),
+        "shared_store": s.fleet.as_ref().map(|f| f.status()),
+    }))
+    .into_response())
 }
 
 fn file_profile_json(p: &super::profiles::LoadedProfile) -> serde_json::Value {

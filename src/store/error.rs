@@ -60,6 +60,13 @@ pub enum StoreError {
         /// What is wrong.
         reason: String,
     },
+    /// This replica mirrors a shared store written by another replica: changes are made
+    /// there.
+    #[error("read-only replica: {reason}")]
+    ReadOnly {
+        /// Where changes go instead.
+        reason: String,
+    },
     /// Another process (or another [`super::Store`] in this one) has the directory open.
     #[error("{path} is locked by another vamos store")]
     Locked {
@@ -78,7 +85,7 @@ pub enum StoreErrorKind {
     BadRequest,
     /// [`StoreError::TooLarge`] (HTTP 413).
     TooLarge,
-    /// [`StoreError::InUse`] (HTTP 409).
+    /// [`StoreError::InUse`], [`StoreError::ReadOnly`] (HTTP 409).
     Conflict,
     /// [`StoreError::Io`] because the disk is full (HTTP 507).
     StorageFull,
@@ -93,7 +100,7 @@ impl StoreError {
             Self::NotFound { .. } => StoreErrorKind::NotFound,
             Self::BadName { .. } | Self::Invalid { .. } => StoreErrorKind::BadRequest,
             Self::TooLarge { .. } => StoreErrorKind::TooLarge,
-            Self::InUse { .. } => StoreErrorKind::Conflict,
+            Self::InUse { .. } | Self::ReadOnly { .. } => StoreErrorKind::Conflict,
             Self::Io { source, .. } if source.kind() == std::io::ErrorKind::StorageFull => {
                 StoreErrorKind::StorageFull
             }

@@ -135,6 +135,7 @@ impl Store {
         episodes: Vec<String>,
         holdout: Vec<String>,
     ) -> Result<JobInfo, StoreError> {
+        self.check_writable()?;
         let mut st = self.lock();
         let id = st.next_job.max(1);
         let job = JobInfo {

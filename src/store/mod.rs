@@ -60,6 +60,7 @@
 mod error;
 mod files;
 mod jobs;
+mod mirror;
 mod models;
 mod profiles;
 mod robots;
@@ -72,6 +73,7 @@ mod tests;
 
 pub use error::{StoreError, StoreErrorKind};
 pub use jobs::{JobInfo, JobState, KEPT_JOBS};
+pub use mirror::{MirrorChange, StoredFile};
 pub use types::{
     ModelInfo, ModelRef, ModelVersionInfo, OpenReport, ProfileInfo, ProfileSpec, ResolvedModel,
     ResolvedProfile, RobotInfo, StoreLimits, StoreProblem, ThresholdsPatch,
@@ -112,6 +114,10 @@ struct Inner {
     _lock: std::fs::File,
     /// Fault injection for tests: uploads fail as on a full disk past this many bytes.
     storage_full_after: std::sync::atomic::AtomicU64,
+    /// Set on a replica that mirrors a shared store: why changes are refused.
+    read_only: Mutex<Option<String>>,
+    /// sha256 of published files by path, valid while size and mtime are unchanged.
+    hashes: Mutex<mirror::HashCache>,
 }
 
 /// What is stored, as read at open and kept in step with every change.
@@ -199,9 +205,7 @@ impl Store {
         }
         files::sync_dir(&tmp)?;
         let mut state = State::default();
-        scan_models(&dir, &mut state, &mut report)?;
-        scan_robots(&dir, &mut state, &mut report)?;
-        scan_profiles(&dir, &mut state, &mut report)?;
+        scan_objects(&dir, &mut state, &mut report)?;
         jobs::scan_jobs(&dir, &mut state)?;
         let store = Self {
             inner: Arc::new(Inner {
@@ -211,6 +215,8 @@ impl Store {
                 state: Mutex::new(state),
                 _lock: lock,
                 storage_full_after: std::sync::atomic::AtomicU64::new(u64::MAX),
+                read_only: Mutex::new(None),
+                hashes: Mutex::new(mirror::HashCache::default()),
             }),
         };
         let problems = store.problems();
@@ -327,6 +333,7 @@ impl Store {
 
     /// Starts a streamed upload of `kind`, limited by [`StoreLimits`].
     pub fn begin_upload(&self, kind: UploadKind) -> Result<Upload, StoreError> {
+        self.check_writable()?;
         let limit = match kind {
             UploadKind::Model => self.inner.limits.max_model_bytes,
             UploadKind::Robot { .. } => self.inner.limits.max_robot_bytes,
@@ -496,6 +503,13 @@ fn remove_orphan(path: &Path, report: &mut OpenReport) {
     tracing::info!(path = %path.display(), "removing a data file no metadata names (interrupted write)");
     files::remove_file_quiet(path);
     report.removed_orphan_files += 1;
+}
+
+/// Reads models, robots and profiles (not jobs) into `state`.
+fn scan_objects(dir: &Path, state: &mut State, report: &mut OpenReport) -> Result<(), StoreError> {
+    scan_models(dir, state, report)?;
+    scan_robots(dir, state, report)?;
+    scan_profiles(dir, state, report)
 }
 
 fn scan_models(dir: &Path, state: &mut State, report: &mut OpenReport) -> Result<(), StoreError> {

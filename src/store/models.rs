@@ -66,6 +66,7 @@ impl Store {
         mut upload: Upload,
         validate: impl FnOnce(&Path) -> Result<serde_json::Value, String>,
     ) -> Result<ModelVersionInfo, StoreError> {
+        self.check_writable()?;
         check_name(name)?;
         Self::check_quarantine(&self.lock(), MODEL, name)?;
         let kind_ok = upload.kind == UploadKind::Model;
@@ -191,6 +192,7 @@ impl Store {
 
     /// Makes `version` the active version of `name`.
     pub fn set_active_model(&self, name: &str, version: u32) -> Result<(), StoreError> {
+        self.check_writable()?;
         check_name(name)?;
         let mut st = self.lock();
         Self::check_quarantine(&st, MODEL, name)?;
@@ -214,6 +216,7 @@ impl Store {
     /// numbering; see the module docs for what is refused ([`StoreError::InUse`]). A
     /// quarantined model can be deleted whole.
     pub fn delete_model(&self, name: &str, version: Option<u32>) -> Result<(), StoreError> {
+        self.check_writable()?;
         check_name(name)?;
         let mut st = self.lock();
         let key = (MODEL, name.to_string());

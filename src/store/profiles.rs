@@ -115,6 +115,7 @@ impl Store {
     /// pinned version it names exist, that a robot comes with a camera, and that the
     /// flow preset and thresholds are valid. A replaced profile keeps its calibration.
     pub fn put_profile(&self, name: &str, spec: ProfileSpec) -> Result<ProfileInfo, StoreError> {
+        self.check_writable()?;
         check_name(name)?;
         let mut st = self.lock();
         Self::check_quarantine(&st, PROFILE, name)?;
@@ -183,6 +184,7 @@ impl Store {
 
     /// Deletes profile `name` and its calibration.
     pub fn delete_profile(&self, name: &str) -> Result<(), StoreError> {
+        self.check_writable()?;
         check_name(name)?;
         let mut st = self.lock();
         let key = (PROFILE, name.to_string());
@@ -202,6 +204,7 @@ impl Store {
         name: &str,
         patch: ThresholdsPatch,
     ) -> Result<ProfileInfo, StoreError> {
+        self.check_writable()?;
         check_name(name)?;
         let mut st = self.lock();
         Self::check_quarantine(&st, PROFILE, name)?;
@@ -227,6 +230,7 @@ impl Store {
         name: &str,
         calibration: Calibration,
     ) -> Result<ProfileInfo, StoreError> {
+        self.check_writable()?;
         check_name(name)?;
         check_calibration(&calibration)?;
         let mut st = self.lock();

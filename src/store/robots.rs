@@ -59,6 +59,7 @@ impl Store {
         mut upload: Upload,
         validate: impl FnOnce(&Path) -> Result<serde_json::Value, String>,
     ) -> Result<RobotInfo, StoreError> {
+        self.check_writable()?;
         check_name(name)?;
         Self::check_quarantine(&self.lock(), ROBOT, name)?;
         let format = match upload.kind {
@@ -153,6 +154,7 @@ impl Store {
 
     /// Deletes robot `name`; refused ([`StoreError::InUse`]) while a profile uses it.
     pub fn delete_robot(&self, name: &str) -> Result<(), StoreError> {
+        self.check_writable()?;
         check_name(name)?;
         let mut st = self.lock();
         let key = (ROBOT, name.to_string());

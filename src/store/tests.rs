@@ -4,6 +4,7 @@ use crate::model::bundle::sha256_hex;
 use crate::pipeline::AlarmRule;
 use crate::robot::{CameraSpec, Robot, RobotConfig};
 use serde_json::json;
+use std::collections::HashMap;
 use std::path::Path;
 
 fn fixture(rel: &str) -> PathBuf {
@@ -1023,4 +1024,125 @@ fn job_records_survive_a_restart_and_a_running_one_is_marked_interrupted() {
             .iter()
             .any(|p| p.kind == "job" && p.name == "2")
     );
+}
+
+/// Stages every file of `from` that `to` lacks, as a shared store's reader would.
+fn stage_from(from: &Store, to: &Store) -> (Vec<StoredFile>, HashMap<String, PathBuf>) {
+    let files = from.stored_files().unwrap();
+    let mut staged = HashMap::new();
+    for f in &files {
+        let copy = to.dir().join("tmp").join(&f.sha256);
+        std::fs::copy(from.dir().join(&f.path), &copy).unwrap();
+        staged.insert(f.sha256.clone(), copy);
+    }
+    (files, staged)
+}
+
+#[test]
+fn a_mirror_holds_exactly_what_was_published_and_refuses_changes() {
+    let (a, b) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
+    let writer = open(a.path());
+    let reader = open(b.path());
+    reader.set_read_only(Some("send changes to the writer".into()));
+    commit_urdf(&writer, "arm");
+    commit_model(&writer, "m", b"v1");
+    commit_model(&writer, "m", b"v2");
+    let spec = ProfileSpec {
+        robot: Some("arm".into()),
+        camera: Some(camera()),
+        model: Some(ModelRef {
+            name: "m".into(),
+            version: None,
+        }),
+        ..Default::default()
+    };
+    writer.put_profile("p", spec.clone()).unwrap();
+    writer.save_calibration("p", calibration(None)).unwrap();
+
+    let files = writer.stored_files().unwrap();
+    let paths: Vec<&str> = files.iter().map(|f| f.path.as_str()).collect();
+    assert_eq!(
+        paths,
+        [
+            "models/m/1.vamos",
+            "models/m/2.vamos",
+            "models/m/index.json",
+            "profiles/p/calibration.json",
+            "profiles/p/profile.json",
+            "robots/arm/1.urdf",
+            "robots/arm/meta.json",
+        ]
+    );
+    assert_eq!(files[0].sha256, sha256_hex(b"v1"));
+    assert_eq!(files[0].size, 2);
+
+    // A missing content changes nothing.
+    let (files, mut staged) = stage_from(&writer, &reader);
+    let kept = staged.remove(&sha256_hex(b"v2")).unwrap();
+    let e = reader.apply_mirror(&files, &staged).unwrap_err();
+    assert!(e.to_string().contains("models/m/2.vamos"), "{e}");
+    assert!(reader.models().is_empty());
+    staged.insert(sha256_hex(b"v2"), kept);
+    let change = reader.apply_mirror(&files, &staged).unwrap();
+    assert_eq!(change.written.len(), 7);
+    assert!(change.removed.is_empty());
+    assert_eq!(reader.stored_files().unwrap(), files);
+    assert_eq!(reader.model("m").unwrap().active, Some(1));
+    let resolved = reader.resolve_profile("p").unwrap();
+    assert_eq!(resolved.profile.calibration.unwrap().training_frames, 120);
+    assert!(reader.problems().is_empty(), "{:?}", reader.problems());
+
+    // Every change is refused on the mirror, with the reason.
+    let e = reader.put_profile("q", spec).unwrap_err();
+    assert_eq!(e.kind(), StoreErrorKind::Conflict);
+    assert!(e.to_string().contains("send changes to the writer"), "{e}");
+    assert!(reader.begin_upload(UploadKind::Model).is_err());
+    assert!(reader.delete_profile("p").is_err());
+    assert!(reader.set_active_model("m", 1).is_err());
+
+    // Deletes and new versions reach the mirror; unchanged files are not copied again.
+    writer.delete_profile("p").unwrap();
+    writer.delete_model("m", Some(2)).unwrap();
+    let (files, staged) = stage_from(&writer, &reader);
+    let change = reader.apply_mirror(&files, &staged).unwrap();
+    assert_eq!(change.written, ["models/m/index.json"]);
+    // Metadata goes first, so no folder ever names a file that is gone.
+    assert_eq!(
+        change.removed,
+        [
+            "profiles/p/calibration.json",
+            "profiles/p/profile.json",
+            "models/m/2.vamos"
+        ]
+    );
+    assert_eq!(reader.stored_files().unwrap(), files);
+    assert!(reader.profiles().is_empty());
+    assert!(!b.path().join("profiles/p").exists());
+    assert_eq!(reader.model("m").unwrap().active, Some(1));
+    assert!(matches!(
+        reader.model_path("m", Some(2)),
+        Err(StoreError::NotFound { .. })
+    ));
+    let objects = change.objects();
+    assert!(objects.contains(&("profiles".into(), "p".into())));
+    assert!(objects.contains(&("models".into(), "m".into())));
+
+    // Paths outside the data directory's objects are refused.
+    for bad in [
+        "../etc/passwd",
+        "models/m/../../x",
+        "jobs/1.json",
+        "models/m",
+        "tmp/a/b",
+    ] {
+        let listed = [StoredFile {
+            path: bad.into(),
+            sha256: sha256_hex(b"v1"),
+            size: 2,
+        }];
+        let e = reader.apply_mirror(&listed, &HashMap::new()).unwrap_err();
+        assert_eq!(e.kind(), StoreErrorKind::BadRequest, "{bad}: {e}");
+    }
+    reader.set_read_only(None);
+    commit_model(&reader, "local", b"x");
 }

@@ -198,6 +198,9 @@ fn ports_probes_and_settings_of_the_deployment_files_are_the_servers() {
             "VAMOS_MODEL__ORT_PROVISION" => "false",
             "VAMOS_LOG__FORMAT" => "json",
             "VAMOS_SERVICE__ALLOW_UNAUTHENTICATED_REMOTE" => "true",
+            "VAMOS_SERVICE__SHARED_STORE__URL" => "s3://fleet/vamos",
+            "VAMOS_SERVICE__SHARED_STORE__ROLE" => "writer",
+            "VAMOS_SERVICE__SHARED_STORE__POLL_S" => "2",
             other => panic!("add the test value of {other}"),
         };
         cmd.env(v, value);
@@ -215,6 +218,12 @@ fn ports_probes_and_settings_of_the_deployment_files_are_the_servers() {
             "allow_unauthenticated_remote = true",
             "VAMOS_SERVICE__ALLOW_UNAUTHENTICATED_REMOTE",
         ),
+        (
+            "url = \"s3://fleet/vamos\"",
+            "VAMOS_SERVICE__SHARED_STORE__URL",
+        ),
+        ("role = \"writer\"", "VAMOS_SERVICE__SHARED_STORE__ROLE"),
+        ("poll_s = 2.0", "VAMOS_SERVICE__SHARED_STORE__POLL_S"),
     ] {
         if vars.contains(var) {
             assert!(effective.contains(line), "{var}: {effective}");

@@ -16,6 +16,7 @@ mod episode_mcap;
 mod eval_metrics;
 mod export_dataset;
 mod faults;
+mod fleet;
 mod flow_accuracy;
 mod flow_golden;
 mod fuzz_corpus;

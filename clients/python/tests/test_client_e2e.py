@@ -226,6 +226,8 @@ def test_admin_client_round_trip(server: Server, tmp_path: Path) -> None:
     assert len(scored["frames"]) == len(server.offline(EPISODE)) and scored["damage"] is None
     assert "vamos_frames_processed_total" in admin.metrics()
     assert isinstance(admin.sessions(), list)
+    store = admin.store_status()
+    assert store["shared_store"] is None and store["read_only"] is None and store["problems"] == 0
     with pytest.raises(NotFound):
         admin.reload_session("nobody")
     with pytest.raises(NotFound):

@@ -314,6 +314,13 @@ class AdminClient:
         """Cancels a running job (True) or removes a finished job's record (False)."""
         return self.request("DELETE", f"/v1/jobs/{int(job_id)}") is not None
 
+    # The data directory and the fleet.
+    def store_status(self) -> Json:
+        """``GET /v1/store``: ``{"data_dir", "read_only", "problems", "shared_store"}``;
+        ``shared_store`` (None without one) has the replica's ``role``, ``url``,
+        ``generation``, ``files``, ``last_sync_unix_s`` and ``last_error``."""
+        return self.request("GET", "/v1/store")
+
     # Sessions and episodes.
     def sessions(self) -> list[Json]:
         return list(self.request("GET", "/v1/sessions")["sessions"])
