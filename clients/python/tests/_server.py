@@ -45,8 +45,9 @@ class Server:
     chatty server can never block on a full pipe.
     """
 
-    def __init__(self, bin: Path, tmp: Path) -> None:
+    def __init__(self, bin: Path, tmp: Path, env: "dict[str, str] | None" = None) -> None:
         self.bin, self.tmp = bin, tmp
+        tmp.mkdir(parents=True, exist_ok=True)
         self.profile = tmp / "sim-arm.toml"
         self.profile.write_text(
             f'name = "sim-arm"\nrobot = "{SIM / "robot" / "vamos_arm.urdf"}"\n'
@@ -54,6 +55,7 @@ class Server:
             '[pipeline]\nstride = 1\n[pipeline.frames]\nwidth = 160\nheight = 120\nvariant = "masked"\n')
         self.env = {k: v for k, v in os.environ.items() if not k.startswith("VAMOS_")}
         self.env.update(VAMOS_LOG__LEVEL="warn", VAMOS_ADMIN_TOKEN=ADMIN, VAMOS_ROBOT_TOKEN=ROBOT)
+        self.env.update(env or {})
         self.grpc_port, self.rest_port = free_port(), free_port()
         self.grpc = f"127.0.0.1:{self.grpc_port}"
         self.rest = f"http://127.0.0.1:{self.rest_port}"
