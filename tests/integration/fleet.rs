@@ -55,6 +55,29 @@ fn names(list: &Value, key: &str) -> Vec<String> {
         .collect()
 }
 
+/// Replaces a file as the writer does (a rename), so a reader never reads half of it.
+fn replace_file(path: &std::path::Path, bytes: &[u8]) {
+    let part = path.with_extension("part");
+    std::fs::write(&part, bytes).unwrap();
+    std::fs::rename(&part, path).unwrap();
+}
+
+/// The value of an unlabelled metric in the server's `/metrics`.
+async fn metric(server: &RunningServer, name: &str) -> f64 {
+    let text = reqwest::get(format!("http://{}/metrics", server.rest_addr))
+        .await
+        .unwrap()
+        .text()
+        .await
+        .unwrap();
+    let prefix = format!("{name} ");
+    text.lines()
+        .find_map(|l| l.strip_prefix(prefix.as_str()))
+        .unwrap_or_else(|| panic!("{name} missing: {text}"))
+        .parse()
+        .unwrap()
+}
+
 async fn scores_with(server: &RunningServer, profile: &str, id: &str) -> usize {
     let (messages, camera) = episode_messages(&episode("test_0000"));
     let (tx, task, opened) = open_session(server.grpc_addr, profile, id, camera).await;
@@ -152,17 +175,7 @@ async fn replicas_share_models_robots_and_profiles_without_a_restart() {
     assert!(!dir.path().join("a/data/profiles/arm-store").exists());
 
     // The metrics say which generation each replica has.
-    let metrics = reqwest::get(format!("http://{}/metrics", reader_b.rest_addr))
-        .await
-        .unwrap()
-        .text()
-        .await
-        .unwrap();
-    let generation = metrics
-        .lines()
-        .find_map(|l| l.strip_prefix("vamos_shared_store_generation "))
-        .unwrap();
-    assert!(generation.parse::<u64>().unwrap() >= 3, "{metrics}");
+    assert!(metric(&reader_b, "vamos_shared_store_generation").await >= 3.0);
 
     // The writer is replaced by one with an empty data directory: it starts from the
     // fleet's state and carries on publishing.
@@ -224,18 +237,13 @@ async fn a_damaged_publication_is_refused_and_the_reader_keeps_serving() {
     let mut escape = good.clone();
     escape["generation"] = (good["generation"].as_u64().unwrap() + 1).into();
     escape["files"][0]["path"] = "../../outside".into();
-    std::fs::write(&manifest_path, serde_json::to_vec(&escape).unwrap()).unwrap();
-    let st = wait_for(&r, "/v1/store", |v| {
-        v["shared_store"]["last_error"].is_string()
+    replace_file(&manifest_path, &serde_json::to_vec(&escape).unwrap());
+    wait_for(&r, "/v1/store", |v| {
+        v["shared_store"]["last_error"]
+            .as_str()
+            .is_some_and(|e| e.contains("not a data directory file"))
     })
     .await;
-    assert!(
-        st["shared_store"]["last_error"]
-            .as_str()
-            .unwrap()
-            .contains("not a data directory file"),
-        "{st}"
-    );
     assert!(!dir.path().join("outside").exists());
 
     let mut tampered = good.clone();
@@ -257,7 +265,7 @@ async fn a_damaged_publication_is_refused_and_the_reader_keeps_serving() {
     let fake = "0".repeat(64);
     std::fs::write(shared.join("blobs").join(&fake), &bytes).unwrap();
     tampered["files"][target]["sha256"] = fake.into();
-    std::fs::write(&manifest_path, serde_json::to_vec(&tampered).unwrap()).unwrap();
+    replace_file(&manifest_path, &serde_json::to_vec(&tampered).unwrap());
     let st = wait_for(&r, "/v1/store", |v| {
         v["shared_store"]["last_error"]
             .as_str()
@@ -273,16 +281,6 @@ async fn a_damaged_publication_is_refused_and_the_reader_keeps_serving() {
         ["arm-store"]
     );
     assert!(scores_with(&reader, "arm-store", "still").await > 0);
-    let metrics = reqwest::get(format!("http://{}/metrics", reader.rest_addr))
-        .await
-        .unwrap()
-        .text()
-        .await
-        .unwrap();
-    let errors = metrics
-        .lines()
-        .find_map(|l| l.strip_prefix("vamos_shared_store_errors_total "))
-        .unwrap();
-    assert!(errors.parse::<f64>().unwrap() >= 2.0, "{metrics}");
+    assert!(metric(&reader, "vamos_shared_store_errors_total").await >= 2.0);
     reader.shutdown().await.unwrap();
 }
