@@ -24,7 +24,7 @@
 //! publication collected it) retries on its next poll with the newer manifest.
 
 use super::config::{FleetRole, SharedStoreConfig};
-use crate::store::{MirrorChange, Store, StoredFile};
+use crate::store::{MirrorChange, Store, StoredFile, hex, now_unix_s};
 use futures_util::StreamExt;
 use object_store::path::Path as ObjectPath;
 use object_store::{ObjectStore, PutPayload};
@@ -166,16 +166,6 @@ fn open_remote(url: &str) -> Result<(Arc<dyn ObjectStore>, ObjectPath), FleetErr
             "{url:?}: scheme {other:?} is not supported (file://, s3://)"
         ))),
     }
-}
-
-fn now_unix_s() -> u64 {
-    std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.as_secs())
-}
-
-fn hex(bytes: &[u8]) -> String {
-    bytes.iter().map(|b| format!("{b:02x}")).collect()
 }
 
 impl Fleet {
@@ -323,29 +313,36 @@ impl Fleet {
 
     async fn writer_round(&self) -> Result<MirrorChange, FleetError> {
         let mut change = MirrorChange::default();
-        let first = self.state().synced.is_none();
         let mut local = self.local_files().await?;
-        if first {
-            let remote = self.manifest().await?;
-            if let Some(m) = &remote {
+        if self.state().synced.is_none() {
+            // First round: carry on the fleet's numbering, and start from its state when
+            // this data directory is empty (a replaced writer).
+            if let Some(m) = self.manifest().await? {
                 if local.is_empty() && !m.files.is_empty() {
                     tracing::info!(
                         url = %self.url,
                         generation = m.generation,
                         "empty data directory: adopting the fleet's publication"
                     );
-                    change = self.apply(m).await?;
+                    change = self.apply(&m).await?;
                     local = self.local_files().await?;
                 }
                 if m.writer != self.writer_id {
                     tracing::info!(url = %self.url, previous = %m.writer, "taking over as the fleet's writer");
                 }
+                self.state().synced = Some(m);
             }
-            self.state().synced = remote.map(|m| Manifest { files: vec![], ..m });
-        } else if let Some(m) = self.manifest().await?
-            && let Some(ours) = self.state().synced.as_ref()
-            && m.generation > ours.generation
-            && m.writer != self.writer_id
+        } else if self
+            .state()
+            .synced
+            .as_ref()
+            .is_some_and(|m| m.files != local)
+            && let Some(m) = self.manifest().await?
+            && self
+                .state()
+                .synced
+                .as_ref()
+                .is_some_and(|ours| m.generation > ours.generation && m.writer != self.writer_id)
         {
             tracing::error!(
                 url = %self.url,
@@ -357,7 +354,7 @@ impl Fleet {
             .state()
             .synced
             .as_ref()
-            .is_some_and(|m| m.files == local && m.writer == self.writer_id);
+            .is_some_and(|m| m.files == local);
         if !unchanged {
             self.publish(local).await?;
         }

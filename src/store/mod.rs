@@ -83,6 +83,7 @@ pub use validate::{model_bundle_summary, robot_summary};
 
 use crate::pipeline::Calibration;
 use files::{check_name, list_dir, read_json};
+pub(crate) use files::{hex, now_unix_s};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex, MutexGuard};

@@ -106,12 +106,7 @@ async fn dashboards_and_alerts_query_metrics_the_server_exposes() {
         .unwrap();
     assert!(summary.scores.iter().any(|s| s.anomaly));
     assert!(!summary.message_errors.is_empty());
-    let text = reqwest::get(format!("http://{}/metrics", server.rest_addr))
-        .await
-        .unwrap()
-        .text()
-        .await
-        .unwrap();
+    let text = super::service::metrics_text(server.rest_addr).await;
     let have = exposed(&text);
 
     for (file, text) in [

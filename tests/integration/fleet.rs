@@ -64,12 +64,7 @@ fn replace_file(path: &std::path::Path, bytes: &[u8]) {
 
 /// The value of an unlabelled metric in the server's `/metrics`.
 async fn metric(server: &RunningServer, name: &str) -> f64 {
-    let text = reqwest::get(format!("http://{}/metrics", server.rest_addr))
-        .await
-        .unwrap()
-        .text()
-        .await
-        .unwrap();
+    let text = super::service::metrics_text(server.rest_addr).await;
     let prefix = format!("{name} ");
     text.lines()
         .find_map(|l| l.strip_prefix(prefix.as_str()))

@@ -33,6 +33,16 @@ variant = "masked"
 pub(crate) const ADMIN: &str = "admin-secret";
 pub(crate) const ROBOT: &str = "robot-secret";
 
+/// The server's `/metrics` text.
+pub(crate) async fn metrics_text(rest_addr: std::net::SocketAddr) -> String {
+    reqwest::get(format!("http://{rest_addr}/metrics"))
+        .await
+        .unwrap()
+        .text()
+        .await
+        .unwrap()
+}
+
 pub(crate) fn fixture() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/sim")
 }
@@ -248,12 +258,7 @@ async fn a_streamed_session_scores_every_frame_as_offline_scoring_does() {
     );
     // The session is gone once its stream closed; the metrics counted its frames.
     assert_eq!(server.shared.hub.session_count(), 0);
-    let metrics = reqwest::get(format!("http://{}/metrics", server.rest_addr))
-        .await
-        .unwrap()
-        .text()
-        .await
-        .unwrap();
+    let metrics = metrics_text(server.rest_addr).await;
     assert!(
         metrics.contains(&format!(
             "vamos_frames_processed_total{{profile=\"sim-arm\"}} {}",
@@ -608,12 +613,8 @@ async fn tokens_limits_bad_messages_and_disconnects() {
     .unwrap_err();
     assert_eq!(err.code(), tonic::Code::InvalidArgument);
     let mut counts = HashMap::new();
-    for line in reqwest::get(format!("http://{}/metrics", server.rest_addr))
+    for line in metrics_text(server.rest_addr)
         .await
-        .unwrap()
-        .text()
-        .await
-        .unwrap()
         .lines()
         .filter(|l| l.starts_with("vamos_message_errors_total"))
     {
@@ -908,12 +909,7 @@ async fn backpressure_drops_oldest_or_rejects_and_says_so() {
             vamos::service::QueuePolicy::Reject => "rejected",
         };
         assert!(detail.contains(reason), "{detail}");
-        let metrics = reqwest::get(format!("http://{}/metrics", server.rest_addr))
-            .await
-            .unwrap()
-            .text()
-            .await
-            .unwrap();
+        let metrics = metrics_text(server.rest_addr).await;
         let label = match policy {
             vamos::service::QueuePolicy::DropOldest => "queue_full",
             vamos::service::QueuePolicy::Reject => "rejected",
