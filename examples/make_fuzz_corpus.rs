@@ -355,6 +355,11 @@ fn model_bundle() -> Result<()> {
         std::io::Read::read_to_end(&mut zip.by_name(member)?, &mut bytes)?;
         c.add(member, Some(selector), &bytes)?;
     }
+    // A head exported by vamos-train: the fcomb shape the native head recognises.
+    let mut zip = zip::ZipArchive::new(std::fs::File::open(dir.join("tiny_trained.vamos"))?)?;
+    let mut bytes = Vec::new();
+    std::io::Read::read_to_end(&mut zip.by_name("head.onnx")?, &mut bytes)?;
+    c.add("fcomb_head.onnx", Some(2), &bytes)?;
     Ok(())
 }
 

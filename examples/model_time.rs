@@ -80,17 +80,49 @@ fn main() -> Result<()> {
         })?
         .into();
     }
-    let mut predictor = Predictor::new(model.clone(), p, 1)?;
-    for f in &frames[..p.a + p.b] {
-        predictor.push(f, None)?;
+    let (head, _) = model.head_backend();
+    out["head_backend"] = head.into();
+    if let Some(native) = model.native_head() {
+        let projected = native.project(&enc.features);
+        let mut row = vec![0.0f32; d.flow_len()];
+        let mut scratch = vamos::model::head::HeadScratch::default();
+        out["native_project_ms"] = best_ms(repeat, || {
+            std::hint::black_box(native.project(&enc.features));
+            Ok(())
+        })?
+        .into();
+        out[format!("native_head_{rows}_ms")] = best_ms(repeat, || {
+            for _ in 0..rows {
+                native.predict_row(&projected, &enc.prior_mu, &mut row, &mut scratch);
+            }
+            Ok(())
+        })?
+        .into();
     }
     let t = p.a + p.b;
     let current = &frames[t];
-    out["frame_cached_ms"] = best_ms(repeat, || {
-        predictor.push(current, None)?;
-        Ok(())
-    })?
-    .into();
+    // The cached predictor with the configured head, and with ONNX Runtime's head.
+    let onnx_head = Arc::new(FlowModel::load(
+        &path,
+        &LoadOptions {
+            head: vamos::model::HeadBackend::Onnx,
+            ..options
+        },
+    )?);
+    for (key, m) in [
+        ("frame_cached_ms", &model),
+        ("frame_cached_onnx_head_ms", &onnx_head),
+    ] {
+        let mut predictor = Predictor::new(m.clone(), p, 1)?;
+        for f in &frames[..p.a + p.b] {
+            predictor.push(f, None)?;
+        }
+        out[key] = best_ms(repeat, || {
+            predictor.push(current, None)?;
+            Ok(())
+        })?
+        .into();
+    }
     let past: Vec<(usize, &[f32])> = (p.a..=p.a + p.b)
         .map(|n| (n, frames[t - n].as_slice()))
         .collect();

@@ -242,8 +242,8 @@ pub fn mesh(data: &[u8]) {
 }
 
 /// A model bundle (`.vamos` zip) as uploaded to `POST /v1/models/{name}`, its
-/// `manifest.json` alone, or an ONNX member's header (picked by the first byte). Every
-/// check before ONNX Runtime sees the graph.
+/// `manifest.json` alone, or an ONNX member's header and graph as the native head reads
+/// them (picked by the first byte). Every check before ONNX Runtime sees the graph.
 pub fn model_bundle(data: &[u8]) {
     harness();
     let Some((&kind, bytes)) = data.split_first() else {
@@ -261,6 +261,10 @@ pub fn model_bundle(data: &[u8]) {
         }
         _ => {
             let _ = crate::model::onnx_proto::read_header(bytes);
+            // The native head's reading of head.onnx (the paper's C 32 and L 6).
+            if let Ok(graph) = crate::model::onnx_proto::read_graph(bytes) {
+                let _ = crate::model::head::NativeHead::from_onnx(&graph, 32, 6, 64);
+            }
         }
     }
 }

@@ -37,6 +37,8 @@ pub fn inspect(path: &Path, config: &ModelConfig) -> Result<bool> {
         Ok(model) => {
             out["valid"] = json!(true);
             out["dims"] = json!(model.dims());
+            let (head, why) = model.head_backend();
+            out["head"] = json!({ "backend": head, "note": why });
             out["load_ms"] = json!(start.elapsed().as_secs_f64() * 1e3);
             true
         }

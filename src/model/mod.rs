@@ -14,6 +14,7 @@
 //! (never tokio, tonic, prost, axum or http).
 
 pub mod bundle;
+pub mod head;
 pub mod network;
 pub(crate) mod onnx_proto;
 pub mod predictor;
@@ -179,6 +180,18 @@ pub enum ModelError {
     },
 }
 
+/// Which implementation runs the model's head (fcomb).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum HeadBackend {
+    /// Native code (`model::head`) when `head.onnx` is a recognised fcomb that agrees
+    /// with ONNX Runtime on random inputs at load time; ONNX Runtime otherwise.
+    #[default]
+    Auto,
+    /// Always ONNX Runtime.
+    Onnx,
+}
+
 /// How each predictor's random generator is seeded.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -213,6 +226,9 @@ pub struct ModelConfig {
     pub ort_provision: bool,
     /// Look for the library in the Python `onnxruntime` package (`python3`'s site-packages).
     pub ort_use_python_package: bool,
+    /// Which implementation runs the head: `auto` (native fcomb when recognised and
+    /// checked against ONNX Runtime at load) or `onnx`.
+    pub head: HeadBackend,
 }
 
 impl Default for ModelConfig {
@@ -225,6 +241,7 @@ impl Default for ModelConfig {
             seed_policy: SeedPolicy::PerSession,
             ort_provision: true,
             ort_use_python_package: true,
+            head: HeadBackend::Auto,
         }
     }
 }
@@ -260,6 +277,7 @@ impl ModelConfig {
             intra_threads: self.threads,
             replicas: self.replicas,
             runtime: self.runtime_options(),
+            head: self.head,
         }
     }
 }

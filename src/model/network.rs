@@ -6,7 +6,9 @@
 //! sessions that call the same graph at the same moment run on different replicas, and
 //! only queue when every replica is busy (each call uses the configured intra-op threads).
 
+use super::HeadBackend;
 use super::bundle::{Bundle, ENCODER, HEAD, Manifest};
+use super::head::{HeadScratch, NativeHead};
 use super::onnx_proto;
 use super::runtime::{self, RuntimeOptions};
 use super::{ModelError, rng::NormalRng};
@@ -30,6 +32,8 @@ pub struct LoadOptions {
     pub replicas: usize,
     /// Where the ONNX Runtime library may come from.
     pub runtime: RuntimeOptions,
+    /// Which implementation runs the head.
+    pub head: HeadBackend,
 }
 
 impl Default for LoadOptions {
@@ -38,6 +42,7 @@ impl Default for LoadOptions {
             intra_threads: 1,
             replicas: 0,
             runtime: RuntimeOptions::default(),
+            head: HeadBackend::Auto,
         }
     }
 }
@@ -120,6 +125,11 @@ pub struct FlowModel {
     dims: ModelDims,
     encoder: SessionPool,
     head: SessionPool,
+    /// The head as native code, when `head.onnx` was recognised and agrees with ONNX
+    /// Runtime (`HeadBackend::Auto`).
+    native: Option<NativeHead>,
+    /// Why the native head is not used, when it is not.
+    native_note: Option<String>,
 }
 
 impl std::fmt::Debug for FlowModel {
@@ -128,6 +138,7 @@ impl std::fmt::Debug for FlowModel {
             .field("name", &self.manifest.name)
             .field("sha256", &self.sha256)
             .field("dims", &self.dims)
+            .field("native_head", &self.native.is_some())
             .finish_non_exhaustive()
     }
 }
@@ -356,9 +367,88 @@ impl FlowModel {
                 sessions: heads,
                 next: AtomicUsize::new(0),
             },
+            native: None,
+            native_note: None,
         };
+        let mut model = model;
         model.smoke_test()?;
+        match options.head {
+            HeadBackend::Onnx => model.native_note = Some("head = \"onnx\" in the settings".into()),
+            HeadBackend::Auto => match model.native_candidate(&bundle.head) {
+                Ok(head) => model.native = Some(head),
+                Err(why) => {
+                    tracing::info!(
+                        model = %model.manifest.name,
+                        "the head runs in ONNX Runtime: {why}"
+                    );
+                    model.native_note = Some(why);
+                }
+            },
+        }
         Ok(model)
+    }
+
+    /// Reads fcomb out of `head.onnx` and checks it against ONNX Runtime's head on four
+    /// random rows: every output within 1e-4 x (1 + the largest |output|).
+    fn native_candidate(&self, head_onnx: &[u8]) -> Result<NativeHead, String> {
+        let graph = onnx_proto::read_graph(head_onnx)?;
+        let d = self.dims;
+        let head = NativeHead::from_onnx(&graph, d.channels, d.latent, d.size)
+            .map_err(|e| format!("head.onnx is not a recognised fcomb ({e})"))?;
+        let mut rng = NormalRng::new(0xfc0b);
+        let rows = 4;
+        // U-Net features come out of a ReLU: non-negative, of order one.
+        let features: Vec<f32> = (0..rows * d.features_len())
+            .map(|_| rng.normal().abs() as f32)
+            .collect();
+        let z: Vec<f32> = (0..rows * d.latent)
+            .map(|_| (rng.normal() * 1.5) as f32)
+            .collect();
+        let want = self
+            .predict(&features, &z, rows)
+            .map_err(|e| format!("checking the native head: {e}"))?;
+        let (fe, fl) = (d.features_len(), d.flow_len());
+        let mut got = vec![0.0f32; fl];
+        let mut scratch = HeadScratch::default();
+        for r in 0..rows {
+            let projected = head.project(&features[r * fe..(r + 1) * fe]);
+            head.predict_row(
+                &projected,
+                &z[r * d.latent..(r + 1) * d.latent],
+                &mut got,
+                &mut scratch,
+            );
+            let w = &want[r * fl..(r + 1) * fl];
+            let scale = 1.0 + w.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+            let worst = got
+                .iter()
+                .zip(w)
+                .map(|(a, b)| (a - b).abs())
+                .fold(
+                    0.0f32,
+                    |m, v| if v.is_nan() { f32::INFINITY } else { m.max(v) },
+                );
+            if worst > 1e-4 * scale {
+                return Err(format!(
+                    "the native head differs from ONNX Runtime's by {worst:e} (row {r})"
+                ));
+            }
+        }
+        Ok(head)
+    }
+
+    /// The native head, when it runs the head instead of ONNX Runtime.
+    pub fn native_head(&self) -> Option<&NativeHead> {
+        self.native.as_ref()
+    }
+
+    /// Which implementation runs the head: `"native"` or `"onnxruntime"`, and why not
+    /// native when it is not.
+    pub fn head_backend(&self) -> (&'static str, Option<&str>) {
+        match &self.native {
+            Some(_) => ("native", None),
+            None => ("onnxruntime", self.native_note.as_deref()),
+        }
     }
 
     /// Sessions per graph (concurrent inference calls that do not wait for each other).

@@ -42,9 +42,9 @@ fn varint(buf: &[u8], pos: &mut usize) -> Result<u64, String> {
 
 /// Walks the fields of one message: `on_bytes(field, payload)` for length-delimited
 /// fields, `on_varint(field, value)` for varints; fixed-width fields are skipped.
-fn walk(
-    buf: &[u8],
-    mut on_bytes: impl FnMut(u64, &[u8]) -> Result<(), String>,
+fn walk<'a>(
+    buf: &'a [u8],
+    mut on_bytes: impl FnMut(u64, &'a [u8]) -> Result<(), String>,
     mut on_varint: impl FnMut(u64, u64),
 ) -> Result<(), String> {
     let mut pos = 0;
@@ -132,6 +132,224 @@ pub(crate) fn read_header(bytes: &[u8]) -> Result<OnnxHeader, String> {
     header.opsets = opsets;
     header.has_graph = has_graph;
     Ok(header)
+}
+
+/// One node of a graph (`NodeProto`): its operator, tensor names and integer attributes.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub(crate) struct OnnxNode {
+    /// `op_type` (field 4).
+    pub op_type: String,
+    /// `domain` (field 7); empty for the default domain.
+    pub domain: String,
+    /// Input tensor names (field 1), in order; an empty name is an omitted optional input.
+    pub inputs: Vec<String>,
+    /// Output tensor names (field 2).
+    pub outputs: Vec<String>,
+    /// Integer attributes (`i`, field 3, or `ints`, field 8) by name; float, string and
+    /// tensor attributes are listed with no values.
+    pub int_attributes: Vec<(String, Vec<i64>)>,
+}
+
+impl OnnxNode {
+    /// The values of the integer attribute `name`, when present.
+    pub fn ints(&self, name: &str) -> Option<&[i64]> {
+        self.int_attributes
+            .iter()
+            .find(|(n, _)| n == name)
+            .map(|(_, v)| v.as_slice())
+    }
+}
+
+/// One initializer (`TensorProto`) of a graph.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub(crate) struct OnnxTensor {
+    /// `name` (field 8).
+    pub name: String,
+    /// `dims` (field 1).
+    pub dims: Vec<i64>,
+    /// `data_type` (field 2); 1 is FLOAT.
+    pub data_type: u64,
+    /// The values of a FLOAT tensor stored inside the file (`raw_data` or packed
+    /// `float_data`) whose count matches `dims`; `None` otherwise (other types, external
+    /// data, or a count that does not match).
+    pub floats: Option<Vec<f32>>,
+}
+
+/// The parts of a `GraphProto` a native re-implementation of a small graph needs.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub(crate) struct OnnxGraph {
+    /// Nodes in file order (topological in a valid model).
+    pub nodes: Vec<OnnxNode>,
+    /// Initializers.
+    pub initializers: Vec<OnnxTensor>,
+    /// Names of the graph inputs (field 11).
+    pub inputs: Vec<String>,
+    /// Names of the graph outputs (field 12).
+    pub outputs: Vec<String>,
+}
+
+impl OnnxGraph {
+    /// The node that produces tensor `name`.
+    pub fn producer(&self, name: &str) -> Option<&OnnxNode> {
+        self.nodes
+            .iter()
+            .find(|n| n.outputs.iter().any(|o| o == name))
+    }
+
+    /// The initializer called `name`.
+    pub fn initializer(&self, name: &str) -> Option<&OnnxTensor> {
+        self.initializers.iter().find(|t| t.name == name)
+    }
+}
+
+fn utf8(p: &[u8]) -> String {
+    String::from_utf8_lossy(p).into_owned()
+}
+
+/// Packed varints (a repeated integer field written as one length-delimited payload).
+fn packed_varints(payload: &[u8], out: &mut Vec<i64>) -> Result<(), String> {
+    let mut pos = 0;
+    while pos < payload.len() {
+        // int64 values travel as two's complement varints.
+        out.push(varint(payload, &mut pos)? as i64);
+    }
+    Ok(())
+}
+
+fn read_node(buf: &[u8]) -> Result<OnnxNode, String> {
+    let mut node = OnnxNode::default();
+    walk(
+        buf,
+        |field, p| {
+            match field {
+                1 => node.inputs.push(utf8(p)),
+                2 => node.outputs.push(utf8(p)),
+                4 => node.op_type = utf8(p),
+                7 => node.domain = utf8(p),
+                5 => {
+                    let mut name = String::new();
+                    // `ints` may come packed (one payload) or as single varints, as `i`.
+                    let (mut packed, mut single) = (Vec::new(), Vec::new());
+                    walk(
+                        p,
+                        |f, q| {
+                            match f {
+                                1 => name = utf8(q),
+                                8 => packed_varints(q, &mut packed)?,
+                                _ => {}
+                            }
+                            Ok(())
+                        },
+                        |f, v| {
+                            if f == 3 || f == 8 {
+                                single.push(v as i64);
+                            }
+                        },
+                    )?;
+                    packed.extend(single);
+                    node.int_attributes.push((name, packed));
+                }
+                _ => {}
+            }
+            Ok(())
+        },
+        |_, _| {},
+    )?;
+    Ok(node)
+}
+
+fn read_tensor(buf: &[u8]) -> Result<OnnxTensor, String> {
+    let mut t = OnnxTensor::default();
+    let mut raw: Option<&[u8]> = None;
+    let mut packed_floats: Option<&[u8]> = None;
+    let mut external = false;
+    let (mut dims_single, mut data_type) = (Vec::new(), 0);
+    walk(
+        buf,
+        |field, p| {
+            match field {
+                1 => packed_varints(p, &mut t.dims)?,
+                4 => packed_floats = Some(p),
+                8 => t.name = utf8(p),
+                9 => raw = Some(p),
+                _ => {}
+            }
+            Ok(())
+        },
+        |field, v| match field {
+            1 => dims_single.push(v as i64),
+            2 => data_type = v,
+            14 => external = v == 1,
+            _ => {}
+        },
+    )?;
+    t.dims.extend(dims_single);
+    t.data_type = data_type;
+    let count = t.dims.iter().try_fold(1usize, |acc, &d| {
+        usize::try_from(d).ok().and_then(|d| acc.checked_mul(d))
+    });
+    if t.data_type == 1
+        && !external
+        && let (Some(count), Some(bytes)) = (count, raw.or(packed_floats))
+        && count.checked_mul(4) == Some(bytes.len())
+    {
+        t.floats = Some(
+            bytes
+                .chunks_exact(4)
+                .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+                .collect(),
+        );
+    }
+    Ok(t)
+}
+
+/// Reads the graph of a serialized `ModelProto`: nodes, initializers, input and output
+/// names. Subgraphs inside attributes are not read.
+pub(crate) fn read_graph(bytes: &[u8]) -> Result<OnnxGraph, String> {
+    let mut graph_bytes: Option<&[u8]> = None;
+    walk(
+        bytes,
+        |field, p| {
+            if field == 7 {
+                graph_bytes = Some(p);
+            }
+            Ok(())
+        },
+        |_, _| {},
+    )?;
+    let buf = graph_bytes.ok_or_else(|| "no graph in the model".to_string())?;
+    let mut graph = OnnxGraph::default();
+    walk(
+        buf,
+        |field, p| {
+            match field {
+                1 => graph.nodes.push(read_node(p)?),
+                5 => graph.initializers.push(read_tensor(p)?),
+                11 | 12 => {
+                    let mut name = String::new();
+                    walk(
+                        p,
+                        |f, q| {
+                            if f == 1 {
+                                name = utf8(q);
+                            }
+                            Ok(())
+                        },
+                        |_, _| {},
+                    )?;
+                    if field == 11 {
+                        graph.inputs.push(name);
+                    } else {
+                        graph.outputs.push(name);
+                    }
+                }
+                _ => {}
+            }
+            Ok(())
+        },
+        |_, _| {},
+    )?;
+    Ok(graph)
 }
 
 #[cfg(test)]

@@ -12,6 +12,7 @@
 //! n ascending, then sample, then latent index. Frames with no valid pixel and warming-up
 //! frames draw none.
 
+use super::head::{HeadScratch, NativeHead, RowScore};
 use super::network::{FlowModel, ModelDims};
 use super::rng::NormalRng;
 use super::{ModelError, bundle::Manifest};
@@ -146,7 +147,10 @@ pub enum Prediction {
 
 #[derive(Clone, Debug)]
 struct Cached {
-    features: Vec<f32>,
+    /// What the head needs of the frame: its features `[C, S, S]` for ONNX Runtime's head,
+    /// or their projection through the first fcomb layer `[H1, S, S]` for the native head
+    /// ([`NativeHead::project`]).
+    state: Vec<f32>,
     mu: Vec<f32>,
     log_sigma: Vec<f32>,
 }
@@ -163,6 +167,10 @@ pub struct Predictor {
     feature_batch: Vec<f32>,
     z_batch: Vec<f32>,
     predictions: Vec<f32>,
+    /// Native head buffers: the row being computed, the best row so far, kernel scratch.
+    row: Vec<f32>,
+    best: Vec<f32>,
+    scratch: HeadScratch,
 }
 
 /// Checks the input flow and mask; returns the number of valid pixels.
@@ -201,6 +209,39 @@ fn draw(rng: &mut NormalRng, mu: &[f32], log_sigma: &[f32], samples: usize, z_ou
     }
 }
 
+/// Mean squared error of one prediction `[2, S, S]` against `target` over the valid pixels
+/// (both channels), accumulated in f64.
+fn row_mse(
+    dims: ModelDims,
+    p: &[f32],
+    target: &[f32],
+    mask: Option<&[bool]>,
+    valid_px: usize,
+) -> f64 {
+    let px = dims.size * dims.size;
+    let mut sum = 0.0f64;
+    for c in 0..2 {
+        let (pc, tc) = (&p[c * px..(c + 1) * px], &target[c * px..(c + 1) * px]);
+        match mask {
+            None => {
+                for (a, b) in pc.iter().zip(tc) {
+                    let d = f64::from(*a) - f64::from(*b);
+                    sum += d * d;
+                }
+            }
+            Some(m) => {
+                for ((a, b), ok) in pc.iter().zip(tc).zip(m) {
+                    if *ok {
+                        let d = f64::from(*a) - f64::from(*b);
+                        sum += d * d;
+                    }
+                }
+            }
+        }
+    }
+    sum / (2 * valid_px) as f64
+}
+
 /// The best row of `predictions` (`rows` flows) against `target`: (row, mse).
 fn best_row(
     dims: ModelDims,
@@ -210,32 +251,11 @@ fn best_row(
     mask: Option<&[bool]>,
     valid_px: usize,
 ) -> (usize, f64) {
-    let px = dims.size * dims.size;
     let flow_len = dims.flow_len();
     let mut best = (0, f64::INFINITY);
     for r in 0..rows {
         let p = &predictions[r * flow_len..(r + 1) * flow_len];
-        let mut sum = 0.0f64;
-        for c in 0..2 {
-            let (pc, tc) = (&p[c * px..(c + 1) * px], &target[c * px..(c + 1) * px]);
-            match mask {
-                None => {
-                    for (a, b) in pc.iter().zip(tc) {
-                        let d = f64::from(*a) - f64::from(*b);
-                        sum += d * d;
-                    }
-                }
-                Some(m) => {
-                    for ((a, b), ok) in pc.iter().zip(tc).zip(m) {
-                        if *ok {
-                            let d = f64::from(*a) - f64::from(*b);
-                            sum += d * d;
-                        }
-                    }
-                }
-            }
-        }
-        let mse = sum / (2 * valid_px) as f64;
+        let mse = row_mse(dims, p, target, mask, valid_px);
         // A NaN prediction never wins; ties keep the first row.
         if mse < best.1 {
             best = (r, mse);
@@ -280,6 +300,9 @@ impl Predictor {
             feature_batch: Vec::new(),
             z_batch: Vec::new(),
             predictions: Vec::new(),
+            row: Vec::new(),
+            best: Vec::new(),
+            scratch: HeadScratch::default(),
         })
     }
 
@@ -311,27 +334,122 @@ impl Predictor {
     /// network call (the frame is then not counted).
     pub fn push(&mut self, input: &[f32], mask: Option<&[bool]>) -> Result<Prediction, ModelError> {
         let prepared = self.prepare(input, mask)?;
+        let model = self.model.clone();
+        if let Some(head) = model.native_head() {
+            let best = self.native_best(head, &prepared, input, mask);
+            let enc = model.encode(input, 1)?;
+            let best_pred = std::mem::take(&mut self.best);
+            let out = self.finish(
+                prepared,
+                input,
+                mask,
+                best.map(|(row, e_o)| (row, e_o, best_pred.as_slice())),
+                enc.features,
+                enc.prior_mu,
+                enc.prior_log_sigma,
+            );
+            self.best = best_pred;
+            return Ok(out);
+        }
         if prepared.rows > 0 {
-            self.model.predict_into(
+            model.predict_into(
                 &self.feature_batch,
                 &self.z_batch,
                 prepared.rows,
                 &mut self.predictions,
             )?;
         }
-        let enc = self.model.encode(input, 1)?;
+        let enc = model.encode(input, 1)?;
         let predictions = std::mem::take(&mut self.predictions);
+        let best = self.best_of(&prepared, &predictions, input, mask);
         let out = self.finish(
             prepared,
             input,
             mask,
-            &predictions,
+            best,
             enc.features,
             enc.prior_mu,
             enc.prior_log_sigma,
         );
         self.predictions = predictions;
         Ok(out)
+    }
+
+    /// The best of ONNX Runtime's head `predictions` for a prepared frame:
+    /// (row, mse, the row's prediction).
+    fn best_of<'a>(
+        &self,
+        prepared: &Prepared,
+        predictions: &'a [f32],
+        input: &[f32],
+        mask: Option<&[bool]>,
+    ) -> Option<(usize, f64, &'a [f32])> {
+        if prepared.rows == 0 || prepared.valid_px == 0 {
+            return None;
+        }
+        let dims = self.model.dims();
+        let (row, e_o) = best_row(
+            dims,
+            predictions,
+            prepared.rows,
+            input,
+            mask,
+            prepared.valid_px,
+        );
+        let fl = dims.flow_len();
+        Some((row, e_o, &predictions[row * fl..(row + 1) * fl]))
+    }
+
+    /// Runs the native head on every row of a prepared frame, keeping the best prediction
+    /// in `self.best`: (row, mse), or `None` when there are no rows.
+    fn native_best(
+        &mut self,
+        head: &NativeHead,
+        prepared: &Prepared,
+        input: &[f32],
+        mask: Option<&[bool]>,
+    ) -> Option<(usize, f64)> {
+        if prepared.rows == 0 || prepared.valid_px == 0 {
+            return None;
+        }
+        let dims = self.model.dims();
+        let (fl, l, m) = (dims.flow_len(), dims.latent, self.params.samples);
+        self.row.resize(fl, 0.0);
+        self.best.resize(fl, 0.0);
+        // Sums of squared errors; a row stops as soon as it cannot beat the best so far.
+        let mut best: Option<(usize, f64)> = None;
+        for (k, &n) in prepared.offsets.iter().enumerate() {
+            let state = &self.ring[self.ring.len() - n].state;
+            for s in 0..m {
+                let r = k * m + s;
+                let z = &self.z_batch[r * l..(r + 1) * l];
+                let bound = best.map_or(f64::INFINITY, |b| b.1);
+                let sse = head.predict_row_sse(
+                    state,
+                    z,
+                    &mut self.row,
+                    &mut self.scratch,
+                    RowScore {
+                        target: input,
+                        mask,
+                        bound,
+                    },
+                );
+                // As `best_row`: a NaN prediction never wins; ties keep the first row.
+                if let Some(sse) = sse.filter(|v| *v < bound) {
+                    best = Some((r, sse));
+                    std::mem::swap(&mut self.row, &mut self.best);
+                }
+            }
+        }
+        let best = best.map(|(r, sse)| (r, sse / (2 * prepared.valid_px) as f64));
+        if best.is_none() {
+            // Every row was NaN or infinite: row 0 with an infinite error, as `best_row`.
+            let state = &self.ring[self.ring.len() - prepared.offsets[0]].state;
+            head.predict_row(state, &self.z_batch[..l], &mut self.best, &mut self.scratch);
+            return Some((0, f64::INFINITY));
+        }
+        best
     }
 
     /// Validates the input and assembles this frame's head rows in `feature_batch` and
@@ -349,10 +467,13 @@ impl Predictor {
             offsets = (p.a..=p.a + p.b)
                 .filter(|&n| n <= self.ring.len())
                 .collect();
+            let native = self.model.native_head().is_some();
             for &n in &offsets {
                 let c = &self.ring[self.ring.len() - n];
-                for _ in 0..p.samples {
-                    self.feature_batch.extend_from_slice(&c.features);
+                if !native {
+                    for _ in 0..p.samples {
+                        self.feature_batch.extend_from_slice(&c.state);
+                    }
                 }
                 draw(&mut rng, &c.mu, &c.log_sigma, p.samples, &mut self.z_batch);
             }
@@ -365,15 +486,15 @@ impl Predictor {
         })
     }
 
-    /// Scores the head's `predictions` for the prepared frame and commits the frame's
-    /// encoder output and the generator state. Cannot fail.
+    /// Turns the best head row of the prepared frame (row, mse, its prediction) into the
+    /// outcome and commits the frame's encoder output and the generator state. Cannot fail.
     #[allow(clippy::too_many_arguments)]
     fn finish(
         &mut self,
         prepared: Prepared,
         input: &[f32],
         mask: Option<&[bool]>,
-        predictions: &[f32],
+        best: Option<(usize, f64, &[f32])>,
         features: Vec<f32>,
         mu: Vec<f32>,
         log_sigma: Vec<f32>,
@@ -386,30 +507,27 @@ impl Predictor {
                 frames_seen: t,
                 frames_needed: p.a,
             }
-        } else if prepared.valid_px == 0 || prepared.rows == 0 {
-            Prediction::NoValidPixels { frame: t }
         } else {
-            let (row, e_o) = best_row(
-                dims,
-                predictions,
-                prepared.rows,
-                input,
-                mask,
-                prepared.valid_px,
-            );
-            let flow_len = dims.flow_len();
-            let best = &predictions[row * flow_len..(row + 1) * flow_len];
-            Prediction::Scored(FlowScore {
-                frame: t,
-                e_o,
-                n: prepared.offsets[row / p.samples],
-                sample: row % p.samples,
-                error_map: error_map(dims, best, input, mask),
-                valid_px: prepared.valid_px,
-            })
+            match best {
+                Some((row, e_o, pred)) if prepared.valid_px > 0 && prepared.rows > 0 => {
+                    Prediction::Scored(FlowScore {
+                        frame: t,
+                        e_o,
+                        n: prepared.offsets[row / p.samples],
+                        sample: row % p.samples,
+                        error_map: error_map(dims, pred, input, mask),
+                        valid_px: prepared.valid_px,
+                    })
+                }
+                _ => Prediction::NoValidPixels { frame: t },
+            }
+        };
+        let state = match self.model.native_head() {
+            Some(head) => head.project(&features),
+            None => features,
         };
         self.ring.push_back(Cached {
-            features,
+            state,
             mu,
             log_sigma,
         });
@@ -476,7 +594,7 @@ pub fn push_batch(items: &mut [BatchItem<'_>]) -> Vec<Result<Prediction, ModelEr
     }
     let run = || -> Result<(Vec<f32>, super::network::EncoderOutput), ModelError> {
         let mut predictions = Vec::new();
-        if rows > 0 {
+        if rows > 0 && model.native_head().is_none() {
             model.predict_into(&features, &z, rows, &mut predictions)?;
         }
         let enc = model.encode(&inputs, prepared.len())?;
@@ -499,18 +617,33 @@ pub fn push_batch(items: &mut [BatchItem<'_>]) -> Vec<Result<Prediction, ModelEr
             let mut row0 = 0;
             for (j, (k, p)) in prepared.into_iter().enumerate() {
                 let item = &mut items[k];
+                let predictor = &mut *item.predictor;
                 let rows_k = p.rows;
-                let pred = &predictions[row0 * fl..(row0 + rows_k) * fl];
-                row0 += rows_k;
-                let out = item.predictor.finish(
-                    p,
-                    item.input,
-                    item.mask,
-                    pred,
+                let (features, mu, log_sigma) = (
                     enc.features[j * fe..(j + 1) * fe].to_vec(),
                     enc.prior_mu[j * l..(j + 1) * l].to_vec(),
                     enc.prior_log_sigma[j * l..(j + 1) * l].to_vec(),
                 );
+                let out = if let Some(head) = model.native_head() {
+                    let best = predictor.native_best(head, &p, item.input, item.mask);
+                    let best_pred = std::mem::take(&mut predictor.best);
+                    let out = predictor.finish(
+                        p,
+                        item.input,
+                        item.mask,
+                        best.map(|(row, e_o)| (row, e_o, best_pred.as_slice())),
+                        features,
+                        mu,
+                        log_sigma,
+                    );
+                    predictor.best = best_pred;
+                    out
+                } else {
+                    let pred = &predictions[row0 * fl..(row0 + rows_k) * fl];
+                    row0 += rows_k;
+                    let best = predictor.best_of(&p, pred, item.input, item.mask);
+                    predictor.finish(p, item.input, item.mask, best, features, mu, log_sigma)
+                };
                 results[k] = Some(Ok(out));
             }
         }

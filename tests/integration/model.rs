@@ -37,6 +37,10 @@ fn valid_model() -> Arc<FlowModel> {
     Arc::new(FlowModel::load(&fixture("valid.vamos"), &LoadOptions::default()).unwrap())
 }
 
+fn trained_model() -> Arc<FlowModel> {
+    Arc::new(FlowModel::load(&fixture("tiny_trained.vamos"), &LoadOptions::default()).unwrap())
+}
+
 fn max_abs_diff(a: &[f32], b: &[f32]) -> f32 {
     assert_eq!(a.len(), b.len());
     a.iter()
@@ -177,6 +181,67 @@ fn cached_predictor_equals_the_naive_loop() {
                 assert_eq!(s.valid_px, m.iter().filter(|v| **v).count());
                 assert!(s.error_map.iter().zip(m).all(|(e, ok)| *ok || *e == 0.0));
             }
+            scored += 1;
+        }
+        assert_eq!(scored, frames.len() - params.a);
+    }
+}
+
+/// The predictor with the native head (`HeadBackend::Auto` on a trained bundle) scores a
+/// stream as the naive loop through ONNX Runtime does: the same best offset and sample,
+/// `e_o` to float rounding (the native kernel sums in another order, with FMA where the
+/// CPU has it; observed relative differences ~1e-7, bound 1e-5), and the same error map
+/// to 1e-5. A bundle whose head is not fcomb-shaped (`valid.vamos`) runs in ONNX Runtime.
+#[test]
+fn native_head_predictor_equals_the_naive_loop() {
+    let onnx_only = valid_model();
+    assert_eq!(onnx_only.head_backend().0, "onnxruntime");
+    assert!(
+        onnx_only
+            .head_backend()
+            .1
+            .is_some_and(|why| why.contains("not a recognised fcomb")),
+        "{:?}",
+        onnx_only.head_backend()
+    );
+    let model = trained_model();
+    assert_eq!(model.head_backend(), ("native", None));
+    let params = PredictorParams {
+        a: 2,
+        b: 2,
+        samples: 4,
+    };
+    let fl = model.dims().flow_len();
+    let frames = test_frames(9, fl);
+    let mask: Vec<bool> = (0..64 * 64).map(|i| i % 64 >= 21).collect();
+    for mask in [None, Some(mask.as_slice())] {
+        let mut pred = Predictor::new(model.clone(), params, 7).unwrap();
+        let mut rng = NormalRng::new(7);
+        let mut scored = 0;
+        for t in 0..frames.len() {
+            let out = pred.push(&frames[t], mask).unwrap();
+            if t < params.a {
+                assert!(matches!(out, Prediction::WarmingUp { .. }));
+                continue;
+            }
+            let past: Vec<(usize, &[f32])> = (params.a..=params.a + params.b)
+                .filter(|&n| n <= t)
+                .map(|n| (n, frames[t - n].as_slice()))
+                .collect();
+            let naive = naive_score(&model, &past, &frames[t], mask, params.samples, &mut rng)
+                .unwrap()
+                .unwrap();
+            let Prediction::Scored(s) = out else {
+                panic!("{out:?}")
+            };
+            assert!(
+                (s.e_o - naive.e_o).abs() <= 1e-5 * naive.e_o,
+                "t {t}: {} vs {}",
+                s.e_o,
+                naive.e_o
+            );
+            assert_eq!((s.n, s.sample), (naive.n, naive.sample), "t {t}");
+            assert!(max_abs_diff(&s.error_map, &naive.error_map) <= 1e-5);
             scored += 1;
         }
         assert_eq!(scored, frames.len() - params.a);
@@ -452,68 +517,75 @@ fn missing_runtime_gives_an_actionable_error() {
 #[test]
 fn batched_sessions_equal_single_sessions() {
     use vamos::model::{BatchItem, push_batch};
-    let model = valid_model();
-    let params = PredictorParams::from_manifest(model.manifest(), 0);
-    let fl = model.dims().flow_len();
-    let frames = test_frames(12, fl);
-    let mask: Vec<bool> = (0..64 * 64).map(|i| i / 64 >= 10).collect();
-    let mut batched: Vec<Predictor> = (0..3)
-        .map(|s| Predictor::new(model.clone(), params, s).unwrap())
-        .collect();
-    let mut single: Vec<Predictor> = (0..3)
-        .map(|s| Predictor::new(model.clone(), params, s).unwrap())
-        .collect();
-    let mut nan = frames[0].clone();
-    nan[5] = f32::NAN;
-    let mut scored = 0;
-    for t in 0..4 {
-        // Session s sees frame (t + 3 s); session 1 uses a mask; session 2 gets a NaN
-        // frame at t = 2 (rejected, not counted).
-        let input = |s: usize| -> &[f32] {
-            if s == 2 && t == 2 {
-                &nan
-            } else {
-                &frames[t + 3 * s]
-            }
+    // ONNX Runtime's head (valid.vamos) and the native head (the trained bundle).
+    for model in [valid_model(), trained_model()] {
+        // Short offsets so that 4 frames score (the trained bundle's own A is 5).
+        let params = PredictorParams {
+            a: 2,
+            b: 2,
+            samples: 3,
         };
-        let masks = [None, Some(mask.as_slice()), None];
-        let expected: Vec<_> = single
-            .iter_mut()
-            .enumerate()
-            .map(|(s, p)| p.push(input(s), masks[s]))
+        let fl = model.dims().flow_len();
+        let frames = test_frames(12, fl);
+        let mask: Vec<bool> = (0..64 * 64).map(|i| i / 64 >= 10).collect();
+        let mut batched: Vec<Predictor> = (0..3)
+            .map(|s| Predictor::new(model.clone(), params, s).unwrap())
             .collect();
-        let mut items: Vec<BatchItem> = batched
-            .iter_mut()
-            .enumerate()
-            .map(|(s, p)| BatchItem {
-                predictor: p,
-                input: input(s),
-                mask: masks[s],
-            })
+        let mut single: Vec<Predictor> = (0..3)
+            .map(|s| Predictor::new(model.clone(), params, s).unwrap())
             .collect();
-        let got = push_batch(&mut items);
-        for (s, (g, e)) in got.into_iter().zip(expected).enumerate() {
-            match (g, e) {
-                (Ok(g), Ok(e)) => {
-                    if let (Prediction::Scored(a), Prediction::Scored(b)) = (&g, &e) {
-                        assert!((a.e_o - b.e_o).abs() <= 1e-6 * b.e_o, "t {t} s {s}");
-                        assert_eq!((a.n, a.sample, a.frame), (b.n, b.sample, b.frame));
-                        scored += 1;
-                    } else {
-                        assert_eq!(g, e, "t {t} s {s}");
+        let mut nan = frames[0].clone();
+        nan[5] = f32::NAN;
+        let mut scored = 0;
+        for t in 0..4 {
+            // Session s sees frame (t + 3 s); session 1 uses a mask; session 2 gets a NaN
+            // frame at t = 2 (rejected, not counted).
+            let input = |s: usize| -> &[f32] {
+                if s == 2 && t == 2 {
+                    &nan
+                } else {
+                    &frames[t + 3 * s]
+                }
+            };
+            let masks = [None, Some(mask.as_slice()), None];
+            let expected: Vec<_> = single
+                .iter_mut()
+                .enumerate()
+                .map(|(s, p)| p.push(input(s), masks[s]))
+                .collect();
+            let mut items: Vec<BatchItem> = batched
+                .iter_mut()
+                .enumerate()
+                .map(|(s, p)| BatchItem {
+                    predictor: p,
+                    input: input(s),
+                    mask: masks[s],
+                })
+                .collect();
+            let got = push_batch(&mut items);
+            for (s, (g, e)) in got.into_iter().zip(expected).enumerate() {
+                match (g, e) {
+                    (Ok(g), Ok(e)) => {
+                        if let (Prediction::Scored(a), Prediction::Scored(b)) = (&g, &e) {
+                            assert!((a.e_o - b.e_o).abs() <= 1e-6 * b.e_o, "t {t} s {s}");
+                            assert_eq!((a.n, a.sample, a.frame), (b.n, b.sample, b.frame));
+                            scored += 1;
+                        } else {
+                            assert_eq!(g, e, "t {t} s {s}");
+                        }
                     }
+                    (Err(ModelError::NonFiniteInput { index: 5, .. }), Err(_)) => {
+                        assert_eq!((s, t), (2, 2));
+                    }
+                    (g, e) => panic!("t {t} s {s}: {g:?} vs {e:?}"),
                 }
-                (Err(ModelError::NonFiniteInput { index: 5, .. }), Err(_)) => {
-                    assert_eq!((s, t), (2, 2));
-                }
-                (g, e) => panic!("t {t} s {s}: {g:?} vs {e:?}"),
+            }
+            for (b, s) in batched.iter().zip(&single) {
+                assert_eq!(b.frames_seen(), s.frames_seen());
             }
         }
-        for (b, s) in batched.iter().zip(&single) {
-            assert_eq!(b.frames_seen(), s.frames_seen());
-        }
+        assert!(scored >= 4, "{scored}");
     }
-    assert!(scored >= 4, "{scored}");
 }
 
 #[test]

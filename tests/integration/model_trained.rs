@@ -71,3 +71,47 @@ fn trained_fixture_matches_python_onnxruntime() {
     assert!(spread > 1e-3, "{spread}");
     assert_eq!(model.manifest().architecture.latent_dim, 6);
 }
+
+/// The native head (`model::head`, fcomb read out of `head.onnx`) on the Python reference
+/// inputs gives Python onnxruntime's head output. The two sum in different orders (and
+/// the native kernel uses FMA where the CPU has it), so they agree to float rounding:
+/// observed max abs diff ~1e-7 on outputs of order 0.1; the bound is 1e-5.
+#[test]
+fn native_head_matches_python_onnxruntime() {
+    use vamos::model::head::HeadScratch;
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/model");
+    let model = FlowModel::load(&dir.join("tiny_trained.vamos"), &LoadOptions::default()).unwrap();
+    assert_eq!(model.head_backend(), ("native", None));
+    let head = model.native_head().unwrap();
+    let r = npz(&dir.join("tiny_trained_reference.npz"));
+    let d = model.dims();
+    let (features, z, want) = (&r["features"].1, &r["z"].1, &r["head_flow"].1);
+    let batch = r["flow"].0[0];
+    let (fe, fl, l) = (d.features_len(), d.flow_len(), d.latent);
+    let mut got = vec![0.0f32; batch * fl];
+    let mut scratch = HeadScratch::default();
+    for b in 0..batch {
+        let projected = head.project(&features[b * fe..(b + 1) * fe]);
+        head.predict_row(
+            &projected,
+            &z[b * l..(b + 1) * l],
+            &mut got[b * fl..(b + 1) * fl],
+            &mut scratch,
+        );
+    }
+    let diff = max_abs_diff(&got, want);
+    eprintln!("native head vs Python onnxruntime: max abs diff {diff:e}");
+    assert!(diff <= 1e-5, "{diff}");
+
+    // With the head forced to ONNX Runtime the model says so.
+    let onnx = FlowModel::load(
+        &dir.join("tiny_trained.vamos"),
+        &LoadOptions {
+            head: vamos::model::HeadBackend::Onnx,
+            ..LoadOptions::default()
+        },
+    )
+    .unwrap();
+    assert!(onnx.native_head().is_none());
+    assert_eq!(onnx.head_backend().0, "onnxruntime");
+}
