@@ -517,13 +517,14 @@ pub(super) struct Target<'a> {
 }
 
 impl Target<'_> {
-    /// Scan-converts one screen-space triangle (`x_px, y_px, 1/z` per vertex).
-    pub(super) fn raster(&mut self, v: [[f32; 3]; 3], id: u32) {
+    /// The edge functions and pixel box of a screen-space triangle; `None` when it covers
+    /// no pixel centre for certain, is degenerate, or is culled.
+    fn setup(&self, v: [[f32; 3]; 3]) -> Option<Setup> {
         // Most triangles of a dense mesh cover no pixel centre: reject them on a
         // conservative float bounding box (padded by the snapping step) before any
         // fixed-point set-up. (`min`/`max` skip NaN, so check the coordinates' sum.)
         if !(v[0][0] + v[1][0] + v[2][0] + v[0][1] + v[1][1] + v[2][1]).is_finite() {
-            return;
+            return None;
         }
         let pad = 1.0 / SUB_SCALE as f32;
         let x_lo = v[0][0].min(v[1][0]).min(v[2][0]) - pad;
@@ -535,7 +536,7 @@ impl Target<'_> {
             && y_lo >= -GUARD_BAND_PX
             && y_hi <= GUARD_BAND_PX)
         {
-            return;
+            return None;
         }
         // Inside the guard band, so the floor-by-truncation helper applies (and avoids a
         // libm call on targets without SSE4.1).
@@ -545,7 +546,7 @@ impl Target<'_> {
             || x_hi < 0.0
             || y_hi < 0.0
         {
-            return;
+            return None;
         }
         // Round to the 1/256 grid, half up, by truncating a positive number.
         let fixed = |c: f32| (f64::from(c) * SUB_SCALE + (OFFSET + 0.5)) as i64 - OFFSET as i64;
@@ -553,12 +554,12 @@ impl Target<'_> {
         let mut y = v.map(|p| fixed(p[1]));
         let area = (x[1] - x[0]) * (y[2] - y[0]) - (y[1] - y[0]) * (x[2] - x[0]);
         if area == 0 {
-            return;
+            return None;
         }
         // With y down, a positive area is clockwise on screen: a counter-clockwise
         // (outward) triangle seen from behind.
         if area > 0 && self.cull_back_faces {
-            return;
+            return None;
         }
         // Edge functions below assume a positive area (the plane fit of 1/z does not
         // depend on the order).
@@ -573,7 +574,7 @@ impl Target<'_> {
         let y_min = ((y[0].min(y[1]).min(y[2]) + one - 1) >> SUB_BITS).max(0);
         let y_max = (y[0].max(y[1]).max(y[2]) >> SUB_BITS).min(h - 1);
         if x_min > x_max || y_min > y_max {
-            return;
+            return None;
         }
         // Edge i is opposite vertex i: E_i(p) = A p.x + B p.y + C, positive inside.
         let mut a = [0i64; 3];
@@ -591,27 +592,69 @@ impl Target<'_> {
             let top_left = dy < 0 || (dy == 0 && dx > 0);
             bias[i] = if top_left { 0 } else { 1 };
         }
-        // 1/z is affine in screen space: fit its plane through the unsnapped vertices
-        // (snapping decides coverage only, so depth stays exact to f32 rounding).
-        let (px, py) = (v.map(|p| f64::from(p[0])), v.map(|p| f64::from(p[1])));
-        let wz = v.map(|p| f64::from(p[2]));
-        let det = (px[1] - px[0]) * (py[2] - py[0]) - (px[2] - px[0]) * (py[1] - py[0]);
-        let (dzdx, dzdy) = if det != 0.0 {
-            (
-                ((wz[1] - wz[0]) * (py[2] - py[0]) - (wz[2] - wz[0]) * (py[1] - py[0])) / det,
-                ((px[1] - px[0]) * (wz[2] - wz[0]) - (px[2] - px[0]) * (wz[1] - wz[0])) / det,
-            )
-        } else {
-            (0.0, 0.0)
+        Some(Setup {
+            a,
+            b,
+            c,
+            bias,
+            x_range: (x_min, x_max),
+            y_range: (y_min, y_max),
+        })
+    }
+
+    /// Scan-converts one screen-space triangle (`x_px, y_px, 1/z` per vertex).
+    pub(super) fn raster(&mut self, v: [[f32; 3]; 3], id: u32) {
+        let Some(setup) = self.setup(v) else {
+            return;
         };
-        let z0 = wz[0] - dzdx * px[0] - dzdy * py[0];
-        let step = a.map(|ai| ai * one);
+        let ((x_min, x_max), (y_min, y_max)) = (setup.x_range, setup.y_range);
+        // Most triangles that get here are sub-pixel: at most 2x2 candidate pixel centres.
+        if x_max - x_min <= 1 && y_max - y_min <= 1 {
+            self.fill_small(&setup, v, id);
+        } else {
+            self.fill_spans(&setup, v, id);
+        }
+    }
+
+    /// Tests each candidate pixel centre directly (no span divisions) and fits the depth
+    /// plane only once one is covered: the same pixels and the same depth arithmetic as
+    /// [`Target::fill_spans`] (tested), cheaper for triangles of a pixel or two.
+    fn fill_small(&mut self, s: &Setup, v: [[f32; 3]; 3], id: u32) {
+        let one = 1i64 << SUB_BITS;
+        let mut plane: Option<(f64, f64, f64)> = None;
+        for py in s.y_range.0..=s.y_range.1 {
+            // (first covered x, its row depth), as the span path's `z_row`.
+            let mut row_start: Option<(i64, f64)> = None;
+            for px in s.x_range.0..=s.x_range.1 {
+                let (fx, fy) = (px * one, py * one);
+                if (0..3).any(|i| s.a[i] * fx + s.b[i] * fy + s.c[i] < s.bias[i]) {
+                    continue;
+                }
+                let (z0, dzdx, dzdy) = *plane.get_or_insert_with(|| depth_plane(v));
+                let (x0, z_row) =
+                    *row_start.get_or_insert((px, z0 + dzdy * py as f64 + dzdx * px as f64));
+                let z = (z_row + dzdx * (px - x0) as f64) as f32;
+                let i = py as usize * self.width + px as usize;
+                if z > self.inv_z[i] {
+                    self.inv_z[i] = z;
+                    self.tri_id[i] = id;
+                }
+            }
+        }
+    }
+
+    /// Fills each row's covered span, found with exact integer arithmetic.
+    fn fill_spans(&mut self, s: &Setup, v: [[f32; 3]; 3], id: u32) {
+        let one = 1i64 << SUB_BITS;
+        let (x_min, x_max) = s.x_range;
+        let (z0, dzdx, dzdy) = depth_plane(v);
+        let step = s.a.map(|ai| ai * one);
         let last = x_max - x_min;
-        for py in y_min..=y_max {
+        for py in s.y_range.0..=s.y_range.1 {
             let fy = py * one;
             let fx = x_min * one;
-            let e = [0usize, 1, 2].map(|i| a[i] * fx + b[i] * fy + c[i]);
-            let Some((lo, hi)) = row_span(e, step, bias, last) else {
+            let e = [0usize, 1, 2].map(|i| s.a[i] * fx + s.b[i] * fy + s.c[i]);
+            let Some((lo, hi)) = row_span(e, step, s.bias, last) else {
                 continue;
             };
             let row = py as usize * self.width + x_min as usize;
@@ -628,6 +671,34 @@ impl Target<'_> {
             }
         }
     }
+}
+
+/// A triangle ready to fill: edge functions `E_i(p) = a p.x + b p.y + c` in 1/256 px
+/// (covered where `E_i >= bias_i` for all three) and the pixel-centre box to scan.
+struct Setup {
+    a: [i64; 3],
+    b: [i64; 3],
+    c: [i64; 3],
+    bias: [i64; 3],
+    x_range: (i64, i64),
+    y_range: (i64, i64),
+}
+
+/// 1/z is affine in screen space: its plane `(z0, d/dx, d/dy)` through the unsnapped
+/// vertices (snapping decides coverage only, so depth stays exact to f32 rounding).
+fn depth_plane(v: [[f32; 3]; 3]) -> (f64, f64, f64) {
+    let (px, py) = (v.map(|p| f64::from(p[0])), v.map(|p| f64::from(p[1])));
+    let wz = v.map(|p| f64::from(p[2]));
+    let det = (px[1] - px[0]) * (py[2] - py[0]) - (px[2] - px[0]) * (py[1] - py[0]);
+    let (dzdx, dzdy) = if det != 0.0 {
+        (
+            ((wz[1] - wz[0]) * (py[2] - py[0]) - (wz[2] - wz[0]) * (py[1] - py[0])) / det,
+            ((px[1] - px[0]) * (wz[2] - wz[0]) - (px[2] - px[0]) * (wz[1] - wz[0])) / det,
+        )
+    } else {
+        (0.0, 0.0)
+    };
+    (wz[0] - dzdx * px[0] - dzdy * py[0], dzdx, dzdy)
 }
 
 /// The pixels `k` in `0..=last` of a row where every edge function
@@ -679,6 +750,56 @@ mod span_tests {
                 Some((lo, hi)) => assert_eq!(brute, (lo..=hi).collect::<Vec<_>>()),
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod fill_tests {
+    use super::tests_support::target;
+
+    /// The direct test of a few pixel centres and the span fill write the same pixels with
+    /// bit-identical depths, for random triangles of up to ~3 px with random depths, over
+    /// a z-buffer already holding other triangles.
+    #[test]
+    fn small_fill_equals_span_fill() {
+        let mut state = 7u64;
+        let mut uniform = || {
+            state = state
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            (state >> 40) as f32 / (1u64 << 24) as f32
+        };
+        let (w, h) = (8, 8);
+        let mut tested = 0;
+        for t in 0..20_000u32 {
+            let (cx, cy, size) = (
+                1.0 + 5.0 * uniform(),
+                1.0 + 5.0 * uniform(),
+                3.0 * uniform(),
+            );
+            let v: [[f32; 3]; 3] = std::array::from_fn(|_| {
+                [
+                    cx + size * (uniform() - 0.5),
+                    cy + size * (uniform() - 0.5),
+                    0.2 + uniform(),
+                ]
+            });
+            let base_z: Vec<f32> = (0..w * h).map(|_| 0.5 * uniform()).collect();
+            let (mut za, mut zb) = (base_z.clone(), base_z);
+            let (mut ia, mut ib) = (vec![u32::MAX; w * h], vec![u32::MAX; w * h]);
+            let Some(setup) = target(&mut za, &mut ia, w, h).setup(v) else {
+                continue;
+            };
+            target(&mut za, &mut ia, w, h).fill_small(&setup, v, t);
+            target(&mut zb, &mut ib, w, h).fill_spans(&setup, v, t);
+            assert_eq!(ia, ib, "triangle {t}: {v:?}");
+            assert!(
+                za.iter().zip(&zb).all(|(a, b)| a.to_bits() == b.to_bits()),
+                "triangle {t}: {v:?}"
+            );
+            tested += 1;
+        }
+        assert!(tested > 5_000, "{tested}");
     }
 }
 
