@@ -1,6 +1,9 @@
 //! Minimum-of-N timings of the flow predictor's work, printed as one JSON object: the
 //! same measurements and statistic as `benches/compare_model.py` (Python onnxruntime), so
-//! the two can be compared on a noisy machine.
+//! the two can be compared on a noisy machine. Beyond Python's keys: which head runs
+//! (`head_backend`), the native head's rows and projection when it runs
+//! (`native_head_<rows>_ms`, `native_project_ms`), and the cached frame with the head
+//! forced to ONNX Runtime (`frame_cached_onnx_head_ms`).
 //!
 //! `cargo run --release --example model_time -- [BUNDLE] [THREADS] [REPEAT]`
 //! (default: the tiny test bundle, 1 thread, 50 repeats; M from VAMOS_BENCH_SAMPLES or the
