@@ -355,7 +355,7 @@ impl FlowModel {
             encoders.push(Mutex::new(session(ENCODER, &bundle.encoder, options)?));
             heads.push(Mutex::new(session(HEAD, &bundle.head, options)?));
         }
-        let model = Self {
+        let mut model = Self {
             manifest: bundle.manifest,
             sha256: bundle.sha256,
             dims,
@@ -370,7 +370,6 @@ impl FlowModel {
             native: None,
             native_note: None,
         };
-        let mut model = model;
         model.smoke_test()?;
         match options.head {
             HeadBackend::Onnx => model.native_note = Some("head = \"onnx\" in the settings".into()),

@@ -303,21 +303,26 @@ fn read_tensor(buf: &[u8]) -> Result<OnnxTensor, String> {
     Ok(t)
 }
 
-/// Reads the graph of a serialized `ModelProto`: nodes, initializers, input and output
-/// names. Subgraphs inside attributes are not read.
-pub(crate) fn read_graph(bytes: &[u8]) -> Result<OnnxGraph, String> {
-    let mut graph_bytes: Option<&[u8]> = None;
+/// The payload of the last length-delimited field `wanted` of a message, if any.
+fn bytes_field(buf: &[u8], wanted: u64) -> Result<Option<&[u8]>, String> {
+    let mut found = None;
     walk(
-        bytes,
+        buf,
         |field, p| {
-            if field == 7 {
-                graph_bytes = Some(p);
+            if field == wanted {
+                found = Some(p);
             }
             Ok(())
         },
         |_, _| {},
     )?;
-    let buf = graph_bytes.ok_or_else(|| "no graph in the model".to_string())?;
+    Ok(found)
+}
+
+/// Reads the graph of a serialized `ModelProto`: nodes, initializers, input and output
+/// names. Subgraphs inside attributes are not read.
+pub(crate) fn read_graph(bytes: &[u8]) -> Result<OnnxGraph, String> {
+    let buf = bytes_field(bytes, 7)?.ok_or_else(|| "no graph in the model".to_string())?;
     let mut graph = OnnxGraph::default();
     walk(
         buf,
@@ -326,17 +331,8 @@ pub(crate) fn read_graph(bytes: &[u8]) -> Result<OnnxGraph, String> {
                 1 => graph.nodes.push(read_node(p)?),
                 5 => graph.initializers.push(read_tensor(p)?),
                 11 | 12 => {
-                    let mut name = String::new();
-                    walk(
-                        p,
-                        |f, q| {
-                            if f == 1 {
-                                name = utf8(q);
-                            }
-                            Ok(())
-                        },
-                        |_, _| {},
-                    )?;
+                    // ValueInfoProto: name is field 1.
+                    let name = bytes_field(p, 1)?.map(utf8).unwrap_or_default();
                     if field == 11 {
                         graph.inputs.push(name);
                     } else {

@@ -336,20 +336,16 @@ impl Predictor {
         let prepared = self.prepare(input, mask)?;
         let model = self.model.clone();
         if let Some(head) = model.native_head() {
-            let best = self.native_best(head, &prepared, input, mask);
             let enc = model.encode(input, 1)?;
-            let best_pred = std::mem::take(&mut self.best);
-            let out = self.finish(
+            return Ok(self.finish_native(
+                head,
                 prepared,
                 input,
                 mask,
-                best.map(|(row, e_o)| (row, e_o, best_pred.as_slice())),
                 enc.features,
                 enc.prior_mu,
                 enc.prior_log_sigma,
-            );
-            self.best = best_pred;
-            return Ok(out);
+            ));
         }
         if prepared.rows > 0 {
             model.predict_into(
@@ -373,6 +369,33 @@ impl Predictor {
         );
         self.predictions = predictions;
         Ok(out)
+    }
+
+    /// Runs the native head on the prepared frame's rows, then [`Predictor::finish`].
+    #[allow(clippy::too_many_arguments)]
+    fn finish_native(
+        &mut self,
+        head: &NativeHead,
+        prepared: Prepared,
+        input: &[f32],
+        mask: Option<&[bool]>,
+        features: Vec<f32>,
+        mu: Vec<f32>,
+        log_sigma: Vec<f32>,
+    ) -> Prediction {
+        let best = self.native_best(head, &prepared, input, mask);
+        let best_pred = std::mem::take(&mut self.best);
+        let out = self.finish(
+            prepared,
+            input,
+            mask,
+            best.map(|(row, e_o)| (row, e_o, best_pred.as_slice())),
+            features,
+            mu,
+            log_sigma,
+        );
+        self.best = best_pred;
+        out
     }
 
     /// The best of ONNX Runtime's head `predictions` for a prepared frame:
@@ -625,19 +648,7 @@ pub fn push_batch(items: &mut [BatchItem<'_>]) -> Vec<Result<Prediction, ModelEr
                     enc.prior_log_sigma[j * l..(j + 1) * l].to_vec(),
                 );
                 let out = if let Some(head) = model.native_head() {
-                    let best = predictor.native_best(head, &p, item.input, item.mask);
-                    let best_pred = std::mem::take(&mut predictor.best);
-                    let out = predictor.finish(
-                        p,
-                        item.input,
-                        item.mask,
-                        best.map(|(row, e_o)| (row, e_o, best_pred.as_slice())),
-                        features,
-                        mu,
-                        log_sigma,
-                    );
-                    predictor.best = best_pred;
-                    out
+                    predictor.finish_native(head, p, item.input, item.mask, features, mu, log_sigma)
                 } else {
                     let pred = &predictions[row0 * fl..(row0 + rows_k) * fl];
                     row0 += rows_k;

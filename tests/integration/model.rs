@@ -135,11 +135,11 @@ fn test_frames(count: usize, fl: usize) -> Vec<Vec<f32>> {
         .collect()
 }
 
-/// The cached, batched predictor and the naive per-offset loop give the same e_o for the
-/// same random stream (the same head rows, batched differently).
-#[test]
-fn cached_predictor_equals_the_naive_loop() {
-    let model = valid_model();
+/// Streams 9 frames through a predictor (A 2, B 2, M 4; without and with a mask that
+/// drops the left third of the image) and checks every scored frame against the naive
+/// loop: best offset and sample equal, `e_o` within `tol` relative, error maps within
+/// `tol`, masked pixels 0 in the error map.
+fn assert_stream_equals_the_naive_loop(model: &Arc<FlowModel>, tol: f64) {
     let params = PredictorParams {
         a: 2,
         b: 2,
@@ -147,7 +147,6 @@ fn cached_predictor_equals_the_naive_loop() {
     };
     let fl = model.dims().flow_len();
     let frames = test_frames(9, fl);
-    // A mask that drops the left third of the image.
     let mask: Vec<bool> = (0..64 * 64).map(|i| i % 64 >= 21).collect();
     for mask in [None, Some(mask.as_slice())] {
         let mut pred = Predictor::new(model.clone(), params, 7).unwrap();
@@ -155,28 +154,28 @@ fn cached_predictor_equals_the_naive_loop() {
         let mut scored = 0;
         for t in 0..frames.len() {
             let out = pred.push(&frames[t], mask).unwrap();
-            let past: Vec<(usize, &[f32])> = (params.a..=params.a + params.b)
-                .filter(|&n| n <= t)
-                .map(|n| (n, frames[t - n].as_slice()))
-                .collect();
             if t < params.a {
                 assert!(matches!(out, Prediction::WarmingUp { .. }));
                 continue;
             }
-            let naive = naive_score(&model, &past, &frames[t], mask, params.samples, &mut rng)
+            let past: Vec<(usize, &[f32])> = (params.a..=params.a + params.b)
+                .filter(|&n| n <= t)
+                .map(|n| (n, frames[t - n].as_slice()))
+                .collect();
+            let naive = naive_score(model, &past, &frames[t], mask, params.samples, &mut rng)
                 .unwrap()
                 .unwrap();
             let Prediction::Scored(s) = out else {
                 panic!("{out:?}")
             };
             assert!(
-                (s.e_o - naive.e_o).abs() <= 1e-6 * naive.e_o,
+                (s.e_o - naive.e_o).abs() <= tol * naive.e_o,
                 "t {t}: {} vs {}",
                 s.e_o,
                 naive.e_o
             );
-            assert_eq!((s.n, s.sample), (naive.n, naive.sample));
-            assert!(max_abs_diff(&s.error_map, &naive.error_map) <= 1e-6);
+            assert_eq!((s.n, s.sample), (naive.n, naive.sample), "t {t}");
+            assert!(f64::from(max_abs_diff(&s.error_map, &naive.error_map)) <= tol);
             if let Some(m) = mask {
                 assert_eq!(s.valid_px, m.iter().filter(|v| **v).count());
                 assert!(s.error_map.iter().zip(m).all(|(e, ok)| *ok || *e == 0.0));
@@ -185,6 +184,13 @@ fn cached_predictor_equals_the_naive_loop() {
         }
         assert_eq!(scored, frames.len() - params.a);
     }
+}
+
+/// The cached, batched predictor and the naive per-offset loop give the same e_o for the
+/// same random stream (the same head rows, batched differently).
+#[test]
+fn cached_predictor_equals_the_naive_loop() {
+    assert_stream_equals_the_naive_loop(&valid_model(), 1e-6);
 }
 
 /// The predictor with the native head (`HeadBackend::Auto` on a trained bundle) scores a
@@ -206,46 +212,7 @@ fn native_head_predictor_equals_the_naive_loop() {
     );
     let model = trained_model();
     assert_eq!(model.head_backend(), ("native", None));
-    let params = PredictorParams {
-        a: 2,
-        b: 2,
-        samples: 4,
-    };
-    let fl = model.dims().flow_len();
-    let frames = test_frames(9, fl);
-    let mask: Vec<bool> = (0..64 * 64).map(|i| i % 64 >= 21).collect();
-    for mask in [None, Some(mask.as_slice())] {
-        let mut pred = Predictor::new(model.clone(), params, 7).unwrap();
-        let mut rng = NormalRng::new(7);
-        let mut scored = 0;
-        for t in 0..frames.len() {
-            let out = pred.push(&frames[t], mask).unwrap();
-            if t < params.a {
-                assert!(matches!(out, Prediction::WarmingUp { .. }));
-                continue;
-            }
-            let past: Vec<(usize, &[f32])> = (params.a..=params.a + params.b)
-                .filter(|&n| n <= t)
-                .map(|n| (n, frames[t - n].as_slice()))
-                .collect();
-            let naive = naive_score(&model, &past, &frames[t], mask, params.samples, &mut rng)
-                .unwrap()
-                .unwrap();
-            let Prediction::Scored(s) = out else {
-                panic!("{out:?}")
-            };
-            assert!(
-                (s.e_o - naive.e_o).abs() <= 1e-5 * naive.e_o,
-                "t {t}: {} vs {}",
-                s.e_o,
-                naive.e_o
-            );
-            assert_eq!((s.n, s.sample), (naive.n, naive.sample), "t {t}");
-            assert!(max_abs_diff(&s.error_map, &naive.error_map) <= 1e-5);
-            scored += 1;
-        }
-        assert_eq!(scored, frames.len() - params.a);
-    }
+    assert_stream_equals_the_naive_loop(&model, 1e-5);
 }
 
 #[test]
