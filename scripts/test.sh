@@ -1,8 +1,11 @@
 #!/usr/bin/env bash
 # All of vamos's tests, with their set-up: the README's test command.
-#  1. Rust: `cargo test --release --locked` (unit, integration, doc tests). The model tests
-#     load ONNX Runtime; when it is not found (ORT_DYLIB_PATH, the vamos cache, Python's
-#     onnxruntime) vamos downloads the PyPI wheel into its cache with pip.
+#  1. Rust: `cargo test --release --locked --features wgpu` (unit, integration, doc tests;
+#     the feature adds the GPU render back-end, whose tests compare it with the CPU one on
+#     any wgpu adapter, Mesa's lavapipe on a GPU-less host, and say SKIPPED when there is
+#     none unless VAMOS_REQUIRE_GPU_TESTS=1). The model tests load ONNX Runtime; when it is
+#     not found (ORT_DYLIB_PATH, the vamos cache, Python's onnxruntime) vamos downloads the
+#     PyPI wheel into its cache with pip.
 #  2. Python (clients/python): a virtual environment in .venv with the package and its
 #     `train` + `sim` + `test` extras (torch from PyPI: ~3 GB on the first run), then pytest,
 #     including the end-to-end test that runs the Rust binary built in step 1.
@@ -10,7 +13,7 @@ set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 
 echo "== Rust tests"
-cargo test --release --locked
+cargo test --release --locked --features wgpu
 
 echo "== Python environment (.venv)"
 PYTHON="${PYTHON:-python3}"

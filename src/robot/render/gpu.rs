@@ -174,11 +174,16 @@ fn adapter_is_usable(adapter: &wgpu::Adapter) -> bool {
 }
 
 /// The kind of device wgpu would render on (`None` when there is no usable adapter):
-/// e.g. `Cpu` for Mesa's lavapipe, `DiscreteGpu` for a graphics card.
+/// e.g. `Cpu` for Mesa's lavapipe, `DiscreteGpu` for a graphics card. Probed once per
+/// process (instance creation costs ~0.3 s), so `render.backend = "auto"` costs nothing
+/// per session after the first.
 pub fn default_adapter_type() -> Option<wgpu::DeviceType> {
-    let instance = instance();
-    let adapter = pollster::block_on(instance.request_adapter(&adapter_options())).ok()?;
-    adapter_is_usable(&adapter).then(|| adapter.get_info().device_type)
+    static PROBED: std::sync::OnceLock<Option<wgpu::DeviceType>> = std::sync::OnceLock::new();
+    *PROBED.get_or_init(|| {
+        let instance = instance();
+        let adapter = pollster::block_on(instance.request_adapter(&adapter_options())).ok()?;
+        adapter_is_usable(&adapter).then(|| adapter.get_info().device_type)
+    })
 }
 
 impl WgpuRenderer {

@@ -16,10 +16,11 @@
 //! worker, and a frame at 320x240 is far too small to amortise fork/join. With the cargo
 //! feature `wgpu`, `gpu::WgpuRenderer` draws the same outputs in one headless wgpu render
 //! pass (see the `gpu` module); without it `backend = "wgpu"` is a
-//! [`RenderError::BackendUnavailable`]. `backend = "auto"` picks the wgpu back-end only when
-//! the feature is built and wgpu's adapter is a hardware GPU (discrete or integrated): a
-//! software adapter such as Mesa's lavapipe is slower than the CPU rasteriser (see
-//! `benches/README.md`); there is no timing probe.
+//! [`RenderError::BackendUnavailable`]. `backend = "auto"` considers the wgpu back-end only
+//! when the feature is built and wgpu's adapter is a hardware GPU (discrete or integrated),
+//! and then times both on the robot's first frames and keeps the faster
+//! ([`auto::AutoRenderer`]); a software adapter such as Mesa's lavapipe is slower than the
+//! CPU rasteriser (see `benches/README.md`), so there it is the CPU rasteriser.
 //!
 //! # Conventions of [`RenderOutput`]
 //! - **Pixel grid**: pixel `(x, y)` is the pixel whose centre is at `(x, y)` in the
@@ -69,6 +70,8 @@
 //! This module imports only [`crate::vision`] (images, flow fields, TV-L1) and the robot
 //! module's shared types.
 
+#[cfg(feature = "wgpu")]
+pub mod auto;
 pub mod cpu;
 #[cfg(feature = "wgpu")]
 pub mod gpu;
@@ -183,8 +186,10 @@ pub enum RenderError {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum RenderBackend {
-    /// The wgpu back-end when the `wgpu` feature is built and a hardware GPU adapter
-    /// exists, otherwise the CPU rasteriser.
+    /// With the `wgpu` feature and a hardware GPU adapter: both back-ends, the first
+    /// frames timed on each, then the faster ([`auto::AutoRenderer`]). Otherwise (no
+    /// feature, no adapter, or a software one such as lavapipe, measured 4-15x slower
+    /// than the CPU rasteriser) the CPU rasteriser.
     #[default]
     Auto,
     /// The CPU z-buffer rasteriser.
@@ -411,7 +416,7 @@ pub trait BodyRenderer: Send {
 }
 
 /// The renderer `config` asks for (see [`RenderBackend`]). With the `wgpu` feature,
-/// `auto` probes wgpu's default adapter (instance creation, ~0.3 s once).
+/// `auto` probes wgpu's default adapter (instance creation, ~0.3 s, once per process).
 pub fn create_renderer(config: &RenderConfig) -> Result<Box<dyn BodyRenderer>, RenderError> {
     config.validate()?;
     match config.backend {
@@ -419,15 +424,20 @@ pub fn create_renderer(config: &RenderConfig) -> Result<Box<dyn BodyRenderer>, R
         #[cfg(feature = "wgpu")]
         RenderBackend::Auto => {
             // A software adapter (lavapipe, llvmpipe: device type Cpu) is slower than the
-            // CPU rasteriser; only a hardware GPU is worth the driver. No timing probe.
+            // CPU rasteriser (benches/README.md); a hardware GPU is timed against it on
+            // the first frames.
+            let cpu = CpuRenderer::new(config)?;
             match gpu::default_adapter_type() {
                 Some(wgpu::DeviceType::DiscreteGpu | wgpu::DeviceType::IntegratedGpu) => {
                     match WgpuRenderer::new(config) {
-                        Ok(r) => Ok(Box::new(r)),
-                        Err(_) => Ok(Box::new(CpuRenderer::new(config)?)),
+                        Ok(g) => Ok(Box::new(auto::AutoRenderer::new(cpu, Some(g)))),
+                        Err(e) => {
+                            tracing::warn!(error = %e, "render.backend auto: the GPU adapter cannot be used; using the CPU rasteriser");
+                            Ok(Box::new(cpu))
+                        }
                     }
                 }
-                _ => Ok(Box::new(CpuRenderer::new(config)?)),
+                _ => Ok(Box::new(cpu)),
             }
         }
         #[cfg(not(feature = "wgpu"))]

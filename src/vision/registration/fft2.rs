@@ -4,7 +4,8 @@
 //! `kx` (`0..=w/2`) and vertical frequency `ky` (`0..h`, unshifted) lives at
 //! `kx * h + ky`. Rows are transformed with `realfft`, then the `w/2 + 1` columns are
 //! transformed in one batched `rustfft` call on contiguous memory, so the forward
-//! transform needs one transpose and the inverse one more.
+//! transform needs one transpose and the inverse one more. The transposes move blocks of
+//! eight rows, so each column write or read covers a whole cache line.
 
 use std::sync::Arc;
 
@@ -24,10 +25,15 @@ pub(crate) struct Fft2 {
     col_fwd: Arc<dyn Fft<f32>>,
     col_inv: Arc<dyn Fft<f32>>,
     row_real: Vec<f32>,
-    row_spec: Vec<Complex<f32>>,
+    /// `BLOCK` row spectra, so the transpose writes and reads whole cache lines.
+    block: Vec<Complex<f32>>,
     row_scratch: Vec<Complex<f32>>,
     col_scratch: Vec<Complex<f32>>,
 }
+
+/// Rows transformed before each transpose step: eight complex values are one 64-byte
+/// cache line of a column.
+const BLOCK: usize = 8;
 
 fn fft_error(e: impl std::fmt::Display) -> RegistrationError {
     RegistrationError::Internal {
@@ -58,7 +64,7 @@ impl Fft2 {
             col_fwd,
             col_inv,
             row_real: vec![0.0; w],
-            row_spec: vec![Complex::new(0.0, 0.0); wc],
+            block: vec![Complex::new(0.0, 0.0); BLOCK * wc],
             row_scratch: vec![Complex::new(0.0, 0.0); row_scratch_len],
             col_scratch: vec![Complex::new(0.0, 0.0); col_scratch_len],
         }
@@ -78,17 +84,20 @@ impl Fft2 {
         let (w, h, wc) = (self.w, self.h, self.wc);
         debug_assert_eq!(input.len(), w * h);
         debug_assert_eq!(out.len(), wc * h);
-        for (y, row) in input.chunks_exact(w).enumerate() {
-            self.row_real.copy_from_slice(row);
-            self.r2c
-                .process_with_scratch(
-                    &mut self.row_real,
-                    &mut self.row_spec,
-                    &mut self.row_scratch,
-                )
-                .map_err(fft_error)?;
-            for (kx, v) in self.row_spec.iter().enumerate() {
-                out[kx * h + y] = *v;
+        for (b, rows) in input.chunks(BLOCK * w).enumerate() {
+            let n = rows.len() / w;
+            for (row, spec) in rows.chunks_exact(w).zip(self.block.chunks_exact_mut(wc)) {
+                self.row_real.copy_from_slice(row);
+                self.r2c
+                    .process_with_scratch(&mut self.row_real, spec, &mut self.row_scratch)
+                    .map_err(fft_error)?;
+            }
+            let y0 = b * BLOCK;
+            for kx in 0..wc {
+                let col = &mut out[kx * h + y0..][..n];
+                for (j, v) in col.iter_mut().enumerate() {
+                    *v = self.block[j * wc + kx];
+                }
             }
         }
         // The buffer holds `wc` contiguous columns of length `h`: one batched call.
@@ -109,19 +118,29 @@ impl Fft2 {
         debug_assert_eq!(out.len(), w * h);
         self.col_inv
             .process_with_scratch(spec, &mut self.col_scratch);
-        for (y, row) in out.chunks_exact_mut(w).enumerate() {
-            for (kx, v) in self.row_spec.iter_mut().enumerate() {
-                *v = spec[kx * h + y];
+        for (b, rows) in out.chunks_mut(BLOCK * w).enumerate() {
+            let n = rows.len() / w;
+            let y0 = b * BLOCK;
+            for kx in 0..wc {
+                let col = &spec[kx * h + y0..][..n];
+                for (j, v) in col.iter().enumerate() {
+                    self.block[j * wc + kx] = *v;
+                }
             }
-            // A Hermitian spectrum has real DC and (even w) Nyquist columns after the
-            // column transform; drop the rounding residue realfft would complain about.
-            self.row_spec[0].im = 0.0;
-            if w.is_multiple_of(2) {
-                self.row_spec[wc - 1].im = 0.0;
+            for (row, rs) in rows
+                .chunks_exact_mut(w)
+                .zip(self.block.chunks_exact_mut(wc))
+            {
+                // A Hermitian spectrum has real DC and (even w) Nyquist columns after the
+                // column transform; drop the rounding residue realfft would complain about.
+                rs[0].im = 0.0;
+                if w.is_multiple_of(2) {
+                    rs[wc - 1].im = 0.0;
+                }
+                self.c2r
+                    .process_with_scratch(rs, row, &mut self.row_scratch)
+                    .map_err(fft_error)?;
             }
-            self.c2r
-                .process_with_scratch(&mut self.row_spec, row, &mut self.row_scratch)
-                .map_err(fft_error)?;
         }
         Ok(())
     }
@@ -134,7 +153,7 @@ mod tests {
 
     #[test]
     fn forward_matches_naive_dft_and_inverse_round_trips() {
-        for &(w, h) in &[(8usize, 6usize), (7, 5), (16, 16)] {
+        for &(w, h) in &[(8usize, 6usize), (7, 5), (16, 16), (10, 19)] {
             let input: Vec<f32> = (0..w * h).map(|i| ((i * 37) % 11) as f32 - 5.0).collect();
             let mut fft = Fft2::new(w, h);
             let mut spec = vec![Complex::new(0.0, 0.0); fft.spectrum_len()];
