@@ -202,7 +202,8 @@ fn ablation(
     let mut table = AblationTable::new();
     for variant in FlowVariant::ALL {
         let Some(model) = models.get(variant.name()) else {
-            eprintln!("ablation: no model for flow variant {variant}; row left out");
+            eprintln!("ablation: no model for flow variant {variant}; row marked \"no model\"");
+            table.set_not_run(&variant_label(variant), "no model");
             continue;
         };
         let mut config = setup.config.clone();

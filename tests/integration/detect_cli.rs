@@ -302,3 +302,117 @@ fn bad_profiles_and_missing_labels_are_clear_errors() {
     let e = run(&["score", "--profile", "profile.toml", "test", "--mcap"]);
     assert!(e.contains("--out"), "{e}");
 }
+
+/// The committed tiny model bundle (A = 2, B = 2, M = 3; trained on the masked variant).
+fn tiny_model() -> String {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/fixtures/model/valid.vamos")
+        .display()
+        .to_string()
+}
+
+/// Writes `<stem>.calibration.json` in `dir`, as `vamos calibrate` would for the profile
+/// `<stem>.toml`: `e_c`/`e_b` thresholds, the training maximum of the fused score and,
+/// when given, a conformal threshold.
+fn write_calibration(dir: &Path, stem: &str, e_c: f64, e_b: f64, max: f64, conformal: Option<f64>) {
+    let conformal = conformal.map(|t| {
+        serde_json::json!({
+            "threshold": t, "order_statistic": t, "alpha": 0.1, "n": 9, "rank_k": 9,
+            "guaranteed_false_alarm_max": 0.1, "marginal_false_alarm_bound": 0.1,
+            "confidence": 0.61, "calibration_false_alarm_rate": 0.0,
+        })
+    });
+    let cal = serde_json::json!({
+        "created_unix_s": 1, "model_sha256": null, "training_episodes": ["train_0000"],
+        "calibration_episodes": [], "training_frames": 30,
+        "thresholds": {"e_c": e_c, "e_b": e_b}, "score_max": max, "conformal": conformal,
+    });
+    std::fs::write(
+        dir.join(format!("{stem}.calibration.json")),
+        cal.to_string(),
+    )
+    .unwrap();
+}
+
+/// The cells of a markdown table row.
+fn cells(line: &str) -> Vec<String> {
+    line.trim()
+        .trim_matches('|')
+        .split('|')
+        .map(|c| c.trim().to_string())
+        .collect()
+}
+
+/// `vamos eval --ablation` end to end: one row per flow variant in the paper's order; the
+/// variants given a model (`--variant-model`) are scored with it and show AUC pairs in
+/// [0, 1] beside the paper's; the others are kept and marked "no model".
+#[test]
+fn eval_ablation_writes_a_row_per_variant() {
+    let ws = workspace();
+    let dir = ws.path();
+    write_calibration(dir, "profile", 0.5, 0.5, 2e6, None);
+    let model = tiny_model();
+    let (stdout, stderr) = vamos(
+        dir,
+        &[
+            "eval",
+            "--profile",
+            "profile.toml",
+            "--episodes",
+            "test",
+            "--ablation",
+            "ablation.md",
+            "--variant-model",
+            &format!("masked={model}"),
+            "--variant-model",
+            &format!("plain={model}"),
+            "--no-progress",
+        ],
+    );
+    let report: Value = serde_json::from_str(&stdout).unwrap();
+    assert!(report["anomalous_frames"].as_u64().unwrap() > 0);
+    let md = std::fs::read_to_string(dir.join("ablation.md")).unwrap();
+    let lines: Vec<&str> = md.lines().collect();
+    assert_eq!(lines.len(), 6, "{md}");
+    assert_eq!(
+        cells(lines[0]),
+        [
+            "input flow variant",
+            "OF only",
+            "OF + body",
+            "OF + body + camera"
+        ]
+    );
+    assert_eq!(lines[1], "|---|---|---|---|");
+    let rows: Vec<Vec<String>> = lines[2..].iter().map(|l| cells(l)).collect();
+    assert_eq!(
+        rows.iter().map(|r| r[0].as_str()).collect::<Vec<_>>(),
+        ["plain", "registered", "masked", "masked + registered"]
+    );
+    for row in &rows {
+        assert_eq!(row.len(), 4, "{row:?}");
+    }
+    for row in [&rows[0], &rows[2]] {
+        for cell in &row[1..] {
+            // "0.612 / 0.345 (paper 0.740 / 0.380)"
+            let (ours, paper) = cell
+                .split_once(" (paper ")
+                .unwrap_or_else(|| panic!("{cell}"));
+            assert!(paper.ends_with(')'), "{cell}");
+            let (roc, pr) = ours.split_once(" / ").unwrap_or_else(|| panic!("{cell}"));
+            for v in [roc, pr] {
+                let v: f64 = v.parse().unwrap_or_else(|_| panic!("{cell}"));
+                assert!((0.0..=1.0).contains(&v), "{cell}");
+            }
+        }
+    }
+    for row in [&rows[1], &rows[3]] {
+        for cell in &row[1..] {
+            assert!(cell.starts_with("no model (paper "), "{row:?}");
+        }
+    }
+    assert!(
+        stderr.contains("no model for flow variant registered"),
+        "{stderr}"
+    );
+}
