@@ -508,3 +508,68 @@ fn score_mcap_with_a_model_writes_every_score_topic() {
     assert_eq!((got_e_c, got_e_b, got_e_o), (e_c, e_b, e_o.clone()));
     assert_eq!(maps, e_o.len());
 }
+
+/// The alarm rule picks the threshold on the fused score: `alarm = "conformal"` the stored
+/// conformal threshold, `alarm = "max"` the next float above the training maximum. The two
+/// thresholds are put between this episode's own scores so that they flag different frames.
+#[test]
+fn the_alarm_rule_picks_the_conformal_or_the_max_threshold() {
+    let ws = workspace();
+    let dir = ws.path();
+    std::fs::write(
+        dir.join("conformal.toml"),
+        PROFILE.replacen("alarm = \"max\"", "alarm = \"conformal\"", 1),
+    )
+    .unwrap();
+    let score = |profile: &str| {
+        let out = format!("out_{profile}");
+        let (stdout, _) = vamos(
+            dir,
+            &[
+                "score",
+                "--profile",
+                &format!("{profile}.toml"),
+                "test/test_0001_external_push.mcap",
+                "-o",
+                &out,
+                "--no-progress",
+            ],
+        );
+        let summary: Value = serde_json::from_str(stdout.trim()).unwrap();
+        let frames = jsonl(&dir.join(format!("{out}/test_0001_external_push.scores.jsonl")));
+        (summary, frames)
+    };
+    // Small e_c/e_b thresholds: most frames trigger, their fused scores 1e6 + e / e_thres
+    // differ. No alarm yet (the max rule with a huge training maximum).
+    write_calibration(dir, "profile", 0.2, 0.2, 1e300, None);
+    let (_, frames) = score("profile");
+    assert!(frames.iter().all(|f| f["anomaly"] == false));
+    let mut scores: Vec<f64> = frames
+        .iter()
+        .map(|f| f["score"].as_f64().unwrap())
+        .collect();
+    scores.sort_by(f64::total_cmp);
+    scores.dedup();
+    assert!(scores.len() >= 6, "{scores:?}");
+    let (conformal, max) = (scores[scores.len() / 3], scores[2 * scores.len() / 3]);
+    for stem in ["profile", "conformal"] {
+        write_calibration(dir, stem, 0.2, 0.2, max, Some(conformal));
+    }
+    let mut alarms = Vec::new();
+    for (profile, threshold) in [("conformal", conformal), ("profile", max.next_up())] {
+        let (summary, frames) = score(profile);
+        let mut n = 0;
+        for f in &frames {
+            let s = f["score"].as_f64().unwrap();
+            assert_eq!(f["anomaly"], s >= threshold, "{profile}: {f}");
+            n += usize::from(s >= threshold);
+        }
+        assert_eq!(summary["alarms"], n, "{profile}");
+        assert!(n > 0, "{profile}");
+        alarms.push(n);
+    }
+    assert!(
+        alarms[0] > alarms[1],
+        "conformal is the lower threshold here: {alarms:?}"
+    );
+}
