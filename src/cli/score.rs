@@ -256,6 +256,7 @@ pub fn run(
                 "refused": r.frame_errors,
                 "damage": r.damage,
                 "no_joint_states": r.no_joint_states,
+                "joint_gaps": r.joint_gaps,
                 "mean_frame_ms": mean_ms,
             })
         );

@@ -183,6 +183,9 @@ pub struct JointStateAt {
     pub gap_ns: i64,
     /// Whether the stamp lies outside the joint samples (nearest taken).
     pub extrapolated: bool,
+    /// Whether `gap_ns` exceeds `[episode] max_joint_gap_ms` (the frame also carries a
+    /// warning): the joints were interpolated over a gap in the joint states.
+    pub beyond_max_gap: bool,
 }
 
 /// The original image message, for copying it to an output bag unchanged.
@@ -1187,7 +1190,8 @@ impl Assembler {
                 } else {
                     Vec::new()
                 };
-                if s.gap_ns as f64 > self.max_gap_ns {
+                let beyond_max_gap = s.gap_ns as f64 > self.max_gap_ns;
+                if beyond_max_gap {
                     warnings.push(format!(
                         "nearest joint sample is {:.1} ms away",
                         s.gap_ns as f64 * 1e-6
@@ -1208,6 +1212,7 @@ impl Assembler {
                     velocities,
                     gap_ns: s.gap_ns,
                     extrapolated: s.extrapolated,
+                    beyond_max_gap,
                 })
             }
             _ => None,

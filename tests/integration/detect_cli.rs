@@ -573,3 +573,68 @@ fn the_alarm_rule_picks_the_conformal_or_the_max_threshold() {
         "conformal is the lower threshold here: {alarms:?}"
     );
 }
+
+/// A gap in the joint states is reported per episode: `vamos score`'s summary lists the
+/// images whose nearest joint sample is beyond `[episode] max_joint_gap_ms` (100 ms) —
+/// those of `joint_gap.mcap` that `make_bags.py` computed — and none for a bag without gap.
+#[test]
+fn joint_gaps_are_listed_in_the_score_summary() {
+    let episodes = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/episode");
+    let expected: Value =
+        serde_json::from_str(&std::fs::read_to_string(episodes.join("expected.json")).unwrap())
+            .unwrap();
+    let bag = expected["bags"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|b| b["file"] == "joint_gap.mcap")
+        .unwrap();
+    let want: Vec<u64> = bag["gap_frames"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_u64().unwrap())
+        .collect();
+    assert!(!want.is_empty());
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(
+        dir.path().join("p.toml"),
+        "name = \"p\"\nflow_preset = \"realtime\"\n[pipeline]\nstride = 1\n\
+         [pipeline.frames]\nwidth = 64\nheight = 48\nvariant = \"plain\"\n",
+    )
+    .unwrap();
+    let (stdout, _) = vamos(
+        dir.path(),
+        &[
+            "score",
+            "--profile",
+            "p.toml",
+            &episodes.join("joint_gap.mcap").display().to_string(),
+            &episodes.join("interleaved.mcap").display().to_string(),
+            "--no-progress",
+        ],
+    );
+    let summaries: Vec<Value> = stdout
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    let gaps = &summaries[0]["joint_gaps"];
+    assert_eq!(summaries[0]["episode"], "joint_gap");
+    let got: Vec<u64> = gaps
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|g| g["index"].as_u64().unwrap())
+        .collect();
+    assert_eq!(got, want, "{gaps}");
+    let frames = bag["frames"].as_array().unwrap();
+    for g in gaps.as_array().unwrap() {
+        let f = frames.iter().find(|f| f["index"] == g["index"]).unwrap();
+        assert_eq!(g["stamp_ns"], f["stamp_ns"]);
+        let gap_ms = f["joints"]["gap_ns"].as_f64().unwrap() * 1e-6;
+        assert!((g["gap_ms"].as_f64().unwrap() - gap_ms).abs() < 1e-9, "{g}");
+        assert!(gap_ms > 100.0);
+    }
+    assert_eq!(summaries[1]["episode"], "interleaved");
+    assert_eq!(summaries[1]["joint_gaps"], serde_json::json!([]));
+}

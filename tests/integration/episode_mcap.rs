@@ -263,6 +263,55 @@ fn overlapping_chunks_are_read_in_log_time_order() {
     assert!(all.windows(2).all(|p| p[0] <= p[1]));
 }
 
+/// `joint_gap.mcap` has no joint samples between images 8 and 13: exactly the frames whose
+/// nearest sample is beyond `max_joint_gap_ms` (computed in Python) are flagged, with a
+/// warning; a larger limit flags none.
+#[test]
+fn frames_beyond_the_joint_gap_limit_are_flagged() {
+    let exp = expected();
+    let bag = exp["bags"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|b| b["file"] == "joint_gap.mcap")
+        .unwrap();
+    let want: Vec<usize> = bag["gap_frames"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_u64().unwrap() as usize)
+        .collect();
+    assert!(!want.is_empty());
+    let path = fixtures().join("joint_gap.mcap");
+    let flagged = |cfg: &EpisodeConfig| {
+        let (frames, errors) = read_all(&McapEpisode::open(&path, cfg).unwrap());
+        assert!(errors.is_empty(), "{errors:?}");
+        assert_eq!(frames.len(), 20);
+        for f in &frames {
+            let j = f.joints.as_ref().unwrap();
+            assert_eq!(
+                j.beyond_max_gap,
+                f.warnings
+                    .iter()
+                    .any(|w| w.contains("nearest joint sample")),
+                "frame {}",
+                f.index
+            );
+        }
+        frames
+            .iter()
+            .filter(|f| f.joints.as_ref().unwrap().beyond_max_gap)
+            .map(|f| f.index)
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(flagged(&EpisodeConfig::default()), want);
+    let wide = EpisodeConfig {
+        max_joint_gap_ms: 300.0,
+        ..EpisodeConfig::default()
+    };
+    assert_eq!(flagged(&wide), Vec::<usize>::new());
+}
+
 #[test]
 fn a_truncated_bag_yields_its_valid_frames_then_where_it_broke() {
     let exp = expected();
