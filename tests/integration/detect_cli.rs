@@ -6,7 +6,7 @@ use serde_json::Value;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use vamos::episode::ros::{ImageMsg, decode_f64};
-use vamos::episode::{EpisodeConfig, Labels, McapEpisode};
+use vamos::episode::{EpisodeConfig, Labels, McapEpisode, ScoreBagWriter};
 
 const PROFILE: &str = r#"name = "sim-arm"
 robot = "robot/vamos_arm.urdf"
@@ -637,4 +637,114 @@ fn joint_gaps_are_listed_in_the_score_summary() {
     }
     assert_eq!(summaries[1]["episode"], "interleaved");
     assert_eq!(summaries[1]["joint_gaps"], serde_json::json!([]));
+}
+
+/// Copies the bag `src` to `dst` keeping only `topics` (schemas and messages unchanged).
+fn copy_topics(src: &Path, dst: &Path, topics: &[&str]) {
+    let ep = McapEpisode::open(src, &EpisodeConfig::default()).unwrap();
+    let schemas: std::collections::HashMap<String, (String, String, Vec<u8>)> = topics
+        .iter()
+        .map(|t| (t.to_string(), ep.schema_of(t).unwrap().unwrap()))
+        .collect();
+    let mut w = ScoreBagWriter::create(dst, None).unwrap();
+    let mut written = Ok(());
+    let topics: Vec<String> = topics.iter().map(|t| t.to_string()).collect();
+    ep.for_each_message(&topics, |topic, _, log_time, cdr| {
+        let (name, encoding, data) = &schemas[topic];
+        if written.is_ok() {
+            written = w.copy_message(topic, name, encoding, data, cdr, log_time);
+        }
+    })
+    .unwrap();
+    written.unwrap();
+    w.finish().unwrap();
+}
+
+/// A bag without joint states, scored with a robot and a model: `no_joint_states`, no
+/// `e_c` or `e_b` on any frame, `e_o` after the model's warm-up and the score is `e_o`.
+#[test]
+fn a_bag_without_joint_states_is_scored_from_e_o() {
+    let ws = workspace();
+    let dir = ws.path();
+    write_model_profile(dir, "model");
+    std::fs::create_dir(dir.join("nojoints")).unwrap();
+    copy_topics(
+        &dir.join("test/test_0000.mcap"),
+        &dir.join("nojoints/test_0000.mcap"),
+        &["/camera/image_raw", "/camera/camera_info"],
+    );
+    let (stdout, _) = vamos(
+        dir,
+        &[
+            "score",
+            "--profile",
+            "model.toml",
+            "nojoints/test_0000.mcap",
+            "-o",
+            "out",
+            "--no-progress",
+        ],
+    );
+    let summary: Value = serde_json::from_str(stdout.trim()).unwrap();
+    assert_eq!(summary["no_joint_states"], true);
+    assert_eq!(summary["refused"], serde_json::json!([]));
+    let frames = jsonl(&dir.join("out/test_0000.scores.jsonl"));
+    assert_eq!(frames.len(), 30);
+    assert!(
+        frames
+            .iter()
+            .all(|f| f["e_c"].is_null() && f["e_b"].is_null())
+    );
+    let with_e_o: Vec<&Value> = frames.iter().filter(|f| f["e_o"].is_f64()).collect();
+    assert_eq!(with_e_o.len(), frames.len() - 5);
+    for f in with_e_o {
+        assert!(f["e_o"].as_f64().unwrap() > 0.0);
+        assert_eq!(f["score"], f["e_o"], "nothing triggers without e_c/e_b");
+    }
+}
+
+/// A bag without CameraInfo takes the profile camera's intrinsics: `e_c` and `e_b` are
+/// computed and equal those of the same bag with its CameraInfo (which carries the same K
+/// as the fixture's camera.json).
+#[test]
+fn a_bag_without_camera_info_uses_the_profile_intrinsics() {
+    let ws = workspace();
+    let dir = ws.path();
+    std::fs::create_dir(dir.join("nocam")).unwrap();
+    copy_topics(
+        &dir.join("test/test_0000.mcap"),
+        &dir.join("nocam/test_0000.mcap"),
+        &["/camera/image_raw", "/joint_states"],
+    );
+    let nocam =
+        McapEpisode::open(&dir.join("nocam/test_0000.mcap"), &EpisodeConfig::default()).unwrap();
+    assert_eq!(nocam.info().chosen.camera_info, None);
+    let run = |bag: &str, out: &str| {
+        vamos(
+            dir,
+            &[
+                "score",
+                "--profile",
+                "profile.toml",
+                bag,
+                "-o",
+                out,
+                "--no-progress",
+            ],
+        );
+        jsonl(&dir.join(format!("{out}/test_0000.scores.jsonl")))
+    };
+    let without = run("nocam/test_0000.mcap", "out_nocam");
+    let with = run("test/test_0000.mcap", "out_cam");
+    assert_eq!(without.len(), 30);
+    assert!(
+        without[1..]
+            .iter()
+            .all(|f| f["e_c"].is_f64() && f["e_b"].is_f64())
+    );
+    for (a, b) in without.iter().zip(&with) {
+        for key in ["e_c", "e_b", "score"] {
+            assert_eq!(a[key], b[key], "frame {}: {key}", a["index"]);
+        }
+    }
 }
