@@ -240,6 +240,9 @@ enum Command {
         /// /vamos/e_c, /vamos/e_b, /vamos/e_o, /vamos/heatmap.
         #[arg(long)]
         mcap: bool,
+        /// No progress bars (they are drawn on stderr only when it is a terminal).
+        #[arg(long)]
+        no_progress: bool,
     },
     /// Calibrate a profile's thresholds on nominal episodes: e_c and e_b maxima (the
     /// paper) and a split-conformal threshold on the fused score from held-out episodes.
@@ -256,6 +259,9 @@ enum Command {
         /// Per-episode false-alarm budget of the conformal threshold.
         #[arg(long, default_value_t = 0.1)]
         alpha: f64,
+        /// No progress bars (they are drawn on stderr only when it is a terminal).
+        #[arg(long)]
+        no_progress: bool,
     },
     /// Evaluate a profile on labelled episodes: frame-level AUC-ROC and AUC-PR (pooled),
     /// per anomaly type, episode false-alarm rate and detection delay at the alarm
@@ -282,6 +288,9 @@ enum Command {
         /// profile's model serves its own variant.
         #[arg(long)]
         variant_model: Vec<String>,
+        /// No progress bars (they are drawn on stderr only when it is a terminal).
+        #[arg(long)]
+        no_progress: bool,
     },
     /// Print the effective settings (defaults + file + environment) as TOML.
     Config,
@@ -326,6 +335,9 @@ enum Command {
         /// Worker threads (0 = one per core; default from the settings).
         #[arg(long)]
         threads: Option<usize>,
+        /// No progress bars (they are drawn on stderr only when it is a terminal).
+        #[arg(long)]
+        no_progress: bool,
     },
     /// Draw the robot as its camera sees it (mask | depth | expected body flow, side by
     /// side) and print a JSON summary: the first check of a robot set-up.
@@ -594,12 +606,21 @@ fn run(cli: Cli) -> Result<()> {
             episodes,
             out,
             mcap,
-        } => cli::score::run(&settings, &profile, &episodes, out, mcap),
+            no_progress,
+        } => cli::score::run(
+            &settings,
+            &profile,
+            &episodes,
+            out,
+            mcap,
+            &cli::progress::Progress::new(no_progress),
+        ),
         Command::Calibrate {
             profile,
             episodes,
             holdout,
             alpha,
+            no_progress,
         } => cli::calibrate::run(
             &settings,
             cli::calibrate::CalibrateOptions {
@@ -607,6 +628,7 @@ fn run(cli: Cli) -> Result<()> {
                 episodes,
                 holdout,
                 alpha,
+                progress: cli::progress::Progress::new(no_progress),
             },
         ),
         Command::Eval {
@@ -616,6 +638,7 @@ fn run(cli: Cli) -> Result<()> {
             plots,
             ablation,
             variant_model,
+            no_progress,
         } => cli::eval::run(
             &settings,
             cli::eval::EvalOptions {
@@ -625,6 +648,7 @@ fn run(cli: Cli) -> Result<()> {
                 plots,
                 ablation,
                 variant_models: variant_model,
+                progress: cli::progress::Progress::new(no_progress),
             },
         ),
         Command::ExportDataset {
@@ -639,6 +663,7 @@ fn run(cli: Cli) -> Result<()> {
             fps,
             preset,
             threads,
+            no_progress,
         } => {
             let threads = resolve_threads(threads.unwrap_or(settings.vision.threads));
             let mut settings = settings.clone();
@@ -666,6 +691,7 @@ fn run(cli: Cli) -> Result<()> {
                 robot,
                 camera,
                 max_joint_gap_ms,
+                progress: cli::progress::Progress::new(no_progress),
             };
             pool(threads)?.install(|| cli::export::run(&settings, opts))?;
             Ok(())

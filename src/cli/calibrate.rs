@@ -3,7 +3,8 @@
 //! The computation is [`vamos::pipeline::calibration::calibrate`]; this scores the
 //! episodes in parallel and writes the calibration beside the profile file.
 
-use super::score::{ScoreAll, Setup, expand_episodes};
+use super::progress::Progress;
+use super::score::{ScoreAll, ScoreRun, Setup, expand_episodes};
 use anyhow::Result;
 use std::path::PathBuf;
 use vamos::config::Settings;
@@ -19,6 +20,8 @@ pub struct CalibrateOptions {
     pub holdout: Vec<PathBuf>,
     /// Per-episode false-alarm budget.
     pub alpha: f64,
+    /// Where progress goes.
+    pub progress: Progress,
 }
 
 /// Runs the calibration ([`vamos::pipeline::calibration`]) and saves it; prints it as
@@ -42,7 +45,10 @@ pub fn run(settings: &Settings, opts: CalibrateOptions) -> Result<()> {
             pass += 1;
             let what = if pass == 1 { "training" } else { "held-out" };
             eprintln!("scoring {} {what} episodes", episodes.len());
-            setup.score_all(episodes, thresholds, f64::INFINITY, None, None, None)
+            setup.score_all(
+                episodes,
+                &ScoreRun::new(what, thresholds, f64::INFINITY, &opts.progress),
+            )
         },
     )?;
     for note in &outcome.notes {

@@ -1,7 +1,8 @@
 //! `vamos eval`: frame-level AUCs, episode false alarms and detection delays on labelled
 //! episodes, plots, and the paper's ablation table.
 
-use super::score::{ScoreAll, Setup, expand_episodes};
+use super::progress::Progress;
+use super::score::{ScoreAll, ScoreRun, Setup, expand_episodes};
 use anyhow::{Context, Result, bail};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -31,6 +32,8 @@ pub struct EvalOptions {
     pub ablation: Option<PathBuf>,
     /// Models per flow variant for the ablation (`variant=path`).
     pub variant_models: Vec<String>,
+    /// Where progress goes.
+    pub progress: Progress,
 }
 
 /// The frames of scored episodes with their labels.
@@ -69,7 +72,10 @@ pub fn run(settings: &Settings, opts: EvalOptions) -> Result<()> {
             setup.profile.path.display()
         );
     }
-    let results = setup.score_all(&episodes, thresholds, alarm, None, None, None)?;
+    let results = setup.score_all(
+        &episodes,
+        &ScoreRun::new("eval", thresholds, alarm, &opts.progress),
+    )?;
     let frames = labelled_frames(&results)?;
     let report = evaluate(&frames, alarm);
     let text = serde_json::to_string_pretty(&report)?;
@@ -83,7 +89,7 @@ pub fn run(settings: &Settings, opts: EvalOptions) -> Result<()> {
         eprintln!("plots in {}", dir.display());
     }
     if let Some(out) = &opts.ablation {
-        let table = ablation(&setup, &episodes, &opts.variant_models)?;
+        let table = ablation(&setup, &episodes, &opts.variant_models, &opts.progress)?;
         let md = table.to_markdown();
         std::fs::write(out, &md).with_context(|| format!("cannot write {}", out.display()))?;
         eprintln!("{md}\nablation table written to {}", out.display());
@@ -173,6 +179,7 @@ fn ablation(
     setup: &Setup,
     episodes: &[PathBuf],
     variant_models: &[String],
+    progress: &Progress,
 ) -> Result<AblationTable> {
     let calibrated = setup.profile.thresholds();
     let mut models: BTreeMap<String, Arc<FlowModel>> = BTreeMap::new();
@@ -195,20 +202,22 @@ fn ablation(
     let mut table = AblationTable::new();
     for variant in FlowVariant::ALL {
         let Some(model) = models.get(variant.name()) else {
-            eprintln!("ablation: no model for flow variant {variant}; row left out");
+            eprintln!("ablation: no model for flow variant {variant}; row marked \"no model\"");
+            table.set_not_run(&variant_label(variant), "no model");
             continue;
         };
         let mut config = setup.config.clone();
         config.frames.variant = variant;
         config.detectors.flow = true;
         eprintln!("ablation: flow variant {variant}");
+        let label = format!("ablation {variant}");
         let results = setup.score_all(
             episodes,
-            Thresholds::default(),
-            f64::INFINITY,
-            Some(&config),
-            Some(model),
-            None,
+            &ScoreRun {
+                config: Some(&config),
+                model: Some(model),
+                ..ScoreRun::new(&label, Thresholds::default(), f64::INFINITY, progress)
+            },
         )?;
         let frames = labelled_frames(&results)?;
         let labels: Vec<bool> = frames.iter().map(|f| f.anomalous).collect();

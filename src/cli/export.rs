@@ -1,6 +1,7 @@
 //! `vamos export-dataset`: the flow predictor's training data, made by the same front end
 //! the detector runs (docs/model-bundle.md).
 
+use super::progress::{EpisodeProgress, Progress};
 use super::score::mcap_files_in;
 use anyhow::{Context, Result, bail};
 use std::path::{Path, PathBuf};
@@ -35,6 +36,8 @@ pub struct ExportOptions {
     pub camera: Option<PathBuf>,
     /// Joint samples further than this from an image stamp are reported.
     pub max_joint_gap_ms: f64,
+    /// Where progress goes.
+    pub progress: Progress,
 }
 
 /// What renders the body mask of each frame.
@@ -158,24 +161,29 @@ pub fn run(settings: &Settings, opts: ExportOptions) -> Result<usize> {
     let period_ns = (1e9 / opts.fps).round() as i64;
     let mut total = 0;
     let max_gap_ns = (opts.max_joint_gap_ms * 1e6) as i64;
-    for dir in &expand_bags(&opts.episodes)? {
+    let episodes = expand_bags(&opts.episodes)?;
+    let progress = opts.progress.run("export", episodes.len());
+    for dir in &episodes {
         if dir.extension().is_some_and(|x| x == "mcap") {
             let episode = McapEpisode::open(dir, &settings.episode)
                 .with_context(|| format!("episode {}", dir.display()))?;
+            let bar = progress.episode(episode.name(), episode.info().image_messages);
             let (records, rows, images) = export_bag(
                 &mut processor,
                 &episode,
                 stride,
                 masker.as_mut(),
                 max_gap_ns,
+                &bar,
             )
             .with_context(|| format!("episode {}", dir.display()))?;
-            eprintln!(
+            drop(bar);
+            progress.finished(&format!(
                 "{}: {} images -> {} frames",
                 episode.name(),
                 images,
                 records.len()
-            );
+            ));
             total += records.len();
             writer.add_episode(episode.name(), records, &rows)?;
             continue;
@@ -189,23 +197,26 @@ pub fn run(settings: &Settings, opts: ExportOptions) -> Result<usize> {
             (Some(m), Some(j)) => Some((m, j)),
             _ => None,
         };
-        let (records, rows) = export_episode(&mut processor, &seq, stride, body, max_gap_ns)
+        let bar = progress.episode(&seq.name, seq.frames.len() as u64);
+        let (records, rows) = export_episode(&mut processor, &seq, stride, body, max_gap_ns, &bar)
             .with_context(|| format!("episode {}", dir.display()))?;
+        drop(bar);
         tracing::info!(
             episode = %seq.name,
             images = seq.frames.len(),
             frames = records.len(),
             "episode exported"
         );
-        eprintln!(
+        progress.finished(&format!(
             "{}: {} images -> {} frames",
             seq.name,
             seq.frames.len(),
             records.len()
-        );
+        ));
         total += records.len();
         writer.add_episode(&seq.name, records, &rows)?;
     }
+    drop(progress);
     let manifest = writer.finish()?;
     eprintln!(
         "wrote {} frames of {} episodes to {}",
@@ -222,6 +233,7 @@ fn export_episode(
     stride: usize,
     mut body: Option<(&mut BodyMasker, &JointTrack)>,
     max_gap_ns: i64,
+    bar: &EpisodeProgress,
 ) -> Result<(Vec<FrameRecord>, Vec<f32>)> {
     processor.reset();
     let mut records = Vec::new();
@@ -230,6 +242,7 @@ fn export_episode(
     let mut mapper = body.as_ref().map(|(m, _)| m.robot.joint_mapper());
     let mut gaps = 0usize;
     for (index, frame) in seq.frames.iter().enumerate().step_by(stride) {
+        bar.set(index as u64 + 1);
         let image = load(&frame.path)?;
         let mask = match (body.as_mut(), mapper.as_mut()) {
             (Some((masker, track)), Some(mapper)) => {
@@ -293,6 +306,7 @@ fn export_bag(
     stride: usize,
     mut masker: Option<&mut BodyMasker>,
     max_gap_ns: i64,
+    bar: &EpisodeProgress,
 ) -> Result<(Vec<FrameRecord>, Vec<f32>, usize)> {
     processor.reset();
     let mut records = Vec::new();
@@ -313,6 +327,7 @@ fn export_bag(
             }
         };
         images += 1;
+        bar.set(frame.index as u64 + 1);
         if !(images - 1).is_multiple_of(stride) {
             continue;
         }

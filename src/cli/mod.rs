@@ -7,6 +7,7 @@ pub mod eval;
 pub mod export;
 pub mod loadgen;
 pub mod model;
+pub mod progress;
 pub mod render;
 pub mod robot;
 pub mod score;

@@ -1,6 +1,7 @@
 //! `vamos score`: the detector over recorded episodes (ROS 2 bags in MCAP), and the
 //! profile loading that `vamos calibrate` and `vamos eval` share.
 
+use super::progress::Progress;
 use anyhow::{Context, Result, bail};
 use rayon::prelude::*;
 use std::io::Write;
@@ -14,54 +15,82 @@ use vamos::pipeline::offline::{EpisodeScores, score_episode};
 use vamos::pipeline::{FrameScore, PipelineConfig, Scorer};
 pub use vamos::setup::Setup;
 
-/// Scoring many episodes with one profile.
-pub trait ScoreAll {
-    /// Scores `episodes` in parallel (one scorer each), printing progress as each
-    /// finishes. Episodes that cannot be opened are errors.
-    fn score_all(
-        &self,
-        episodes: &[PathBuf],
+/// One scoring run of [`ScoreAll::score_all`]: thresholds, optional overrides of the
+/// profile's pipeline and model, outputs and progress.
+pub struct ScoreRun<'a> {
+    /// Label of the run's progress bar (`scoring`, `training`, `ablation masked`...).
+    pub label: &'a str,
+    /// `e_c`/`e_b` thresholds.
+    pub thresholds: Thresholds,
+    /// Fused-score alarm threshold.
+    pub alarm_threshold: f64,
+    /// Pipeline parameters (default: the profile's).
+    pub config: Option<&'a PipelineConfig>,
+    /// Model (default: the profile's).
+    pub model: Option<&'a Arc<FlowModel>>,
+    /// Files to write per episode.
+    pub output: Option<&'a OutputOptions>,
+    /// Where progress goes.
+    pub progress: &'a Progress,
+}
+
+impl<'a> ScoreRun<'a> {
+    /// A run with the profile's pipeline and model, writing nothing.
+    pub fn new(
+        label: &'a str,
         thresholds: Thresholds,
         alarm_threshold: f64,
-        config: Option<&PipelineConfig>,
-        model: Option<&Arc<FlowModel>>,
-        output: Option<&OutputOptions>,
-    ) -> Result<Vec<EpisodeScores>>;
+        progress: &'a Progress,
+    ) -> Self {
+        Self {
+            label,
+            thresholds,
+            alarm_threshold,
+            config: None,
+            model: None,
+            output: None,
+            progress,
+        }
+    }
+}
+
+/// Scoring many episodes with one profile.
+pub trait ScoreAll {
+    /// Scores `episodes` in parallel (one scorer each), reporting progress as frames are
+    /// read and each episode finishes. Episodes that cannot be opened are errors.
+    fn score_all(&self, episodes: &[PathBuf], run: &ScoreRun<'_>) -> Result<Vec<EpisodeScores>>;
 }
 
 impl ScoreAll for Setup {
-    fn score_all(
-        &self,
-        episodes: &[PathBuf],
-        thresholds: Thresholds,
-        alarm_threshold: f64,
-        config: Option<&PipelineConfig>,
-        model: Option<&Arc<FlowModel>>,
-        output: Option<&OutputOptions>,
-    ) -> Result<Vec<EpisodeScores>> {
-        let done = std::sync::atomic::AtomicUsize::new(0);
-        let total = episodes.len();
+    fn score_all(&self, episodes: &[PathBuf], run: &ScoreRun<'_>) -> Result<Vec<EpisodeScores>> {
+        let progress = run.progress.run(run.label, episodes.len());
         let results: Vec<Result<EpisodeScores>> = episodes
             .par_iter()
             .map(|path| {
                 let episode = McapEpisode::open(path, &self.episode)
                     .with_context(|| format!("episode {}", path.display()))?;
-                let heatmaps = output.is_some_and(|o| o.mcap);
+                let bar = progress.episode(episode.name(), episode.info().image_messages);
+                let heatmaps = run.output.is_some_and(|o| o.mcap);
                 let mut scorer = self.scorer(
                     episode.name(),
-                    thresholds,
-                    alarm_threshold,
+                    run.thresholds,
+                    run.alarm_threshold,
                     heatmaps,
-                    config,
-                    model,
+                    run.config,
+                    run.model,
                 )?;
-                let scores = match output {
-                    Some(o) => write_outputs(&mut scorer, &episode, o)?,
-                    None => score_episode::<anyhow::Error>(&mut scorer, &episode, |_, _| Ok(()))?,
+                // Image indices count every image read (strided ones too).
+                let seen = |frame: &EpisodeFrame| bar.set(frame.index as u64 + 1);
+                let scores = match run.output {
+                    Some(o) => write_outputs(&mut scorer, &episode, o, seen)?,
+                    None => score_episode::<anyhow::Error>(&mut scorer, &episode, |frame, _| {
+                        seen(frame);
+                        Ok(())
+                    })?,
                 };
-                let n = done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
-                eprintln!(
-                    "[{n}/{total}] {}: {} frames scored{}{}",
+                drop(bar);
+                progress.finished(&format!(
+                    "{}: {} frames scored{}{}",
                     scores.name,
                     scores.frames.len(),
                     if scores.frame_errors.is_empty() {
@@ -73,7 +102,7 @@ impl ScoreAll for Setup {
                         .damage
                         .as_ref()
                         .map_or(String::new(), |d| format!(", damaged: {d}"))
-                );
+                ));
                 Ok(scores)
             })
             .collect();
@@ -125,6 +154,7 @@ fn write_outputs(
     scorer: &mut Scorer,
     episode: &McapEpisode,
     o: &OutputOptions,
+    seen: impl Fn(&EpisodeFrame),
 ) -> Result<EpisodeScores> {
     std::fs::create_dir_all(&o.dir)
         .with_context(|| format!("cannot create {}", o.dir.display()))?;
@@ -140,6 +170,7 @@ fn write_outputs(
         None
     };
     let scores = score_episode::<anyhow::Error>(scorer, episode, |frame, score| {
+        seen(frame);
         serde_json::to_writer(&mut lines, score)?;
         lines.write_all(b"\n")?;
         if let Some(bag) = bag.as_mut() {
@@ -177,6 +208,7 @@ pub fn run(
     episodes: &[PathBuf],
     out: Option<PathBuf>,
     mcap: bool,
+    progress: &Progress,
 ) -> Result<()> {
     if mcap && out.is_none() {
         bail!("--mcap writes into the --out folder: give --out");
@@ -192,11 +224,15 @@ pub fn run(
     let output = out.map(|dir| OutputOptions { dir, mcap });
     let results = setup.score_all(
         &episodes,
-        setup.profile.thresholds(),
-        setup.profile.alarm_threshold(),
-        None,
-        None,
-        output.as_ref(),
+        &ScoreRun {
+            output: output.as_ref(),
+            ..ScoreRun::new(
+                "scoring",
+                setup.profile.thresholds(),
+                setup.profile.alarm_threshold(),
+                progress,
+            )
+        },
     )?;
     for r in &results {
         let alarms = r.frames.iter().filter(|f| f.anomaly).count();
@@ -220,6 +256,7 @@ pub fn run(
                 "refused": r.frame_errors,
                 "damage": r.damage,
                 "no_joint_states": r.no_joint_states,
+                "joint_gaps": r.joint_gaps,
                 "mean_frame_ms": mean_ms,
             })
         );

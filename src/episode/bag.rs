@@ -3,21 +3,26 @@
 //!
 //! [`McapEpisode::open`] reads only the summary section (schemas, channels, statistics,
 //! chunk indexes) and resolves the topics. [`McapEpisode::frames`] then streams the image,
-//! camera-info and joint-state messages in file order through the mcap crate's sans-io
-//! [`IndexedReader`] over a plain [`std::fs::File`], one chunk at a time: memory holds one
-//! decompressed chunk plus a short queue of images waiting for the joint sample after
-//! their stamp (at most [`MAX_PENDING_IMAGES`]).
+//! camera-info and joint-state messages in **log-time order** through the mcap crate's
+//! sans-io [`IndexedReader`] ([`ReadOrder::LogTime`]) over a plain [`std::fs::File`]: the
+//! reader loads chunks in the order of their first log time and merges the messages of
+//! chunks whose time ranges overlap (a recorder that wrote messages out of order, several
+//! writers interleaved), so memory holds the decompressed chunks that overlap the current
+//! log time (one, for the usual file whose chunks follow each other) plus a short queue of
+//! images waiting for the joint sample after their stamp (at most [`MAX_PENDING_IMAGES`]).
 //!
 //! A file without a usable summary (missing, or a truncated/corrupt file whose footer is
-//! gone) is read by a linear scan instead: every valid message is used, and the scan's
-//! break is reported as [`EpisodeError::Truncated`] (in [`EpisodeInfo::damage`] and as the
-//! last item of [`McapEpisode::frames`]).
+//! gone) is read by a linear scan instead, in file order (without chunk indexes nothing
+//! says which later chunk holds earlier messages): every valid message is used, and the
+//! scan's break is reported as [`EpisodeError::Truncated`] (in [`EpisodeInfo::damage`] and
+//! as the last item of [`McapEpisode::frames`]).
 //!
 //! Bad input never panics: a message that cannot be decoded, an unknown encoding, NaN
 //! joint positions or an image whose size differs from the first image become `Err`
-//! items naming topic and message index, and the stream goes on. Images whose stamps do
-//! not increase are skipped, with a warning on the next frame and a count in
-//! [`EpisodeInfo::skipped_backwards`] — never reordered.
+//! items naming topic and message index, and the stream goes on. Images whose header
+//! stamps do not increase in log-time order (the stamp really goes backwards) are skipped,
+//! with a warning on the next frame and a count in [`EpisodeInfo::skipped_backwards`] —
+//! never reordered.
 
 use super::EpisodeError;
 use super::joints::interpolate_rows;
@@ -178,6 +183,9 @@ pub struct JointStateAt {
     pub gap_ns: i64,
     /// Whether the stamp lies outside the joint samples (nearest taken).
     pub extrapolated: bool,
+    /// Whether `gap_ns` exceeds `[episode] max_joint_gap_ms` (the frame also carries a
+    /// warning): the joints were interpolated over a gap in the joint states.
+    pub beyond_max_gap: bool,
 }
 
 /// The original image message, for copying it to an output bag unchanged.
@@ -275,7 +283,8 @@ struct RawMsg<'m> {
     data: &'m [u8],
 }
 
-/// Streams messages of some topics, indexed (file order) or by linear scan.
+/// Streams messages of some topics, indexed (log-time order) or by linear scan (file
+/// order).
 enum MessageSource {
     Indexed {
         file: File,
@@ -614,7 +623,7 @@ impl McapEpisode {
                 let reader = IndexedReader::new_with_options(
                     summary,
                     IndexedReaderOptions::new()
-                        .with_order(ReadOrder::File)
+                        .with_order(ReadOrder::LogTime)
                         .include_topics(topics.iter().cloned())
                         .with_record_length_limit(record_limit(&self.cfg)),
                 )
@@ -673,8 +682,8 @@ impl McapEpisode {
         }
     }
 
-    /// Every message of `topics` in file order, handed to `f(topic, schema, log_time_ns,
-    /// cdr)`; for reading score topics or copying other topics. A damaged file yields its
+    /// Every message of `topics` in log-time order (file order for a file read by a
+    /// linear scan), handed to `f(topic, schema, log_time_ns, cdr)`; for reading score topics or copying other topics. A damaged file yields its
     /// valid messages, then [`EpisodeError::Truncated`].
     pub fn for_each_message(
         &self,
@@ -1181,7 +1190,8 @@ impl Assembler {
                 } else {
                     Vec::new()
                 };
-                if s.gap_ns as f64 > self.max_gap_ns {
+                let beyond_max_gap = s.gap_ns as f64 > self.max_gap_ns;
+                if beyond_max_gap {
                     warnings.push(format!(
                         "nearest joint sample is {:.1} ms away",
                         s.gap_ns as f64 * 1e-6
@@ -1202,6 +1212,7 @@ impl Assembler {
                     velocities,
                     gap_ns: s.gap_ns,
                     extrapolated: s.extrapolated,
+                    beyond_max_gap,
                 })
             }
             _ => None,

@@ -66,6 +66,9 @@ pub struct AblationRow {
     pub cells: [Option<AucPair>; 3],
     /// The paper's cells for this variant, if known.
     pub paper: Option<[AucPair; 3]>,
+    /// Why the row's cells were not measured (e.g. "no model"); shown in place of them.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub not_run: Option<String>,
 }
 
 /// The ablation table, rows in insertion order.
@@ -108,20 +111,31 @@ impl AblationTable {
     /// Record a cell, adding the variant's row on first use. Variant labels are matched
     /// ignoring case, spaces and punctuation.
     pub fn set(&mut self, variant: &str, level: FusionLevel, value: AucPair) {
+        self.row_mut(variant).cells[level.index()] = Some(value);
+    }
+
+    /// Record that a variant's row was not run and why (`reason`, e.g. "no model"): the
+    /// row is kept, its unmeasured cells say `reason`.
+    pub fn set_not_run(&mut self, variant: &str, reason: &str) {
+        self.row_mut(variant).not_run = Some(reason.to_string());
+    }
+
+    /// The variant's row, added on first use.
+    fn row_mut(&mut self, variant: &str) -> &mut AblationRow {
         let key = normalise(variant);
-        let row = match self.rows.iter().position(|r| normalise(&r.variant) == key) {
-            Some(i) => &mut self.rows[i],
+        let i = match self.rows.iter().position(|r| normalise(&r.variant) == key) {
+            Some(i) => i,
             None => {
                 self.rows.push(AblationRow {
                     variant: variant.to_string(),
                     cells: [None; 3],
                     paper: None,
+                    not_run: None,
                 });
-                let last = self.rows.len() - 1;
-                &mut self.rows[last]
+                self.rows.len() - 1
             }
         };
-        row.cells[level.index()] = Some(value);
+        &mut self.rows[i]
     }
 
     /// The measured cell, if recorded.
@@ -149,8 +163,9 @@ impl AblationTable {
     }
 
     /// The table in markdown, laid out like REFERENCE.md's: one row per variant, cells
-    /// "AUC-ROC / AUC-PR" to three decimals, "-" where not run; where paper figures are
-    /// attached, each cell adds them in parentheses.
+    /// "AUC-ROC / AUC-PR" to three decimals, "-" where not run (the row's reason, e.g.
+    /// "no model", when it has one); where paper figures are attached, each cell adds them
+    /// in parentheses.
     pub fn to_markdown(&self) -> String {
         let mut out = String::from("| input flow variant |");
         for level in FusionLevel::ALL {
@@ -160,7 +175,11 @@ impl AblationTable {
         for row in &self.rows {
             out.push_str(&format!("| {} |", row.variant));
             for (i, cell) in row.cells.iter().enumerate() {
-                let ours = cell.map_or_else(|| "-".to_string(), |c| c.cell());
+                let ours = match (cell, &row.not_run) {
+                    (Some(c), _) => c.cell(),
+                    (None, Some(reason)) => reason.clone(),
+                    (None, None) => "-".to_string(),
+                };
                 match &row.paper {
                     Some(paper) => out.push_str(&format!(" {ours} (paper {}) |", paper[i].cell())),
                     None => out.push_str(&format!(" {ours} |")),
@@ -206,6 +225,31 @@ mod tests {
             "{md}"
         );
         assert!(md.contains("| mine | - | n/a / n/a | - |"), "{md}");
+    }
+
+    #[test]
+    fn a_variant_not_run_keeps_its_row_with_the_reason() {
+        let mut t = AblationTable::new();
+        t.set_not_run("registered", "no model");
+        t.set(
+            "masked",
+            FusionLevel::FlowOnly,
+            AucPair {
+                auc_roc: Some(0.5),
+                auc_pr: Some(0.25),
+            },
+        );
+        assert_eq!(t.rows.len(), 2);
+        assert_eq!(t.get("registered", FusionLevel::FlowOnly), None);
+        let md = t.with_paper_reference().to_markdown();
+        assert!(
+            md.contains(
+                "| registered | no model (paper 0.716 / 0.353) | no model (paper 0.716 / 0.362) \
+                 | no model (paper 0.773 / 0.466) |"
+            ),
+            "{md}"
+        );
+        assert!(md.contains("| masked | 0.500 / 0.250 (paper"), "{md}");
     }
 
     #[test]

@@ -51,6 +51,10 @@ pub struct PipelineConfig {
     /// Offsets span `A..=A+B`; absent = the model bundle's B.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub offset_b: Option<usize>,
+    /// Prior samples M per past offset; absent = the settings' `[model] samples` (whose 0
+    /// means the bundle's `temporal.m`); 0 here also means the bundle's.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub samples: Option<usize>,
 }
 
 /// Which detectors contribute to the score. A detector also needs its inputs: camera and
@@ -95,6 +99,14 @@ impl PipelineConfig {
                 ));
             }
         }
+        let max = crate::model::predictor::MAX_SAMPLES;
+        if let Some(m) = self.samples
+            && m > max
+        {
+            return Err(format!(
+                "pipeline parameter samples = {m} is above the limit of {max} prior samples"
+            ));
+        }
         Ok(())
     }
 }
@@ -109,6 +121,7 @@ impl Default for PipelineConfig {
             detectors: DetectorSwitches::default(),
             offset_a: None,
             offset_b: None,
+            samples: None,
         }
     }
 }

@@ -21,6 +21,18 @@ pub struct FrameError {
     pub message: String,
 }
 
+/// An image whose joint states were interpolated over a gap: its nearest joint sample is
+/// further than `[episode] max_joint_gap_ms`.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct JointGap {
+    /// Image index on its topic.
+    pub index: usize,
+    /// Image stamp, ns.
+    pub stamp_ns: i64,
+    /// Distance to the nearest joint sample, ms.
+    pub gap_ms: f64,
+}
+
 /// The scores of one episode.
 #[derive(Debug, Clone, Serialize)]
 pub struct EpisodeScores {
@@ -34,6 +46,9 @@ pub struct EpisodeScores {
     pub damage: Option<String>,
     /// The episode had no joint states at all: scored from `e_o` only.
     pub no_joint_states: bool,
+    /// Images read whose nearest joint sample is beyond `[episode] max_joint_gap_ms`
+    /// (every image read, also those the stride skips), in stamp order.
+    pub joint_gaps: Vec<JointGap>,
     /// The episode's frame labels, when it has any (sidecar or label topic).
     pub labels: Option<Labels>,
     /// What the file holds.
@@ -68,6 +83,7 @@ where
         frame_errors: Vec::new(),
         damage: None,
         no_joint_states,
+        joint_gaps: Vec::new(),
         labels,
         info: None,
     };
@@ -93,6 +109,13 @@ where
         };
         for w in &frame.warnings {
             tracing::warn!(episode = %out.name, index = frame.index, "{w}");
+        }
+        if let Some(j) = frame.joints.as_ref().filter(|j| j.beyond_max_gap) {
+            out.joint_gaps.push(JointGap {
+                index: frame.index,
+                stamp_ns: frame.stamp_ns,
+                gap_ms: j.gap_ns as f64 * 1e-6,
+            });
         }
         // Camera info -> intrinsics, converted once per distinct message.
         let k = frame.camera_info.as_ref().and_then(|c| {

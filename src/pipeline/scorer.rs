@@ -202,6 +202,7 @@ pub struct ScorerParts {
     /// The flow predictor's model (without it: no `e_o`).
     pub model: Option<Arc<FlowModel>>,
     /// Prior samples M per past offset; 0 = the model bundle's (`[model] samples`).
+    /// `config.samples`, when given, replaces it.
     pub samples: usize,
     /// Seed of the predictor's prior samples.
     pub seed: u64,
@@ -249,6 +250,7 @@ impl Scorer {
                         "the model was trained on another flow variant than the pipeline computes"
                     );
                 }
+                let samples = config.samples.unwrap_or(samples);
                 let mut params = PredictorParams::from_manifest(manifest, samples);
                 if let Some(a) = config.offset_a {
                     params.a = a;

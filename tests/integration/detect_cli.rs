@@ -5,7 +5,8 @@
 use serde_json::Value;
 use std::path::{Path, PathBuf};
 use std::process::Command;
-use vamos::episode::{EpisodeConfig, Labels, McapEpisode};
+use vamos::episode::ros::{ImageMsg, decode_f64};
+use vamos::episode::{EpisodeConfig, Labels, McapEpisode, ScoreBagWriter};
 
 const PROFILE: &str = r#"name = "sim-arm"
 robot = "robot/vamos_arm.urdf"
@@ -301,4 +302,449 @@ fn bad_profiles_and_missing_labels_are_clear_errors() {
     assert!(e.contains("empty_dir_does_not_exist"), "{e}");
     let e = run(&["score", "--profile", "profile.toml", "test", "--mcap"]);
     assert!(e.contains("--out"), "{e}");
+}
+
+/// The committed tiny model bundle (A = 2, B = 2, M = 3; trained on the masked variant).
+fn tiny_model() -> String {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/fixtures/model/valid.vamos")
+        .display()
+        .to_string()
+}
+
+/// Writes `<stem>.calibration.json` in `dir`, as `vamos calibrate` would for the profile
+/// `<stem>.toml`: `e_c`/`e_b` thresholds, the training maximum of the fused score and,
+/// when given, a conformal threshold.
+fn write_calibration(dir: &Path, stem: &str, e_c: f64, e_b: f64, max: f64, conformal: Option<f64>) {
+    let conformal = conformal.map(|t| {
+        serde_json::json!({
+            "threshold": t, "order_statistic": t, "alpha": 0.1, "n": 9, "rank_k": 9,
+            "guaranteed_false_alarm_max": 0.1, "marginal_false_alarm_bound": 0.1,
+            "confidence": 0.61, "calibration_false_alarm_rate": 0.0,
+        })
+    });
+    let cal = serde_json::json!({
+        "created_unix_s": 1, "model_sha256": null, "training_episodes": ["train_0000"],
+        "calibration_episodes": [], "training_frames": 30,
+        "thresholds": {"e_c": e_c, "e_b": e_b}, "score_max": max, "conformal": conformal,
+    });
+    std::fs::write(
+        dir.join(format!("{stem}.calibration.json")),
+        cal.to_string(),
+    )
+    .unwrap();
+}
+
+/// The cells of a markdown table row.
+fn cells(line: &str) -> Vec<String> {
+    line.trim()
+        .trim_matches('|')
+        .split('|')
+        .map(|c| c.trim().to_string())
+        .collect()
+}
+
+/// `vamos eval --ablation` end to end: one row per flow variant in the paper's order; the
+/// variants given a model (`--variant-model`) are scored with it and show AUC pairs in
+/// [0, 1] beside the paper's; the others are kept and marked "no model".
+#[test]
+fn eval_ablation_writes_a_row_per_variant() {
+    let ws = workspace();
+    let dir = ws.path();
+    write_calibration(dir, "profile", 0.5, 0.5, 2e6, None);
+    let model = tiny_model();
+    let (stdout, stderr) = vamos(
+        dir,
+        &[
+            "eval",
+            "--profile",
+            "profile.toml",
+            "--episodes",
+            "test",
+            "--ablation",
+            "ablation.md",
+            "--variant-model",
+            &format!("masked={model}"),
+            "--variant-model",
+            &format!("plain={model}"),
+            "--no-progress",
+        ],
+    );
+    let report: Value = serde_json::from_str(&stdout).unwrap();
+    assert!(report["anomalous_frames"].as_u64().unwrap() > 0);
+    let md = std::fs::read_to_string(dir.join("ablation.md")).unwrap();
+    let lines: Vec<&str> = md.lines().collect();
+    assert_eq!(lines.len(), 6, "{md}");
+    assert_eq!(
+        cells(lines[0]),
+        [
+            "input flow variant",
+            "OF only",
+            "OF + body",
+            "OF + body + camera"
+        ]
+    );
+    assert_eq!(lines[1], "|---|---|---|---|");
+    let rows: Vec<Vec<String>> = lines[2..].iter().map(|l| cells(l)).collect();
+    assert_eq!(
+        rows.iter().map(|r| r[0].as_str()).collect::<Vec<_>>(),
+        ["plain", "registered", "masked", "masked + registered"]
+    );
+    for row in &rows {
+        assert_eq!(row.len(), 4, "{row:?}");
+    }
+    for row in [&rows[0], &rows[2]] {
+        for cell in &row[1..] {
+            // "0.612 / 0.345 (paper 0.740 / 0.380)"
+            let (ours, paper) = cell
+                .split_once(" (paper ")
+                .unwrap_or_else(|| panic!("{cell}"));
+            assert!(paper.ends_with(')'), "{cell}");
+            let (roc, pr) = ours.split_once(" / ").unwrap_or_else(|| panic!("{cell}"));
+            for v in [roc, pr] {
+                let v: f64 = v.parse().unwrap_or_else(|_| panic!("{cell}"));
+                assert!((0.0..=1.0).contains(&v), "{cell}");
+            }
+        }
+    }
+    for row in [&rows[1], &rows[3]] {
+        for cell in &row[1..] {
+            assert!(cell.starts_with("no model (paper "), "{row:?}");
+        }
+    }
+    assert!(
+        stderr.contains("no model for flow variant registered"),
+        "{stderr}"
+    );
+}
+
+/// The profile of [`PROFILE`] with the tiny model, as `<stem>.toml` in `dir`.
+fn write_model_profile(dir: &Path, stem: &str) {
+    let text = PROFILE.replacen(
+        "alarm = \"max\"\n",
+        &format!("alarm = \"max\"\nmodel = {:?}\n", tiny_model()),
+        1,
+    );
+    std::fs::write(dir.join(format!("{stem}.toml")), text).unwrap();
+}
+
+/// `vamos score --mcap` with a model: the scored bag holds the images, /vamos/score and
+/// /vamos/anomaly for every frame, /vamos/e_c, /vamos/e_b and /vamos/e_o for every frame
+/// that has them (Float64, the values of the JSON lines) and one /vamos/heatmap (a 64x64
+/// rgb8 Image) per frame with e_o.
+#[test]
+fn score_mcap_with_a_model_writes_every_score_topic() {
+    let ws = workspace();
+    let dir = ws.path();
+    write_model_profile(dir, "model");
+    let (stdout, _) = vamos(
+        dir,
+        &[
+            "score",
+            "--profile",
+            "model.toml",
+            "test/test_0000.mcap",
+            "-o",
+            "out",
+            "--mcap",
+            "--no-progress",
+        ],
+    );
+    let summary: Value = serde_json::from_str(stdout.trim()).unwrap();
+    let frames = jsonl(&dir.join("out/test_0000.scores.jsonl"));
+    let n = frames.len();
+    assert_eq!(n as u64, summary["frames"].as_u64().unwrap());
+    let values =
+        |key: &str| -> Vec<f64> { frames.iter().filter_map(|f| f[key].as_f64()).collect() };
+    let (e_c, e_b, e_o) = (values("e_c"), values("e_b"), values("e_o"));
+    // Processed frame 0 has no flow, then A + B = 4 frames of history: e_o from frame 5.
+    assert_eq!(e_o.len(), n - 5, "{n} frames");
+    assert_eq!(e_c.len(), n - 1);
+    assert!(!e_b.is_empty());
+
+    let bag = McapEpisode::open(
+        &dir.join("out/test_0000.scored.mcap"),
+        &EpisodeConfig::default(),
+    )
+    .unwrap();
+    let info = bag.info();
+    let topic = |name: &str| info.topics.iter().find(|t| t.name == name).cloned();
+    for (name, count, schema) in [
+        ("/camera/image_raw", n, "sensor_msgs/msg/Image"),
+        ("/vamos/score", n, "std_msgs/msg/Float64"),
+        ("/vamos/anomaly", n, "std_msgs/msg/Bool"),
+        ("/vamos/e_c", e_c.len(), "std_msgs/msg/Float64"),
+        ("/vamos/e_b", e_b.len(), "std_msgs/msg/Float64"),
+        ("/vamos/e_o", e_o.len(), "std_msgs/msg/Float64"),
+        ("/vamos/heatmap", e_o.len(), "sensor_msgs/msg/Image"),
+    ] {
+        let t = topic(name).unwrap_or_else(|| panic!("no {name} in {:?}", info.topics));
+        assert_eq!(
+            (t.message_count, t.schema.as_str()),
+            (count as u64, schema),
+            "{name}"
+        );
+    }
+    let (mut got_e_c, mut got_e_b, mut got_e_o, mut maps) = (vec![], vec![], vec![], 0);
+    bag.for_each_message(
+        &[
+            "/vamos/e_c".into(),
+            "/vamos/e_b".into(),
+            "/vamos/e_o".into(),
+            "/vamos/heatmap".into(),
+        ],
+        |topic, _, _, cdr| match topic {
+            "/vamos/heatmap" => {
+                let m = ImageMsg::decode(cdr).unwrap();
+                assert_eq!((m.width, m.height, m.encoding.as_str()), (64, 64, "rgb8"));
+                maps += 1;
+            }
+            "/vamos/e_c" => got_e_c.push(decode_f64(cdr).unwrap()),
+            "/vamos/e_b" => got_e_b.push(decode_f64(cdr).unwrap()),
+            _ => got_e_o.push(decode_f64(cdr).unwrap()),
+        },
+    )
+    .unwrap();
+    assert_eq!((got_e_c, got_e_b, got_e_o), (e_c, e_b, e_o.clone()));
+    assert_eq!(maps, e_o.len());
+}
+
+/// The alarm rule picks the threshold on the fused score: `alarm = "conformal"` the stored
+/// conformal threshold, `alarm = "max"` the next float above the training maximum. The two
+/// thresholds are put between this episode's own scores so that they flag different frames.
+#[test]
+fn the_alarm_rule_picks_the_conformal_or_the_max_threshold() {
+    let ws = workspace();
+    let dir = ws.path();
+    std::fs::write(
+        dir.join("conformal.toml"),
+        PROFILE.replacen("alarm = \"max\"", "alarm = \"conformal\"", 1),
+    )
+    .unwrap();
+    let score = |profile: &str| {
+        let out = format!("out_{profile}");
+        let (stdout, _) = vamos(
+            dir,
+            &[
+                "score",
+                "--profile",
+                &format!("{profile}.toml"),
+                "test/test_0001_external_push.mcap",
+                "-o",
+                &out,
+                "--no-progress",
+            ],
+        );
+        let summary: Value = serde_json::from_str(stdout.trim()).unwrap();
+        let frames = jsonl(&dir.join(format!("{out}/test_0001_external_push.scores.jsonl")));
+        (summary, frames)
+    };
+    // Small e_c/e_b thresholds: most frames trigger, their fused scores 1e6 + e / e_thres
+    // differ. No alarm yet (the max rule with a huge training maximum).
+    write_calibration(dir, "profile", 0.2, 0.2, 1e300, None);
+    let (_, frames) = score("profile");
+    assert!(frames.iter().all(|f| f["anomaly"] == false));
+    let mut scores: Vec<f64> = frames
+        .iter()
+        .map(|f| f["score"].as_f64().unwrap())
+        .collect();
+    scores.sort_by(f64::total_cmp);
+    scores.dedup();
+    assert!(scores.len() >= 6, "{scores:?}");
+    let (conformal, max) = (scores[scores.len() / 3], scores[2 * scores.len() / 3]);
+    for stem in ["profile", "conformal"] {
+        write_calibration(dir, stem, 0.2, 0.2, max, Some(conformal));
+    }
+    let mut alarms = Vec::new();
+    for (profile, threshold) in [("conformal", conformal), ("profile", max.next_up())] {
+        let (summary, frames) = score(profile);
+        let mut n = 0;
+        for f in &frames {
+            let s = f["score"].as_f64().unwrap();
+            assert_eq!(f["anomaly"], s >= threshold, "{profile}: {f}");
+            n += usize::from(s >= threshold);
+        }
+        assert_eq!(summary["alarms"], n, "{profile}");
+        assert!(n > 0, "{profile}");
+        alarms.push(n);
+    }
+    assert!(
+        alarms[0] > alarms[1],
+        "conformal is the lower threshold here: {alarms:?}"
+    );
+}
+
+/// A gap in the joint states is reported per episode: `vamos score`'s summary lists the
+/// images whose nearest joint sample is beyond `[episode] max_joint_gap_ms` (100 ms) —
+/// those of `joint_gap.mcap` that `make_bags.py` computed — and none for a bag without gap.
+#[test]
+fn joint_gaps_are_listed_in_the_score_summary() {
+    let episodes = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/episode");
+    let expected: Value =
+        serde_json::from_str(&std::fs::read_to_string(episodes.join("expected.json")).unwrap())
+            .unwrap();
+    let bag = expected["bags"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|b| b["file"] == "joint_gap.mcap")
+        .unwrap();
+    let want: Vec<u64> = bag["gap_frames"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_u64().unwrap())
+        .collect();
+    assert!(!want.is_empty());
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(
+        dir.path().join("p.toml"),
+        "name = \"p\"\nflow_preset = \"realtime\"\n[pipeline]\nstride = 1\n\
+         [pipeline.frames]\nwidth = 64\nheight = 48\nvariant = \"plain\"\n",
+    )
+    .unwrap();
+    let (stdout, _) = vamos(
+        dir.path(),
+        &[
+            "score",
+            "--profile",
+            "p.toml",
+            &episodes.join("joint_gap.mcap").display().to_string(),
+            &episodes.join("interleaved.mcap").display().to_string(),
+            "--no-progress",
+        ],
+    );
+    let summaries: Vec<Value> = stdout
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    let gaps = &summaries[0]["joint_gaps"];
+    assert_eq!(summaries[0]["episode"], "joint_gap");
+    let got: Vec<u64> = gaps
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|g| g["index"].as_u64().unwrap())
+        .collect();
+    assert_eq!(got, want, "{gaps}");
+    let frames = bag["frames"].as_array().unwrap();
+    for g in gaps.as_array().unwrap() {
+        let f = frames.iter().find(|f| f["index"] == g["index"]).unwrap();
+        assert_eq!(g["stamp_ns"], f["stamp_ns"]);
+        let gap_ms = f["joints"]["gap_ns"].as_f64().unwrap() * 1e-6;
+        assert!((g["gap_ms"].as_f64().unwrap() - gap_ms).abs() < 1e-9, "{g}");
+        assert!(gap_ms > 100.0);
+    }
+    assert_eq!(summaries[1]["episode"], "interleaved");
+    assert_eq!(summaries[1]["joint_gaps"], serde_json::json!([]));
+}
+
+/// Copies the bag `src` to `dst` keeping only `topics` (schemas and messages unchanged).
+fn copy_topics(src: &Path, dst: &Path, topics: &[&str]) {
+    let ep = McapEpisode::open(src, &EpisodeConfig::default()).unwrap();
+    let schemas: std::collections::HashMap<String, (String, String, Vec<u8>)> = topics
+        .iter()
+        .map(|t| (t.to_string(), ep.schema_of(t).unwrap().unwrap()))
+        .collect();
+    let mut w = ScoreBagWriter::create(dst, None).unwrap();
+    let mut written = Ok(());
+    let topics: Vec<String> = topics.iter().map(|t| t.to_string()).collect();
+    ep.for_each_message(&topics, |topic, _, log_time, cdr| {
+        let (name, encoding, data) = &schemas[topic];
+        if written.is_ok() {
+            written = w.copy_message(topic, name, encoding, data, cdr, log_time);
+        }
+    })
+    .unwrap();
+    written.unwrap();
+    w.finish().unwrap();
+}
+
+/// A bag without joint states, scored with a robot and a model: `no_joint_states`, no
+/// `e_c` or `e_b` on any frame, `e_o` after the model's warm-up and the score is `e_o`.
+#[test]
+fn a_bag_without_joint_states_is_scored_from_e_o() {
+    let ws = workspace();
+    let dir = ws.path();
+    write_model_profile(dir, "model");
+    std::fs::create_dir(dir.join("nojoints")).unwrap();
+    copy_topics(
+        &dir.join("test/test_0000.mcap"),
+        &dir.join("nojoints/test_0000.mcap"),
+        &["/camera/image_raw", "/camera/camera_info"],
+    );
+    let (stdout, _) = vamos(
+        dir,
+        &[
+            "score",
+            "--profile",
+            "model.toml",
+            "nojoints/test_0000.mcap",
+            "-o",
+            "out",
+            "--no-progress",
+        ],
+    );
+    let summary: Value = serde_json::from_str(stdout.trim()).unwrap();
+    assert_eq!(summary["no_joint_states"], true);
+    assert_eq!(summary["refused"], serde_json::json!([]));
+    let frames = jsonl(&dir.join("out/test_0000.scores.jsonl"));
+    assert_eq!(frames.len(), 30);
+    assert!(
+        frames
+            .iter()
+            .all(|f| f["e_c"].is_null() && f["e_b"].is_null())
+    );
+    let with_e_o: Vec<&Value> = frames.iter().filter(|f| f["e_o"].is_f64()).collect();
+    assert_eq!(with_e_o.len(), frames.len() - 5);
+    for f in with_e_o {
+        assert!(f["e_o"].as_f64().unwrap() > 0.0);
+        assert_eq!(f["score"], f["e_o"], "nothing triggers without e_c/e_b");
+    }
+}
+
+/// A bag without CameraInfo takes the profile camera's intrinsics: `e_c` and `e_b` are
+/// computed and equal those of the same bag with its CameraInfo (which carries the same K
+/// as the fixture's camera.json).
+#[test]
+fn a_bag_without_camera_info_uses_the_profile_intrinsics() {
+    let ws = workspace();
+    let dir = ws.path();
+    std::fs::create_dir(dir.join("nocam")).unwrap();
+    copy_topics(
+        &dir.join("test/test_0000.mcap"),
+        &dir.join("nocam/test_0000.mcap"),
+        &["/camera/image_raw", "/joint_states"],
+    );
+    let nocam =
+        McapEpisode::open(&dir.join("nocam/test_0000.mcap"), &EpisodeConfig::default()).unwrap();
+    assert_eq!(nocam.info().chosen.camera_info, None);
+    let run = |bag: &str, out: &str| {
+        vamos(
+            dir,
+            &[
+                "score",
+                "--profile",
+                "profile.toml",
+                bag,
+                "-o",
+                out,
+                "--no-progress",
+            ],
+        );
+        jsonl(&dir.join(format!("{out}/test_0000.scores.jsonl")))
+    };
+    let without = run("nocam/test_0000.mcap", "out_nocam");
+    let with = run("test/test_0000.mcap", "out_cam");
+    assert_eq!(without.len(), 30);
+    assert!(
+        without[1..]
+            .iter()
+            .all(|f| f["e_c"].is_f64() && f["e_b"].is_f64())
+    );
+    for (a, b) in without.iter().zip(&with) {
+        for key in ["e_c", "e_b", "score"] {
+            assert_eq!(a[key], b[key], "frame {}: {key}", a["index"]);
+        }
+    }
 }

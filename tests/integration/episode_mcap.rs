@@ -205,6 +205,113 @@ fn every_bag_matches_the_python_reference() {
     }
 }
 
+/// A bag written out of log-time order into small chunks (`interleaved.mcap`: chunks
+/// overlap in log time, images lie in the file as 10..19 then 0..9): every image is read,
+/// in log-time order, none is taken for a stamp going backwards.
+#[test]
+fn overlapping_chunks_are_read_in_log_time_order() {
+    let exp = expected();
+    let bag = exp["bags"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|b| b["file"] == "interleaved.mcap")
+        .unwrap();
+    // The fixture really is out of order (checked by the official reader in Python).
+    assert!(bag["overlapping_chunk_pairs"].as_u64().unwrap() > 0);
+    let file_order: Vec<u64> = bag["file_order_images"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_u64().unwrap())
+        .collect();
+    assert!(file_order.windows(2).any(|p| p[0] > p[1]), "{file_order:?}");
+    let ep = McapEpisode::open(
+        &fixtures().join("interleaved.mcap"),
+        &EpisodeConfig::default(),
+    )
+    .unwrap();
+    let (frames, errors) = read_all(&ep);
+    assert!(errors.is_empty(), "{errors:?}");
+    assert_eq!(frames.len(), 20);
+    assert_eq!(ep.info().skipped_backwards, 0);
+    assert_eq!(
+        frames.iter().map(|f| f.index).collect::<Vec<_>>(),
+        (0..20).collect::<Vec<_>>()
+    );
+    let log_times: Vec<u64> = frames.iter().map(|f| f.source.log_time_ns).collect();
+    assert!(log_times.windows(2).all(|p| p[0] < p[1]), "{log_times:?}");
+    assert!(
+        frames.iter().all(|f| f.warnings.is_empty()),
+        "no skips, no gaps"
+    );
+    // Joint states from both halves of the file are merged before interpolation.
+    for (f, w) in frames.iter().zip(bag["frames"].as_array().unwrap()) {
+        check_frame("interleaved.mcap", "mono8", f, w);
+    }
+    // Every message of every topic, in log-time order, through the same reader.
+    let mut all = Vec::new();
+    ep.for_each_message(
+        &["/camera/image_raw".into(), "/joint_states".into()],
+        |_, _, t, _| all.push(t),
+    )
+    .unwrap();
+    assert_eq!(
+        all.len() as u64,
+        20 + bag["joint_messages"].as_u64().unwrap()
+    );
+    assert!(all.windows(2).all(|p| p[0] <= p[1]));
+}
+
+/// `joint_gap.mcap` has no joint samples between images 8 and 13: exactly the frames whose
+/// nearest sample is beyond `max_joint_gap_ms` (computed in Python) are flagged, with a
+/// warning; a larger limit flags none.
+#[test]
+fn frames_beyond_the_joint_gap_limit_are_flagged() {
+    let exp = expected();
+    let bag = exp["bags"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|b| b["file"] == "joint_gap.mcap")
+        .unwrap();
+    let want: Vec<usize> = bag["gap_frames"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_u64().unwrap() as usize)
+        .collect();
+    assert!(!want.is_empty());
+    let path = fixtures().join("joint_gap.mcap");
+    let flagged = |cfg: &EpisodeConfig| {
+        let (frames, errors) = read_all(&McapEpisode::open(&path, cfg).unwrap());
+        assert!(errors.is_empty(), "{errors:?}");
+        assert_eq!(frames.len(), 20);
+        for f in &frames {
+            let j = f.joints.as_ref().unwrap();
+            assert_eq!(
+                j.beyond_max_gap,
+                f.warnings
+                    .iter()
+                    .any(|w| w.contains("nearest joint sample")),
+                "frame {}",
+                f.index
+            );
+        }
+        frames
+            .iter()
+            .filter(|f| f.joints.as_ref().unwrap().beyond_max_gap)
+            .map(|f| f.index)
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(flagged(&EpisodeConfig::default()), want);
+    let wide = EpisodeConfig {
+        max_joint_gap_ms: 300.0,
+        ..EpisodeConfig::default()
+    };
+    assert_eq!(flagged(&wide), Vec::<usize>::new());
+}
+
 #[test]
 fn a_truncated_bag_yields_its_valid_frames_then_where_it_broke() {
     let exp = expected();

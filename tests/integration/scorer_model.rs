@@ -115,3 +115,73 @@ fn offsets_from_the_pipeline_config_override_the_bundle() {
     assert_eq!(scores[2].best_offset, Some(1));
     assert_eq!(scores[3].best_offset, Some(1));
 }
+
+/// M per past offset: the bundle's (3) unless `[model] samples` (the parts' `samples`)
+/// sets it, and the pipeline's `samples` above both; 0 means the bundle's at either level.
+#[test]
+fn samples_from_the_pipeline_config_override_the_settings_and_the_bundle() {
+    let m = |pipeline: Option<usize>, settings: usize| {
+        let mut config = PipelineConfig::default();
+        config.frames.width = 128;
+        config.frames.height = 96;
+        config.samples = pipeline;
+        let s = Scorer::new(ScorerParts {
+            config,
+            flow: FlowParams::realtime(),
+            registration: RegistrationParams::default(),
+            network: NetworkInputParams::default(),
+            render: RenderConfig::default(),
+            robot: None,
+            model: Some(model()),
+            samples: settings,
+            seed: 7,
+            thresholds: Thresholds::default(),
+            alarm_threshold: f64::INFINITY,
+            heatmaps: false,
+        })
+        .unwrap();
+        s.predictor_params().unwrap().samples
+    };
+    assert_eq!(m(None, 0), 3, "the bundle's temporal.m");
+    assert_eq!(m(None, 4), 4, "[model] samples");
+    assert_eq!(m(Some(5), 4), 5, "the pipeline's beats [model]");
+    assert_eq!(m(Some(5), 0), 5);
+    assert_eq!(m(Some(0), 4), 3, "0: the bundle's");
+}
+
+/// A profile's `[pipeline] samples` reaches the scorers `Setup` makes, over the settings'
+/// `[model] samples`; one above the limit is refused by the store's check.
+#[test]
+fn a_profile_sets_the_prior_samples() {
+    let dir = tempfile::tempdir().unwrap();
+    let bundle = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/model/valid.vamos");
+    let path = dir.path().join("p.toml");
+    let write = |pipeline: &str| {
+        std::fs::write(
+            &path,
+            format!(
+                "name = \"p\"\nmodel = {:?}\n[pipeline]\nstride = 1\n{pipeline}\
+                 [pipeline.frames]\nwidth = 128\nheight = 96\nvariant = \"plain\"\n",
+                bundle.display().to_string()
+            ),
+        )
+        .unwrap();
+    };
+    let mut settings = vamos::config::Settings::default();
+    settings.model.samples = 7;
+    let samples = |settings: &vamos::config::Settings| {
+        let setup = vamos::setup::Setup::load(settings, &path).unwrap();
+        let scorer = setup.calibrated_scorer("episode", false).unwrap();
+        scorer.predictor_params().unwrap().samples
+    };
+    write("samples = 2\n");
+    assert_eq!(samples(&settings), 2);
+    write("");
+    assert_eq!(samples(&settings), 7, "absent: [model] samples");
+    let config = PipelineConfig {
+        samples: Some(vamos::model::predictor::MAX_SAMPLES + 1),
+        ..PipelineConfig::default()
+    };
+    let e = config.check_limits().unwrap_err();
+    assert!(e.contains("samples"), "{e}");
+}

@@ -94,3 +94,44 @@ def test_copied_bag_decodes_with_the_official_reader(vamos_bin: Path, tmp_path: 
     info = by_topic["/camera/camera_info"][0][2]
     assert list(info.k) == bag["k"]
     assert by_topic["/robot_description"][0][2].data == expected["urdf"]
+
+
+def test_scored_bag_decodes_with_the_official_reader(vamos_bin: Path, tmp_path: Path) -> None:
+    """``vamos score --mcap`` with a model: the official reader decodes /vamos/score and
+    /vamos/e_o as Float64 (the values of the JSON lines), /vamos/anomaly as Bool and
+    /vamos/heatmap as a 64x64 rgb8 Image, one per frame with e_o."""
+    model = FIXTURES.parent / "model" / "valid.vamos"
+    profile = tmp_path / "p.toml"
+    profile.write_text(
+        f'name = "p"\nmodel = "{model}"\nflow_preset = "realtime"\n'
+        "[pipeline]\nstride = 1\n[pipeline.frames]\nwidth = 64\nheight = 48\n"
+        'variant = "plain"\n'
+    )
+    out = tmp_path / "out"
+    run = subprocess.run([str(vamos_bin), "score", "--profile", str(profile),
+                          str(FIXTURES / "rgb8_zstd.mcap"), "-o", str(out), "--mcap",
+                          "--no-progress"],
+                         capture_output=True, text=True,
+                         env={k: v for k, v in os.environ.items() if k != "VAMOS_CONFIG"})
+    assert run.returncode == 0, run.stderr
+    lines = [json.loads(line) for line in
+             (out / "rgb8_zstd.scores.jsonl").read_text().splitlines()]
+    assert len(lines) == 20
+    e_o = [f["e_o"] for f in lines if f["e_o"] is not None]
+    assert len(e_o) == 15  # processed frame 0 has no flow, then A + B = 4 of history
+
+    _, msgs = _messages(out / "rgb8_zstd.scored.mcap")
+    by_topic: dict[str, list] = {}
+    for schema, channel, _, decoded in msgs:
+        by_topic.setdefault(channel.topic, []).append((schema.name, decoded))
+    assert {s for s, _ in by_topic["/vamos/score"]} == {"std_msgs/msg/Float64"}
+    assert [d.data for _, d in by_topic["/vamos/score"]] == [f["score"] for f in lines]
+    assert [d.data for _, d in by_topic["/vamos/anomaly"]] == [f["anomaly"] for f in lines]
+    assert [d.data for _, d in by_topic["/vamos/e_o"]] == e_o
+    assert "/vamos/e_c" not in by_topic and "/vamos/e_b" not in by_topic  # no robot
+    maps = by_topic["/vamos/heatmap"]
+    assert len(maps) == len(e_o)
+    for schema, img in maps:
+        assert schema == "sensor_msgs/msg/Image"
+        assert (img.width, img.height, img.encoding, img.step) == (64, 64, "rgb8", 64 * 3)
+        assert len(bytes(img.data)) == 64 * 64 * 3
