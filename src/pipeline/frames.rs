@@ -139,9 +139,13 @@ pub enum PipelineError {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct FrameProcessorParams {
-    /// Processing width, pixels (the paper: 640). Images of another size are resized.
+    /// Processing width, pixels. Images of another size are resized. Default 320, chosen
+    /// by measurement (`benches/README.md`, whole pipeline): with the paper-size network
+    /// one core scores a 320x240 frame with the `realtime` TV-L1 preset in ~74 ms, inside
+    /// a 10 Hz stream's 100 ms, while 640x480 (the paper's) takes ~109 ms with `realtime`
+    /// and ~371 ms with OpenCV's default TV-L1 parameters.
     pub width: usize,
-    /// Processing height, pixels (the paper: 480).
+    /// Processing height, pixels (default 240; the paper: 480).
     pub height: usize,
     /// Histogram-equalise every frame before flow and registration (the paper does).
     pub equalize: bool,
@@ -179,8 +183,8 @@ impl FrameProcessorParams {
 impl Default for FrameProcessorParams {
     fn default() -> Self {
         Self {
-            width: 640,
-            height: 480,
+            width: 320,
+            height: 240,
             equalize: true,
             variant: FlowVariant::Plain,
         }
