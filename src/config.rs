@@ -27,7 +27,8 @@ pub const CONFIG_ENV: &str = "VAMOS_CONFIG";
 
 /// `VAMOS_*` variables that are not settings keys: the settings file, the cache folder and
 /// Python interpreter of the ONNX Runtime look-up (`model::runtime`), test and bench knobs
-/// (`VAMOS_SKIP_*`, `VAMOS_BENCH_*`, `VAMOS_BIN`: the binary the Python tests run), and
+/// (`VAMOS_SKIP_*`, `VAMOS_BENCH_*`, `VAMOS_BIN`: the binary the Python tests run,
+/// `VAMOS_REQUIRE_GPU_TESTS`: the wgpu tests fail instead of skipping without an adapter), and
 /// the service's plain tokens (`VAMOS_ADMIN_TOKEN`, `VAMOS_ROBOT_TOKEN`).
 pub fn is_reserved_env(name: &str) -> bool {
     matches!(
@@ -36,6 +37,7 @@ pub fn is_reserved_env(name: &str) -> bool {
             | "VAMOS_CACHE_DIR"
             | "VAMOS_PYTHON"
             | "VAMOS_BIN"
+            | "VAMOS_REQUIRE_GPU_TESTS"
             | "VAMOS_ADMIN_TOKEN"
             | "VAMOS_ROBOT_TOKEN"
             | "VAMOS_LOADGEN_TOKEN"
@@ -197,6 +199,7 @@ mod tests {
                 ("VAMOS_CONFIG", "ignored"),
                 ("VAMOS_CACHE_DIR", "/tmp/ignored"),
                 ("VAMOS_BENCH_MODEL", "ignored"),
+                ("VAMOS_REQUIRE_GPU_TESTS", "1"),
                 ("OTHER", "x"),
             ]),
         )
