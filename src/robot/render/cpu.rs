@@ -296,13 +296,18 @@ impl super::BodyRenderer for CpuRenderer {
             );
             for t in group.triangles.clone() {
                 let [a, b, c] = self.triangles[t].map(|i| i as usize);
+                let (sa, sb, sc) = (self.screen[a], self.screen[b], self.screen[c]);
+                // `transform_vertices` marks vertices before the near plane with a
+                // negative 1/z, so the common case reads only the screen positions.
+                if sa[2] > 0.0 && sb[2] > 0.0 && sc[2] > 0.0 {
+                    target.raster([sa, sb, sc], t as u32);
+                    continue;
+                }
+                let near = self.near_m;
                 let za = self.camera_xyz[a][2];
                 let zb = self.camera_xyz[b][2];
                 let zc = self.camera_xyz[c][2];
-                let near = self.near_m;
-                if za >= near && zb >= near && zc >= near {
-                    target.raster([self.screen[a], self.screen[b], self.screen[c]], t as u32);
-                } else if za >= near || zb >= near || zc >= near {
+                if za >= near || zb >= near || zc >= near {
                     let poly = clip_near(
                         [self.camera_xyz[a], self.camera_xyz[b], self.camera_xyz[c]],
                         near,
@@ -425,11 +430,17 @@ fn transform_vertices(
         let y = r[(1, 0)] * p[0] + r[(1, 1)] * p[1] + r[(1, 2)] * p[2] + tr.y;
         let z = r[(2, 0)] * p[0] + r[(2, 1)] * p[1] + r[(2, 2)] * p[2] + tr.z;
         *c = [x, y, z];
-        if z >= near {
-            *s = project(c, proj);
-        }
+        *s = if z >= near {
+            project(c, proj)
+        } else {
+            BEHIND_NEAR
+        };
     }
 }
+
+/// The screen position of a vertex before the near plane: a negative 1/z (a vertex at or
+/// beyond the near plane, `near > 0`, has a positive one).
+const BEHIND_NEAR: [f32; 3] = [f32::NAN, f32::NAN, -1.0];
 
 fn project(p: &[f32; 3], [fx, fy, cx, cy]: [f32; 4]) -> [f32; 3] {
     let iz = 1.0 / p[2];
