@@ -18,7 +18,8 @@ fn model() -> Arc<FlowModel> {
     Arc::new(FlowModel::load(&path, &LoadOptions::default()).unwrap())
 }
 
-fn scorer(offsets: Option<(usize, usize)>, seed: u64) -> Scorer {
+/// 128x96 processing, with the past offsets `A, B` when given.
+fn config(offsets: Option<(usize, usize)>) -> PipelineConfig {
     let mut config = PipelineConfig::default();
     config.frames.width = 128;
     config.frames.height = 96;
@@ -26,7 +27,16 @@ fn scorer(offsets: Option<(usize, usize)>, seed: u64) -> Scorer {
         config.offset_a = Some(a);
         config.offset_b = Some(b);
     }
-    Scorer::new(ScorerParts {
+    config
+}
+
+fn scorer(offsets: Option<(usize, usize)>, seed: u64) -> Scorer {
+    Scorer::new(parts(config(offsets), seed)).unwrap()
+}
+
+/// A scorer's parts with the test model, no robot, realtime TV-L1 and heatmaps.
+fn parts(config: PipelineConfig, seed: u64) -> ScorerParts {
+    ScorerParts {
         config,
         flow: FlowParams::realtime(),
         registration: RegistrationParams::default(),
@@ -39,8 +49,7 @@ fn scorer(offsets: Option<(usize, usize)>, seed: u64) -> Scorer {
         thresholds: Thresholds::default(),
         alarm_threshold: f64::INFINITY,
         heatmaps: true,
-    })
-    .unwrap()
+    }
 }
 
 /// A texture drifting right by 1.5 px per frame, with a wobble down.
@@ -121,25 +130,12 @@ fn offsets_from_the_pipeline_config_override_the_bundle() {
 #[test]
 fn samples_from_the_pipeline_config_override_the_settings_and_the_bundle() {
     let m = |pipeline: Option<usize>, settings: usize| {
-        let mut config = PipelineConfig::default();
-        config.frames.width = 128;
-        config.frames.height = 96;
+        let mut config = config(None);
         config.samples = pipeline;
-        let s = Scorer::new(ScorerParts {
-            config,
-            flow: FlowParams::realtime(),
-            registration: RegistrationParams::default(),
-            network: NetworkInputParams::default(),
-            render: RenderConfig::default(),
-            robot: None,
-            model: Some(model()),
-            samples: settings,
-            seed: 7,
-            thresholds: Thresholds::default(),
-            alarm_threshold: f64::INFINITY,
-            heatmaps: false,
-        })
-        .unwrap();
+        let mut parts = parts(config, 7);
+        parts.samples = settings;
+        parts.heatmaps = false;
+        let s = Scorer::new(parts).unwrap();
         s.predictor_params().unwrap().samples
     };
     assert_eq!(m(None, 0), 3, "the bundle's temporal.m");

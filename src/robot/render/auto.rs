@@ -27,15 +27,25 @@ pub enum Choice {
     Wgpu,
 }
 
-/// Picks the back-end with the lower minimum frame time once both have `PROBE_FRAMES`
-/// timed frames beyond their warm-up frame (the first entry of each list, ignored);
-/// `None` before. Ties keep the CPU (no driver in the way).
+/// The fastest timed frame of one back-end, seconds: the minimum after the warm-up frame
+/// (the first entry, ignored), once there are `PROBE_FRAMES` timed frames; `None` before.
+fn timed_min(s: &[f64]) -> Option<f64> {
+    (s.len() > PROBE_FRAMES).then(|| s[1..].iter().copied().fold(f64::INFINITY, f64::min))
+}
+
+/// Picks the back-end with the lower [`timed_min`] once both have one; `None` before.
+/// Ties keep the CPU (no driver in the way).
 pub fn decide(cpu_s: &[f64], gpu_s: &[f64]) -> Option<Choice> {
-    let timed = |s: &[f64]| {
-        (s.len() > PROBE_FRAMES).then(|| s[1..].iter().copied().fold(f64::INFINITY, f64::min))
-    };
-    let (c, g) = (timed(cpu_s)?, timed(gpu_s)?);
-    Some(if g < c { Choice::Wgpu } else { Choice::Cpu })
+    Some(pick(timed_min(cpu_s)?, timed_min(gpu_s)?))
+}
+
+/// The faster of two timed minimums; a tie keeps the CPU.
+fn pick(cpu_s: f64, gpu_s: f64) -> Choice {
+    if gpu_s < cpu_s {
+        Choice::Wgpu
+    } else {
+        Choice::Cpu
+    }
 }
 
 /// Times both back-ends on the first frames, then renders with the faster.
@@ -128,11 +138,12 @@ impl BodyRenderer for AutoRenderer {
             return self.cpu.render(frame, out);
         }
         self.times[usize::from(use_gpu)].push(elapsed);
-        if let Some(choice) = decide(&self.times[0], &self.times[1]) {
-            let min_ms = |s: &[f64]| s[1..].iter().copied().fold(f64::INFINITY, f64::min) * 1e3;
+        if let (Some(cpu_s), Some(wgpu_s)) = (timed_min(&self.times[0]), timed_min(&self.times[1]))
+        {
+            let choice = pick(cpu_s, wgpu_s);
             tracing::info!(
-                cpu_ms = min_ms(&self.times[0]),
-                wgpu_ms = min_ms(&self.times[1]),
+                cpu_ms = cpu_s * 1e3,
+                wgpu_ms = wgpu_s * 1e3,
                 chosen = ?choice,
                 "render.backend auto: timed both back-ends on this robot"
             );

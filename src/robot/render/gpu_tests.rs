@@ -146,16 +146,41 @@ fn both(
     (co, go)
 }
 
+/// The synthetic arm at its pose (t) and 0.03 rad earlier on every joint (t-1).
+fn arm_poses(arm: &SyntheticArm) -> (Vec<Isometry3<f64>>, Vec<Isometry3<f64>>) {
+    let q1 = SyntheticArm::POSE_RAD;
+    let q0: Vec<f64> = q1.iter().map(|a| a - 0.03).collect();
+    (arm.base_from_link(&q1), arm.base_from_link(&q0))
+}
+
+/// A frame with flow from `prev` to `cur`, both seen from the same camera, no gray image.
+fn moving_frame<'a>(
+    k: &'a Intrinsics,
+    cam: Isometry3<f64>,
+    cur: &'a [Isometry3<f64>],
+    prev: &'a [Isometry3<f64>],
+) -> RenderFrame<'a> {
+    RenderFrame {
+        intrinsics: k,
+        current: RobotView {
+            camera_from_base: cam,
+            base_from_link: cur,
+        },
+        previous: Some(RobotView {
+            camera_from_base: cam,
+            base_from_link: prev,
+        }),
+        shade: false,
+    }
+}
+
 #[test]
 fn synthetic_arm_agrees_with_the_cpu_on_both_grids_and_with_culling() {
     if skip_without_adapter("synthetic_arm_agrees_with_the_cpu_on_both_grids_and_with_culling") {
         return;
     }
     let arm = SyntheticArm::new(20_000);
-    let q1 = SyntheticArm::POSE_RAD;
-    let q0: Vec<f64> = q1.iter().map(|a| a - 0.03).collect();
-    let cur = arm.base_from_link(&q1);
-    let prev = arm.base_from_link(&q0);
+    let (cur, prev) = arm_poses(&arm);
     let cam1 = SyntheticArm::camera_from_base();
     // The camera moves too (1 cm sideways, a small turn).
     let cam0 = Isometry3::from_parts(
@@ -282,18 +307,7 @@ fn franka_panda_agrees_with_the_cpu() {
     let cam = panda_camera();
     for (w, h) in [(160u32, 120u32), (320, 240), (640, 480)] {
         let k = Intrinsics::from_fov(w, h, 70.0).unwrap();
-        let frame = RenderFrame {
-            intrinsics: &k,
-            current: RobotView {
-                camera_from_base: cam,
-                base_from_link: &cur,
-            },
-            previous: Some(RobotView {
-                camera_from_base: cam,
-                base_from_link: &prev,
-            }),
-            shade: false,
-        };
+        let frame = moving_frame(&k, cam, &cur, &prev);
         for grid in [FlowGrid::Target, FlowGrid::Source] {
             let config = RenderConfig {
                 flow_grid: grid,
@@ -394,23 +408,9 @@ fn auto_times_both_back_ends_then_keeps_the_faster() {
         return;
     }
     let arm = SyntheticArm::new(20_000);
-    let q1 = SyntheticArm::POSE_RAD;
-    let q0: Vec<f64> = q1.iter().map(|a| a - 0.03).collect();
-    let (cur, prev) = (arm.base_from_link(&q1), arm.base_from_link(&q0));
-    let cam = SyntheticArm::camera_from_base();
+    let (cur, prev) = arm_poses(&arm);
     let k = SyntheticArm::intrinsics(320, 240).unwrap();
-    let frame = RenderFrame {
-        intrinsics: &k,
-        current: RobotView {
-            camera_from_base: cam,
-            base_from_link: &cur,
-        },
-        previous: Some(RobotView {
-            camera_from_base: cam,
-            base_from_link: &prev,
-        }),
-        shade: false,
-    };
+    let frame = moving_frame(&k, SyntheticArm::camera_from_base(), &cur, &prev);
     let config = RenderConfig::default();
     let mut reference = CpuRenderer::new(&config).unwrap();
     reference.prepare(&arm.meshes).unwrap();

@@ -134,23 +134,30 @@ pub(crate) fn weighted_zero_mean(img: &[f32], weights: &[f32], out: &mut [f32]) 
 /// enough that an f32 lane sums at most 128 terms.
 const LANE_BLOCK: usize = 1024;
 
-/// Sum of squares of `xs`, lane-parallel in f32 blocks folded into f64.
-pub(crate) fn sum_squares(xs: &[f32]) -> f64 {
+/// Sum of `f` over `xs` in eight f32 lanes per block of [`LANE_BLOCK`] values (so the loop
+/// vectorises), blocks added in f64.
+#[inline(always)]
+fn lane_sum<T: Copy>(xs: &[T], f: impl Fn(T) -> f32) -> f64 {
     let mut total = 0.0f64;
     for block in xs.chunks(LANE_BLOCK) {
         let mut lanes = [0.0f32; 8];
         let c = block.chunks_exact(8);
         for &v in c.remainder() {
-            lanes[0] += v * v;
+            lanes[0] += f(v);
         }
         for x8 in c {
             for k in 0..8 {
-                lanes[k] += x8[k] * x8[k];
+                lanes[k] += f(x8[k]);
             }
         }
         total += lanes.iter().map(|&v| v as f64).sum::<f64>();
     }
     total
+}
+
+/// Sum of squares of `xs`, lane-parallel in f32 blocks folded into f64.
+pub(crate) fn sum_squares(xs: &[f32]) -> f64 {
+    lane_sum(xs, |v| v * v)
 }
 
 /// Warps `src` (`w x h`, row-major) by the similarity of scale `scale` and rotation
@@ -554,20 +561,7 @@ pub(crate) fn cross_power(
         }
     }
     // Sum of magnitudes: eight f32 lanes per block, blocks summed in f64.
-    let mut sum = 0.0f64;
-    for block in out.chunks(LANE_BLOCK) {
-        let mut lanes = [0.0f32; 8];
-        let c = block.chunks_exact(8);
-        for v in c.remainder() {
-            lanes[0] += v.norm_sqr().sqrt();
-        }
-        for v8 in c {
-            for k in 0..8 {
-                lanes[k] += v8[k].norm_sqr().sqrt();
-            }
-        }
-        sum += lanes.iter().map(|&v| v as f64).sum::<f64>();
-    }
+    let sum = lane_sum(out, |v| v.norm_sqr().sqrt());
     let eps = ((1e-3 * sum / out.len().max(1) as f64) as f32).max(f32::MIN_POSITIVE);
     match ramp {
         None => {
