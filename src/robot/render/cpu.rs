@@ -82,6 +82,10 @@ pub struct CpuRenderer {
     // Per-frame scratch, kept between frames.
     camera_xyz: Vec<[f32; 3]>,
     screen: Vec<[f32; 3]>,
+    /// Per vertex, the pixel-centre bounds of [`centre_bounds`], for the triangle pre-pass.
+    centres: Vec<[i16; 4]>,
+    /// Triangles of the current group that pass the pre-pass.
+    candidates: Vec<u32>,
     inv_z: Vec<f32>,
     tri_id: Vec<u32>,
     /// Per group: rotation and translation of `other_from_shown` (matrix form: cheaper
@@ -107,6 +111,8 @@ impl CpuRenderer {
             max_link: None,
             camera_xyz: Vec::new(),
             screen: Vec::new(),
+            centres: Vec::new(),
+            candidates: Vec::new(),
             inv_z: Vec::new(),
             tri_id: Vec::new(),
             other_from_shown: Vec::new(),
@@ -255,6 +261,7 @@ impl super::BodyRenderer for CpuRenderer {
         self.tri_id.resize(n, NO_TRIANGLE);
         self.camera_xyz.resize(self.positions.len(), [0.0; 3]);
         self.screen.resize(self.positions.len(), [0.0; 3]);
+        self.centres.resize(self.positions.len(), [0; 4]);
         self.other_from_shown.clear();
 
         let frustum = Frustum::new(k, self.near_m);
@@ -294,13 +301,34 @@ impl super::BodyRenderer for CpuRenderer {
                 &mut self.camera_xyz[group.vertices.clone()],
                 &mut self.screen[group.vertices.clone()],
             );
-            for t in group.triangles.clone() {
-                let [a, b, c] = self.triangles[t].map(|i| i as usize);
+            if w < PREPASS_MAX_SIDE && h < PREPASS_MAX_SIDE {
+                centre_bounds(
+                    &self.screen[group.vertices.clone()],
+                    (w, h),
+                    &mut self.centres[group.vertices.clone()],
+                );
+                // Most triangles of a dense mesh cover no pixel centre: a branch-free
+                // pass over small per-vertex integers keeps the others, in order (so
+                // ties in depth resolve as before).
+                select_candidates(
+                    &self.triangles[group.triangles.clone()],
+                    group.triangles.start as u32,
+                    &self.centres,
+                    (w, h),
+                    &mut self.candidates,
+                );
+            } else {
+                self.candidates.clear();
+                self.candidates
+                    .extend(group.triangles.start as u32..group.triangles.end as u32);
+            }
+            for &t in &self.candidates {
+                let [a, b, c] = self.triangles[t as usize].map(|i| i as usize);
                 let (sa, sb, sc) = (self.screen[a], self.screen[b], self.screen[c]);
                 // `transform_vertices` marks vertices before the near plane with a
                 // negative 1/z, so the common case reads only the screen positions.
                 if sa[2] > 0.0 && sb[2] > 0.0 && sc[2] > 0.0 {
-                    target.raster([sa, sb, sc], t as u32);
+                    target.raster([sa, sb, sc], t);
                     continue;
                 }
                 let near = self.near_m;
@@ -314,7 +342,7 @@ impl super::BodyRenderer for CpuRenderer {
                     );
                     let s: Vec<[f32; 3]> = poly.iter().map(|p| project(p, proj)).collect();
                     for i in 1..s.len() - 1 {
-                        target.raster([s[0], s[i], s[i + 1]], t as u32);
+                        target.raster([s[0], s[i], s[i + 1]], t);
                     }
                 }
             }
@@ -435,6 +463,109 @@ fn transform_vertices(
         } else {
             BEHIND_NEAR
         };
+    }
+}
+
+/// Images at least this wide or high skip the triangle pre-pass (its bounds are `i16`).
+const PREPASS_MAX_SIDE: usize = 16_384;
+
+/// Per vertex: `[ceil(x - pad), -floor(x + pad), ceil(y - pad), -floor(y + pad)]` with
+/// `pad` the rasteriser's snapping step ([`Target::setup`]'s float box), the values
+/// clamped to `-1..=width` (or `height`) before the sign. A triangle's box holds a pixel
+/// centre of the image only if `max(min ceil, 0) <= min(max floor, width - 1)` on both
+/// axes; the floors are stored negated so that one lane-wise minimum over the three
+/// vertices gives all four bounds ([`select_candidates`]). Clamping is monotone and the
+/// `f32` floor below can only come out low for a `ceil` lane (high for a `floor`), so
+/// the test never rejects a triangle that `setup` keeps. Vertices before the near plane
+/// get the widest bounds, so their triangles always go on to `raster`.
+fn centre_bounds(screen: &[[f32; 3]], (w, h): (usize, usize), out: &mut [[i16; 4]]) {
+    let pad = 1.0 / SUB_SCALE as f32;
+    let (wf, hf) = (w as f32, h as f32);
+    let lo = [-1.0, -wf, -1.0, -hf];
+    let hi = [wf, 1.0, hf, 1.0];
+    // ceil(v) = K - floor(K - v), and K - v > 0 after the clamp, so the floor is a
+    // truncation.
+    let k = w.max(h) as i32 + 2;
+    let wide = [-1, -(w as i16), -1, -(h as i16)];
+    for (s, o) in screen.iter().zip(out.iter_mut()) {
+        let [x, y, iz] = *s;
+        *o = if iz > 0.0 && (x + y).is_finite() {
+            ceil_lanes([x - pad, -(x + pad), y - pad, -(y + pad)], lo, hi, k)
+        } else {
+            wide
+        };
+    }
+}
+
+/// Lane-wise `ceil(clamp(v, lo, hi))` as `k - trunc(k - clamped)` (see [`centre_bounds`]).
+#[inline(always)]
+fn ceil_lanes(v: [f32; 4], lo: [f32; 4], hi: [f32; 4], k: i32) -> [i16; 4] {
+    #[cfg(target_arch = "x86_64")]
+    {
+        use std::arch::x86_64::*;
+        // SAFETY: SSE2 is part of x86_64; the loads and the store go through 16-byte
+        // `[f32; 4]` and 8-byte `[i16; 4]` values, unaligned forms only.
+        unsafe {
+            let load = |a: &[f32; 4]| _mm_loadu_ps(a.as_ptr());
+            let clamped = _mm_min_ps(_mm_max_ps(load(&v), load(&lo)), load(&hi));
+            let t = _mm_cvttps_epi32(_mm_sub_ps(_mm_set1_ps(k as f32), clamped));
+            let c = _mm_sub_epi32(_mm_set1_epi32(k), t);
+            let mut out = [0i16; 4];
+            _mm_storel_epi64(out.as_mut_ptr().cast::<__m128i>(), _mm_packs_epi32(c, c));
+            out
+        }
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        std::array::from_fn(|j| (k - (k as f32 - v[j].max(lo[j]).min(hi[j])) as i32) as i16)
+    }
+}
+
+/// The triangles of `tris` (numbered from `first`) whose pixel-centre box, from the
+/// per-vertex [`centre_bounds`], holds a pixel centre of the `w x h` image, in order.
+fn select_candidates(
+    tris: &[[u32; 3]],
+    first: u32,
+    centres: &[[i16; 4]],
+    (w, h): (usize, usize),
+    out: &mut Vec<u32>,
+) {
+    out.clear();
+    out.resize(tris.len(), 0);
+    // Lane-wise lower bounds of the minimum: [0, -(w - 1), 0, -(h - 1)].
+    let floor = [0, 1 - w as i16, 0, 1 - h as i16];
+    let mut n = 0;
+    for (k, t) in tris.iter().enumerate() {
+        let [a, b, c] = t.map(|i| &centres[i as usize]);
+        out[n] = first + k as u32;
+        n += usize::from(holds_centre(a, b, c, &floor));
+    }
+    out.truncate(n);
+}
+
+/// `[lo_x, -hi_x, lo_y, -hi_y]` = lane-wise `max(min(a, b, c), floor)`; true when
+/// `lo <= hi` on both axes.
+#[inline(always)]
+fn holds_centre(a: &[i16; 4], b: &[i16; 4], c: &[i16; 4], floor: &[i16; 4]) -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        use std::arch::x86_64::*;
+        // SAFETY: SSE2 is part of x86_64; each pointer is to 8 readable bytes (an
+        // `[i16; 4]`), and the unaligned 64-bit loads have no alignment requirement.
+        unsafe {
+            let load = |p: &[i16; 4]| _mm_loadl_epi64(p.as_ptr().cast::<__m128i>());
+            let m = _mm_min_epi16(_mm_min_epi16(load(a), load(b)), load(c));
+            let m = _mm_max_epi16(m, load(floor));
+            // Lane 0 + lane 1 and lane 2 + lane 3: lo - hi on each axis.
+            let d = _mm_add_epi16(m, _mm_srli_epi64::<16>(m));
+            let bad = _mm_cmpgt_epi16(d, _mm_setzero_si128());
+            _mm_movemask_epi8(bad) & 0b11_0011 == 0
+        }
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        let m: [i16; 4] = std::array::from_fn(|j| a[j].min(b[j]).min(c[j]).max(floor[j]));
+        m[0] + m[1] <= 0 && m[2] + m[3] <= 0
     }
 }
 
@@ -811,6 +942,83 @@ mod fill_tests {
             tested += 1;
         }
         assert!(tested > 5_000, "{tested}");
+    }
+}
+
+#[cfg(test)]
+mod prepass_tests {
+    use super::tests_support::target;
+    use super::{centre_bounds, select_candidates};
+
+    /// The integer pre-pass is conservative: every triangle that `Target::setup` keeps
+    /// (so might cover a pixel centre) passes it. Random triangles of up to ~4 px, many of
+    /// them with vertices a hair from pixel centres and image edges (where the snapping
+    /// pad and the clamps matter), some reaching far outside the image.
+    #[test]
+    fn the_prepass_keeps_every_triangle_setup_keeps() {
+        let mut state = 11u64;
+        let mut uniform = || {
+            state = state
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            (state >> 40) as f32 / (1u64 << 24) as f32
+        };
+        let (w, h) = (12usize, 9usize);
+        let (mut z, mut ids) = (vec![0.0f32; w * h], vec![u32::MAX; w * h]);
+        let (mut kept, mut rejected) = (0, 0);
+        for t in 0..200_000u32 {
+            let (cx, cy) = (-3.0 + 18.0 * uniform(), -3.0 + 15.0 * uniform());
+            let size = if t % 10 == 0 { 400.0 } else { 4.0 * uniform() };
+            let mut v: [[f32; 3]; 3] = std::array::from_fn(|_| {
+                [
+                    cx + size * (uniform() - 0.5),
+                    cy + size * (uniform() - 0.5),
+                    0.2 + uniform(),
+                ]
+            });
+            if t % 3 == 0 {
+                // Snap a coordinate to within 1/256 px of a pixel centre.
+                let j = (t as usize / 3) % 3;
+                let nudge = (uniform() - 0.5) * (2.0 / 256.0);
+                v[j][0] = v[j][0].round() + nudge;
+                v[j][1] = v[j][1].round() - nudge;
+            }
+            let screen = v.to_vec();
+            let mut centres = vec![[0i16; 4]; 3];
+            centre_bounds(&screen, (w, h), &mut centres);
+            let mut out = Vec::new();
+            select_candidates(&[[0, 1, 2]], t, &centres, (w, h), &mut out);
+            let passes = out == [t];
+            let keeps = target(&mut z, &mut ids, w, h).setup(v).is_some();
+            assert!(passes || !keeps, "triangle {t}: {v:?}, bounds {centres:?}");
+            if passes && !keeps {
+                rejected += 1;
+            }
+            kept += usize::from(keeps);
+        }
+        // The test must see both outcomes in numbers.
+        assert!(kept > 20_000, "{kept}");
+        assert!(rejected > 1_000, "{rejected}");
+    }
+
+    /// Vertices before the near plane (negative 1/z) or off any scale get the widest
+    /// bounds, so their triangles always reach the clipping path.
+    #[test]
+    fn vertices_before_the_near_plane_always_pass() {
+        let (w, h) = (16usize, 16usize);
+        let screen = [
+            [1e9, 1e9, 0.5],
+            [f32::NAN, f32::NAN, -1.0],
+            [-1e9, 3.0, 0.5],
+            [2e9, 5e8, 0.5],
+        ];
+        let mut centres = vec![[0i16; 4]; 4];
+        centre_bounds(&screen, (w, h), &mut centres);
+        assert_eq!(centres[1], [-1, -16, -1, -16]);
+        let mut out = Vec::new();
+        // Far off the image on the right: rejected; through a near-plane vertex: kept.
+        select_candidates(&[[0, 3, 0], [0, 1, 3]], 5, &centres, (w, h), &mut out);
+        assert_eq!(out, [6]);
     }
 }
 
