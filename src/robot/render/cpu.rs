@@ -2,7 +2,10 @@
 //!
 //! Per frame: every link's `camera_from_link` is formed once (f64, then f32), links whose
 //! bounding sphere lies outside the view frustum are skipped, the remaining vertices are
-//! transformed and projected once (f32, planar buffers), and each triangle is clipped
+//! transformed and projected once (f32, planar buffers), each vertex gets the integer
+//! bounds of the pixel centres it could reach, a branch-free pass over those keeps the
+//! triangles whose box holds a pixel centre (most of a dense mesh's hold none), and each
+//! kept triangle is clipped
 //! against the near plane (cut into at most two triangles) and scan-converted with
 //! integer edge functions in 24.8 fixed point over its bounding box, evaluated
 //! incrementally along each row, with the top-left fill rule (a pixel centre on a shared
