@@ -12,7 +12,7 @@
 # NET_WIDTH [0.5] (the U-Net's width multiplier; 1.0 is the paper's network); ALPHA [0.2]
 # (conformal false-alarm budget per nominal episode); VARIANTS [all four]; DEVICE [auto]
 # (vamos-train's --device: cuda trains the paper-size network in minutes).
-# On a 2-core CPU machine the defaults take roughly two hours, most of it training.
+# On a 2-core CPU machine the defaults took about 100 minutes (2026-12-02), most of it training.
 # Results: OUT_DIR/eval.json, OUT_DIR/ablation.md, OUT_DIR/plots/.
 set -eu
 out=${1:?usage: scripts/benchmark.sh OUT_DIR}
