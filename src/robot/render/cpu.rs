@@ -900,20 +900,14 @@ mod span_tests {
 
 #[cfg(test)]
 mod fill_tests {
-    use super::tests_support::target;
+    use super::tests_support::{target, uniform_source};
 
     /// The direct test of a few pixel centres and the span fill write the same pixels with
     /// bit-identical depths, for random triangles of up to ~3 px with random depths, over
     /// a z-buffer already holding other triangles.
     #[test]
     fn small_fill_equals_span_fill() {
-        let mut state = 7u64;
-        let mut uniform = || {
-            state = state
-                .wrapping_mul(6_364_136_223_846_793_005)
-                .wrapping_add(1_442_695_040_888_963_407);
-            (state >> 40) as f32 / (1u64 << 24) as f32
-        };
+        let mut uniform = uniform_source(7u64);
         let (w, h) = (8, 8);
         let mut tested = 0;
         for t in 0..20_000u32 {
@@ -950,7 +944,7 @@ mod fill_tests {
 
 #[cfg(test)]
 mod prepass_tests {
-    use super::tests_support::target;
+    use super::tests_support::{target, uniform_source};
     use super::{centre_bounds, select_candidates};
 
     /// The integer pre-pass is conservative: every triangle that `Target::setup` keeps
@@ -959,13 +953,7 @@ mod prepass_tests {
     /// pad and the clamps matter), some reaching far outside the image.
     #[test]
     fn the_prepass_keeps_every_triangle_setup_keeps() {
-        let mut state = 11u64;
-        let mut uniform = || {
-            state = state
-                .wrapping_mul(6_364_136_223_846_793_005)
-                .wrapping_add(1_442_695_040_888_963_407);
-            (state >> 40) as f32 / (1u64 << 24) as f32
-        };
+        let mut uniform = uniform_source(11u64);
         let (w, h) = (12usize, 9usize);
         let (mut z, mut ids) = (vec![0.0f32; w * h], vec![u32::MAX; w * h]);
         let (mut kept, mut rejected) = (0, 0);
@@ -1028,6 +1016,17 @@ mod prepass_tests {
 #[cfg(test)]
 pub(super) mod tests_support {
     use super::Target;
+
+    /// Uniform numbers in [0, 1) from a fixed seed (a 64-bit LCG's top 24 bits).
+    pub(in crate::robot::render) fn uniform_source(seed: u64) -> impl FnMut() -> f32 {
+        let mut state = seed;
+        move || {
+            state = state
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            (state >> 40) as f32 / (1u64 << 24) as f32
+        }
+    }
 
     /// A z-buffer target over caller buffers, without back-face culling.
     pub(in crate::robot::render) fn target<'a>(
