@@ -968,7 +968,7 @@ mod prepass_tests {
                 ]
             });
             if t % 3 == 0 {
-                // Snap a coordinate to within 1/256 px of a pixel centre.
+                // Move one vertex to within 1/256 px of a pixel centre.
                 let j = (t as usize / 3) % 3;
                 let nudge = (uniform() - 0.5) * (2.0 / 256.0);
                 v[j][0] = v[j][0].round() + nudge;
