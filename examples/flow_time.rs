@@ -21,7 +21,46 @@ fn process_cpu_ms() -> f64 {
 }
 
 use vamos::vision::flow::{FlowParams, Interpolation, tvl1};
-use vamos::vision::synthetic::{accuracy_cases, moving_square_valid, pair};
+use vamos::vision::synthetic::{Motion, accuracy_cases, moving_square_valid, pair};
+
+/// The motion `m` of `accuracy_cases(w, h)` with the displacements of the 160x120 case.
+fn shrink(m: Motion, w: usize, h: usize) -> Motion {
+    let k = (160.0 / w as f64).min(120.0 / h as f64);
+    match m {
+        Motion::Translation { dx, dy } => Motion::Translation {
+            dx: dx * k,
+            dy: dy * k,
+        },
+        Motion::Similarity {
+            tx,
+            ty,
+            scale,
+            rotation_deg,
+        } => Motion::Similarity {
+            tx,
+            ty,
+            scale: 1.0 + (scale - 1.0) * k,
+            rotation_deg: rotation_deg * k,
+        },
+        Motion::Smooth { amplitude_px, seed } => Motion::Smooth {
+            amplitude_px: amplitude_px * k,
+            seed,
+        },
+        Motion::MovingSquare {
+            x,
+            y,
+            size_px,
+            dx,
+            dy,
+        } => Motion::MovingSquare {
+            x,
+            y,
+            size_px,
+            dx: dx * k,
+            dy: dy * k,
+        },
+    }
+}
 
 fn main() -> anyhow::Result<()> {
     tracing_subscriber::fmt()
@@ -31,6 +70,10 @@ fn main() -> anyhow::Result<()> {
     let mut p = FlowParams::default();
     let mut size = (320usize, 240usize);
     let mut reps = 3;
+    // `motion=pixels`: the motions of the 160x120 cases at every size (as
+    // `benches/compare_flow.py`'s default scaling); `motion=scaled` (default): motions
+    // grow with the image.
+    let mut fixed_motion = false;
     for arg in std::env::args().skip(1) {
         if let Some((k, v)) = arg.split_once('=') {
             match k {
@@ -66,6 +109,7 @@ fn main() -> anyhow::Result<()> {
                 "w" => size.0 = v.parse()?,
                 "h" => size.1 = v.parse()?,
                 "reps" => reps = v.parse()?,
+                "motion" => fixed_motion = v == "pixels",
                 _ => anyhow::bail!("unknown key {k}"),
             }
         } else {
@@ -76,7 +120,10 @@ fn main() -> anyhow::Result<()> {
     let mut total_ms = 0.0;
     let mut total_cpu = 0.0;
     let mut aees = Vec::new();
-    for (name, m) in accuracy_cases(w, h) {
+    let cases = accuracy_cases(w, h)
+        .into_iter()
+        .map(|(name, m)| (name, if fixed_motion { shrink(m, w, h) } else { m }));
+    for (name, m) in cases {
         let (a, b, gt) = pair(w, h, &m, 7);
         let mut best = f64::MAX;
         let mut best_cpu = f64::MAX;

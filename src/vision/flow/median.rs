@@ -9,9 +9,7 @@
 
 use std::sync::OnceLock;
 
-use rayon::prelude::*;
-
-use super::pyramid::ROWS_PER_TASK;
+use super::pyramid::{ROWS_PER_TASK, for_each_band};
 
 /// Pixels processed together by the network.
 const LANES: usize = 8;
@@ -94,18 +92,16 @@ pub(crate) fn median_filter(
     pad_replicate(data, width, height, r, scratch);
     let padded = &scratch[..];
     let net = network_for(side);
-    data.par_chunks_mut(width * ROWS_PER_TASK)
-        .enumerate()
-        .for_each(|(band, rows)| {
-            let job = Job {
-                padded,
-                width,
-                side,
-                net,
-                y0: band * ROWS_PER_TASK,
-            };
-            dispatch(&job, rows);
-        });
+    for_each_band(data, width, |band, rows| {
+        let job = Job {
+            padded,
+            width,
+            side,
+            net,
+            y0: band * ROWS_PER_TASK,
+        };
+        dispatch(&job, rows);
+    });
 }
 
 /// One band of rows of the median filter.

@@ -353,21 +353,61 @@ mod tests {
         assert!(e < 0.15, "AEE {e}");
     }
 
+    /// Largest endpoint difference between the fast kernel (hardware reciprocal and
+    /// square-root estimates, FMA) and the exact reference, pixels. The estimates differ
+    /// from exact arithmetic by about 1e-7 relative per step; a pixel whose residual sits
+    /// right at a threshold of the data term can then take the other branch, which moves
+    /// its flow by up to `lambda theta |grad I|`-sized steps that the next iterations
+    /// mostly undo. Measured on the pairs of the tests below: largest difference 1e-4 to
+    /// 1e-2 px (the 1e-2 with `realtime`), mean 1e-6 to 3e-5 px.
+    const FAST_MAX_DIFF_PX: f32 = 0.05;
+    /// Mean endpoint difference bound, pixels.
+    const FAST_MEAN_DIFF_PX: f64 = 1e-3;
+
+    /// The flow of `(a, b)` with one kernel.
+    fn flow_with(kernel: Kernel, a: &GrayImage, b: &GrayImage, p: &FlowParams) -> FlowField {
+        let mut est = FlowEstimator::new(p.clone()).unwrap();
+        est.kernel = kernel;
+        est.push(a).unwrap();
+        est.push(b).unwrap().unwrap()
+    }
+
+    /// The portable fused kernel equals the reference bit-for-bit; the fast one (what
+    /// `tvl1` runs) stays within the bounds above. Returns the largest difference.
+    fn kernels_agree(a: &GrayImage, b: &GrayImage, p: &FlowParams) -> f32 {
+        let reference = flow_with(Kernel::Reference, a, b, p);
+        assert_eq!(flow_with(Kernel::Portable, a, b, p), reference);
+        let fast = tvl1(a, b, p).unwrap();
+        assert_eq!(fast, flow_with(Kernel::Fast, a, b, p));
+        let (w, h) = fast.size();
+        let mut max = 0.0f32;
+        for y in 0..h {
+            for x in 0..w {
+                let (f, r) = (fast.get(x, y), reference.get(x, y));
+                max = max.max((f.0 - r.0).hypot(f.1 - r.1));
+            }
+        }
+        let mean = fast.average_endpoint_error(&reference, None).unwrap();
+        println!("fast vs reference {w}x{h}: max {max:.2e} px, mean {mean:.2e} px");
+        assert!(max <= FAST_MAX_DIFF_PX, "max difference {max} px");
+        assert!(mean <= FAST_MEAN_DIFF_PX, "mean difference {mean} px");
+        max
+    }
+
     #[test]
-    fn fast_kernel_equals_reference_end_to_end() {
-        let (a, b, _) = smooth_pair(40, 32, 3);
-        let p = quick();
-        let fast = tvl1(&a, &b, &p).unwrap();
-        let mut est = FlowEstimator::new(p).unwrap();
-        est.kernel = Kernel::Reference;
-        est.push(&a).unwrap();
-        let reference = est.push(&b).unwrap().unwrap();
-        assert_eq!(fast, reference);
+    fn fast_kernel_matches_reference_end_to_end() {
+        for (w, h, seed) in [(40, 32, 3), (97, 61, 4), (192, 128, 5)] {
+            let (a, b, _) = smooth_pair(w, h, seed);
+            kernels_agree(&a, &b, &quick());
+        }
+        let (a, b, _) = smooth_pair(160, 120, 6);
+        kernels_agree(&a, &b, &FlowParams::realtime());
     }
 
     #[test]
     fn same_result_with_one_and_two_threads() {
-        let (a, b, _) = smooth_pair(64, 48, 5);
+        // Big enough that the finest level runs on the pool with two threads.
+        let (a, b, _) = smooth_pair(192, 128, 5);
         let p = quick();
         let run = |threads: usize| {
             let pool = rayon::ThreadPoolBuilder::new()
@@ -499,10 +539,7 @@ mod tests {
         let f = tvl1(&a, &b, &p).unwrap();
         let e = f.average_endpoint_error(&gt, None).unwrap();
         assert!(e < 0.5, "AEE {e}");
-        let mut est = FlowEstimator::new(p).unwrap();
-        est.kernel = Kernel::Reference;
-        est.push(&a).unwrap();
-        assert_eq!(est.push(&b).unwrap().unwrap(), f);
+        kernels_agree(&a, &b, &p);
     }
 
     /// The per-level knobs: the fast kernel still equals the scalar reference end to
@@ -523,9 +560,6 @@ mod tests {
         let f = tvl1(&a, &b, &p).unwrap();
         let e = f.average_endpoint_error(&gt, None).unwrap();
         assert!(e < 0.5, "AEE {e}");
-        let mut est = FlowEstimator::new(p).unwrap();
-        est.kernel = Kernel::Reference;
-        est.push(&a).unwrap();
-        assert_eq!(est.push(&b).unwrap().unwrap(), f);
+        kernels_agree(&a, &b, &p);
     }
 }

@@ -11,6 +11,38 @@ use rayon::prelude::*;
 /// Rows per rayon task of the per-pixel kernels (results do not depend on it).
 pub(crate) const ROWS_PER_TASK: usize = 8;
 
+/// Pixels below which a per-pixel pass runs on the calling thread: handing work to the
+/// rayon pool and waiting for it costs a thread wake-up (tens of microseconds), more than
+/// a pass over a small pyramid level takes.
+const PARALLEL_MIN_PX: usize = 16_384;
+
+/// Whether a pass over `pixels` pixels goes to the rayon pool: only when the pool has more
+/// than one thread and the pass is big enough to pay for the hand-off. With one thread the
+/// calling thread does the work itself instead of waking the pool's single worker and
+/// sleeping. Results never depend on the choice.
+pub(crate) fn run_parallel(pixels: usize) -> bool {
+    pixels >= PARALLEL_MIN_PX && rayon::current_num_threads() > 1
+}
+
+/// Calls `f(band, rows)` on consecutive bands of [`ROWS_PER_TASK`] rows of `data` (rows
+/// of `width` elements), in parallel where [`run_parallel`] says so.
+pub(crate) fn for_each_band<T: Send>(
+    data: &mut [T],
+    width: usize,
+    f: impl Fn(usize, &mut [T]) + Sync + Send,
+) {
+    let chunk = (width * ROWS_PER_TASK).max(1);
+    if run_parallel(data.len()) {
+        data.par_chunks_mut(chunk)
+            .enumerate()
+            .for_each(|(band, rows)| f(band, rows));
+    } else {
+        for (band, rows) in data.chunks_mut(chunk).enumerate() {
+            f(band, rows);
+        }
+    }
+}
+
 /// One pyramid level of one frame.
 #[derive(Clone, Debug)]
 pub(crate) struct Level {
@@ -67,20 +99,18 @@ pub(crate) fn resize_bilinear(
     // Horizontal taps are the same for every row.
     let taps: Vec<(usize, usize, f32)> = (0..dw).map(|x| axis_tap(x, inv_x, sw)).collect();
     let mut out = vec![0.0f32; dw * dh];
-    out.par_chunks_mut(dw * ROWS_PER_TASK)
-        .enumerate()
-        .for_each(|(band, rows)| {
-            for (r, dst) in rows.chunks_exact_mut(dw).enumerate() {
-                let y = band * ROWS_PER_TASK + r;
-                let (y0, y1, fy) = axis_tap(y, inv_y, sh);
-                let (r0, r1) = (&src[y0 * sw..(y0 + 1) * sw], &src[y1 * sw..(y1 + 1) * sw]);
-                for (d, &(x0, x1, fx)) in dst.iter_mut().zip(&taps) {
-                    let top = r0[x0] + fx * (r0[x1] - r0[x0]);
-                    let bottom = r1[x0] + fx * (r1[x1] - r1[x0]);
-                    *d = top + fy * (bottom - top);
-                }
+    for_each_band(&mut out, dw, |band, rows| {
+        for (r, dst) in rows.chunks_exact_mut(dw).enumerate() {
+            let y = band * ROWS_PER_TASK + r;
+            let (y0, y1, fy) = axis_tap(y, inv_y, sh);
+            let (r0, r1) = (&src[y0 * sw..(y0 + 1) * sw], &src[y1 * sw..(y1 + 1) * sw]);
+            for (d, &(x0, x1, fx)) in dst.iter_mut().zip(&taps) {
+                let top = r0[x0] + fx * (r0[x1] - r0[x0]);
+                let bottom = r1[x0] + fx * (r1[x1] - r1[x0]);
+                *d = top + fy * (bottom - top);
             }
-        });
+        }
+    });
     out
 }
 
@@ -96,21 +126,19 @@ fn axis_tap(i: usize, inv: f32, n: usize) -> (usize, usize, f32) {
 /// `[I, Ix, Iy, 0]` with centred differences (one-sided halves at the border).
 pub(crate) fn pack_with_gradient(image: &[f32], width: usize, height: usize) -> Vec<[f32; 4]> {
     let mut out = vec![[0.0f32; 4]; width * height];
-    out.par_chunks_mut(width * ROWS_PER_TASK)
-        .enumerate()
-        .for_each(|(band, rows)| {
-            for (r, dst) in rows.chunks_exact_mut(width).enumerate() {
-                let y = band * ROWS_PER_TASK + r;
-                let row = &image[y * width..(y + 1) * width];
-                let up = &image[y.saturating_sub(1) * width..][..width];
-                let down = &image[(y + 1).min(height - 1) * width..][..width];
-                for x in 0..width {
-                    let l = row[x.saturating_sub(1)];
-                    let r = row[(x + 1).min(width - 1)];
-                    dst[x] = [row[x], 0.5 * (r - l), 0.5 * (down[x] - up[x]), 0.0];
-                }
+    for_each_band(&mut out, width, |band, rows| {
+        for (r, dst) in rows.chunks_exact_mut(width).enumerate() {
+            let y = band * ROWS_PER_TASK + r;
+            let row = &image[y * width..(y + 1) * width];
+            let up = &image[y.saturating_sub(1) * width..][..width];
+            let down = &image[(y + 1).min(height - 1) * width..][..width];
+            for x in 0..width {
+                let l = row[x.saturating_sub(1)];
+                let r = row[(x + 1).min(width - 1)];
+                dst[x] = [row[x], 0.5 * (r - l), 0.5 * (down[x] - up[x]), 0.0];
             }
-        });
+        }
+    });
     out
 }
 

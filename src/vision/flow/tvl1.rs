@@ -28,17 +28,21 @@ use rayon::prelude::*;
 
 use super::median::median_filter;
 use super::params::{FlowParams, Interpolation};
-use super::pyramid::Level;
-use super::warp::{Linearised, linearise};
+use super::pyramid::{Level, run_parallel};
+use super::warp::{GRAD_EPS, Linearised, linearise};
 
-/// `|grad I1w|^2` below which the data term is treated as flat (as OpenCV).
-const GRAD_EPS: f32 = f32::EPSILON;
-
-/// Which inner kernel runs (the reference exists to test the fast one).
+/// Which inner kernel runs (the reference and the portable kernel exist to test the
+/// fast one).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(crate) enum Kernel {
+    /// One full-image pass per step, exact arithmetic.
     #[cfg_attr(not(test), allow(dead_code))]
     Reference,
+    /// The fused, banded kernel with exact arithmetic: equals the reference bit-for-bit.
+    #[cfg_attr(not(test), allow(dead_code))]
+    Portable,
+    /// The fused, banded kernel with AVX2 + FMA where the CPU has them (reciprocals and
+    /// square roots by refined estimates, see [`simd`]), else [`Kernel::Portable`].
     Fast,
 }
 
@@ -309,34 +313,113 @@ fn take_front<'a, T>(s: &mut &'a mut [T], n: usize) -> &'a mut [T] {
     head
 }
 
-fn band_rows(height: usize) -> usize {
+/// Rows per band: the whole image when the iteration runs on the calling thread.
+fn band_rows(width: usize, height: usize) -> usize {
+    if !run_parallel(width * height) {
+        return height;
+    }
     let tasks = 4 * rayon::current_num_threads();
     height.div_ceil(tasks).max(16)
 }
 
-fn band_dispatch(lin: &Linearised, band: Band<'_>, up: &[f32], w: usize, height: usize, s: Steps) {
+/// Whether the fast kernel runs its AVX2 + FMA rows on this CPU.
+fn simd_rows() -> bool {
     #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2") {
-        // SAFETY: the CPU supports AVX2 (checked just above).
-        unsafe { band_pass_avx2(lin, band, up, w, height, s) };
-        return;
+    {
+        std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
     }
-    band_pass(lin, band, up, w, height, s);
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
 }
 
-/// [`band_pass`] compiled with AVX2. No FMA is enabled and Rust never contracts
-/// `a * b + c`, and division and square root are correctly rounded, so the results are
-/// identical to the baseline build.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-fn band_pass_avx2(lin: &Linearised, band: Band<'_>, up: &[f32], w: usize, height: usize, s: Steps) {
-    band_pass(lin, band, up, w, height, s);
+/// Row kernels of a band pass.
+trait Rows {
+    #[allow(clippy::too_many_arguments)]
+    fn primal(
+        lin: (&[f32], &[f32], &[f32], &[f32]),
+        p: (&[f32], &[f32], &[f32], &[f32]),
+        up: (&[f32], &[f32]),
+        u1: &mut [f32],
+        u2: &mut [f32],
+        e: &mut [f32],
+        s: Steps,
+    );
+    #[allow(clippy::too_many_arguments)]
+    fn dual(
+        u: (&[f32], &[f32]),
+        un: (&[f32], &[f32]),
+        p11: &mut [f32],
+        p12: &mut [f32],
+        p21: &mut [f32],
+        p22: &mut [f32],
+        taut: f32,
+    );
+}
+
+/// Exact arithmetic (as the reference).
+struct ExactRows;
+
+impl Rows for ExactRows {
+    #[inline(always)]
+    fn primal(
+        lin: (&[f32], &[f32], &[f32], &[f32]),
+        p: (&[f32], &[f32], &[f32], &[f32]),
+        up: (&[f32], &[f32]),
+        u1: &mut [f32],
+        u2: &mut [f32],
+        e: &mut [f32],
+        s: Steps,
+    ) {
+        primal_row(lin, p, up, u1, u2, e, s);
+    }
+
+    #[inline(always)]
+    fn dual(
+        u: (&[f32], &[f32]),
+        un: (&[f32], &[f32]),
+        p11: &mut [f32],
+        p12: &mut [f32],
+        p21: &mut [f32],
+        p22: &mut [f32],
+        taut: f32,
+    ) {
+        dual_row(u, un, p11, p12, p21, p22, taut);
+    }
+}
+
+#[allow(clippy::too_many_arguments)]
+fn band_dispatch(
+    lin: &Linearised,
+    band: Band<'_>,
+    up: &[f32],
+    w: usize,
+    height: usize,
+    s: Steps,
+    simd: bool,
+) {
+    #[cfg(target_arch = "x86_64")]
+    if simd {
+        // SAFETY: `simd` is only set where the CPU has AVX2 and FMA (`simd_rows`).
+        unsafe { simd::band_pass(lin, band, up, w, height, s) };
+        return;
+    }
+    let _ = simd;
+    band_pass::<ExactRows>(lin, band, up, w, height, s);
 }
 
 /// Steps 1-3 on a band of rows, the dual step one row behind; the band's last row's
 /// dual step is left to the caller unless it is the image's last row.
 #[inline(always)]
-fn band_pass(lin: &Linearised, band: Band<'_>, up: &[f32], w: usize, height: usize, s: Steps) {
+fn band_pass<R: Rows>(
+    lin: &Linearised,
+    band: Band<'_>,
+    up: &[f32],
+    w: usize,
+    height: usize,
+    s: Steps,
+) {
     let Band {
         y0,
         u1,
@@ -366,7 +449,7 @@ fn band_pass(lin: &Linearised, band: Band<'_>, up: &[f32], w: usize, height: usi
                 &p22[row.start - w..row.start],
             )
         };
-        primal_row(
+        R::primal(
             lin_row,
             (
                 &p11[row.clone()],
@@ -383,7 +466,7 @@ fn band_pass(lin: &Linearised, band: Band<'_>, up: &[f32], w: usize, height: usi
         err[r] = row_sum(&e);
         if r > 0 {
             let prev = row.start - w..row.start;
-            dual_row(
+            R::dual(
                 (&u1[prev.clone()], &u2[prev.clone()]),
                 (&u1[row.clone()], &u2[row.clone()]),
                 &mut p11[prev.clone()],
@@ -397,7 +480,7 @@ fn band_pass(lin: &Linearised, band: Band<'_>, up: &[f32], w: usize, height: usi
     if y0 + h == height {
         let last = (h - 1) * w..h * w;
         let (a1, a2) = (u1[last.clone()].to_vec(), u2[last.clone()].to_vec());
-        dual_row(
+        R::dual(
             (&a1, &a2),
             (&a1, &a2),
             &mut p11[last.clone()],
@@ -420,9 +503,28 @@ pub(crate) fn iterate_fast(
     height: usize,
     s: Steps,
     scratch: &mut FastScratch,
+    simd: bool,
+) -> f64 {
+    let rows = band_rows(width, height);
+    iterate_bands(lin, u1, u2, p, width, height, s, scratch, rows, simd)
+}
+
+/// [`iterate_fast`] on bands of `rows` rows (the last one may be shorter); the result does
+/// not depend on `rows`.
+#[allow(clippy::too_many_arguments)]
+fn iterate_bands(
+    lin: &Linearised,
+    u1: &mut [f32],
+    u2: &mut [f32],
+    p: &mut Dual,
+    width: usize,
+    height: usize,
+    s: Steps,
+    scratch: &mut FastScratch,
+    rows: usize,
+    simd: bool,
 ) -> f64 {
     let w = width;
-    let rows = band_rows(height);
     let nbands = height.div_ceil(rows);
     // Old dual rows above each band (zeros above the image).
     scratch.above.clear();
@@ -464,16 +566,22 @@ pub(crate) fn iterate_fast(
         }
     }
     let above = &scratch.above;
-    bands.into_par_iter().enumerate().for_each(|(b, band)| {
+    let run = |(b, band): (usize, Band<'_>)| {
         let up = &above[b * 2 * w..(b + 1) * 2 * w];
-        band_dispatch(lin, band, up, w, height, s);
-    });
+        band_dispatch(lin, band, up, w, height, s, simd);
+    };
+    if nbands > 1 {
+        bands.into_par_iter().enumerate().for_each(run);
+    } else {
+        bands.into_iter().enumerate().for_each(run);
+    }
     // Deferred dual rows: the last row of every band but the last needs the next band's
     // first row of u.
     for b in 1..nbands {
         let y = b * rows - 1;
         let (cur, next) = (y * w..(y + 1) * w, (y + 1) * w..(y + 2) * w);
-        dual_row(
+        let deferred = if simd { dual_row_fast } else { dual_row };
+        deferred(
             (&u1[cur.clone()], &u2[cur.clone()]),
             (&u1[next.clone()], &u2[next]),
             &mut p.p11[cur.clone()],
@@ -484,6 +592,327 @@ pub(crate) fn iterate_fast(
         );
     }
     scratch.row_err.iter().sum()
+}
+
+/// [`dual_row`] with the fast kernel's arithmetic (for the deferred band-edge rows).
+#[allow(clippy::too_many_arguments)]
+fn dual_row_fast(
+    u: (&[f32], &[f32]),
+    un: (&[f32], &[f32]),
+    p11: &mut [f32],
+    p12: &mut [f32],
+    p21: &mut [f32],
+    p22: &mut [f32],
+    taut: f32,
+) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        // SAFETY: only called when `simd_rows()` holds (AVX2 and FMA present).
+        unsafe { simd::dual_row(u, un, p11, p12, p21, p22, taut) }
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    dual_row(u, un, p11, p12, p21, p22, taut);
+}
+
+/// The fast kernel's rows with AVX2 and FMA, eight pixels per step.
+///
+/// Same steps as [`primal_px`] and [`dual_px`], but no instruction of the divider:
+/// reciprocals (`1 / |grad I1w|^2` in the primal step, `1 / (1 + ...)` in the dual step)
+/// come from the hardware estimate and `sqrt(q)` from `q` times the estimate of
+/// `1 / sqrt(q)`, each refined by one Newton step (relative error about 1e-7 instead of
+/// 0.5 ulp). The division and square root units were the bottleneck of the exact
+/// kernel: five divisions and two square roots per eight pixels and iteration. Row ends
+/// use masked loads and stores; column 0 uses the exact per-pixel code.
+#[cfg(target_arch = "x86_64")]
+mod simd {
+    use std::arch::x86_64::*;
+
+    use super::{
+        Band, GRAD_EPS, Linearised, Rows, Steps, band_pass as generic_band_pass, primal_px,
+    };
+
+    /// The AVX2 + FMA rows.
+    struct SimdRows;
+
+    impl Rows for SimdRows {
+        #[inline(always)]
+        fn primal(
+            lin: (&[f32], &[f32], &[f32], &[f32]),
+            p: (&[f32], &[f32], &[f32], &[f32]),
+            up: (&[f32], &[f32]),
+            u1: &mut [f32],
+            u2: &mut [f32],
+            e: &mut [f32],
+            s: Steps,
+        ) {
+            // SAFETY: `SimdRows` is only used by `band_pass` below, which requires AVX2
+            // and FMA.
+            unsafe { primal_row(lin, p, up, u1, u2, e, s) }
+        }
+
+        #[inline(always)]
+        fn dual(
+            u: (&[f32], &[f32]),
+            un: (&[f32], &[f32]),
+            p11: &mut [f32],
+            p12: &mut [f32],
+            p21: &mut [f32],
+            p22: &mut [f32],
+            taut: f32,
+        ) {
+            // SAFETY: as above.
+            unsafe { dual_row(u, un, p11, p12, p21, p22, taut) }
+        }
+    }
+
+    /// The band pass with the AVX2 + FMA rows.
+    #[target_feature(enable = "avx2,fma")]
+    pub(super) unsafe fn band_pass(
+        lin: &Linearised,
+        band: Band<'_>,
+        up: &[f32],
+        w: usize,
+        height: usize,
+        s: Steps,
+    ) {
+        generic_band_pass::<SimdRows>(lin, band, up, w, height, s);
+    }
+
+    #[inline(always)]
+    fn ld(v: &[f32], i: usize) -> __m256 {
+        let v = &v[i..i + 8];
+        // SAFETY: eight values (checked by the slicing); AVX is enabled in every caller.
+        unsafe { _mm256_loadu_ps(v.as_ptr()) }
+    }
+
+    #[inline(always)]
+    fn st(v: &mut [f32], i: usize, x: __m256) {
+        let v = &mut v[i..i + 8];
+        // SAFETY: as `ld`.
+        unsafe { _mm256_storeu_ps(v.as_mut_ptr(), x) }
+    }
+
+    /// `1 / x` from the hardware estimate and one Newton step.
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    fn recip(x: __m256) -> __m256 {
+        let r = _mm256_rcp_ps(x);
+        _mm256_mul_ps(r, _mm256_fnmadd_ps(x, r, _mm256_set1_ps(2.0)))
+    }
+
+    /// `sqrt(q)` for `q >= 0` as `q * rsqrt(q)`, the estimate refined by one Newton step
+    /// (0 stays 0).
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    fn sqrt(q: __m256) -> __m256 {
+        let y = _mm256_rsqrt_ps(_mm256_max_ps(q, _mm256_set1_ps(f32::MIN_POSITIVE)));
+        let qy = _mm256_mul_ps(q, y);
+        // y' = y (1.5 - 0.5 q y^2), so q y' = qy (1.5 - 0.5 qy y).
+        let h = _mm256_fnmadd_ps(
+            _mm256_mul_ps(_mm256_set1_ps(0.5), qy),
+            y,
+            _mm256_set1_ps(1.5),
+        );
+        _mm256_mul_ps(qy, h)
+    }
+
+    /// Lanes `0..n` set (n <= 8), as a mask for the masked loads and stores.
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    fn first_lanes(n: usize) -> __m256i {
+        _mm256_cmpgt_epi32(
+            _mm256_set1_epi32(n as i32),
+            _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7),
+        )
+    }
+
+    /// Lanes `0..n` of `v[i..]` (`n = min(8, v.len() - i)`), 0 in the others.
+    #[inline(always)]
+    fn ld_part(v: &[f32], i: usize, mask: __m256i) -> __m256 {
+        let v = &v[i..];
+        // SAFETY: the mask selects lanes `0..min(8, v.len())` only (callers build it from
+        // the remaining length); AVX is enabled in every caller.
+        unsafe { _mm256_maskload_ps(v.as_ptr(), mask) }
+    }
+
+    #[inline(always)]
+    fn st_part(v: &mut [f32], i: usize, mask: __m256i, x: __m256) {
+        let v = &mut v[i..];
+        // SAFETY: as `ld_part`.
+        unsafe { _mm256_maskstore_ps(v.as_mut_ptr(), mask, x) }
+    }
+
+    /// Eight (or, with a mask, fewer) consecutive values.
+    #[derive(Clone, Copy)]
+    enum Span {
+        Full,
+        Part(__m256i),
+    }
+
+    impl Span {
+        #[inline(always)]
+        fn ld(self, v: &[f32], i: usize) -> __m256 {
+            match self {
+                Span::Full => ld(v, i),
+                Span::Part(m) => ld_part(v, i, m),
+            }
+        }
+
+        #[inline(always)]
+        fn st(self, v: &mut [f32], i: usize, x: __m256) {
+            match self {
+                Span::Full => st(v, i, x),
+                Span::Part(m) => st_part(v, i, m, x),
+            }
+        }
+    }
+
+    /// Steps 1 and 2 on one row (as `super::primal_row`). `|grad|^2` and its reciprocal
+    /// are recomputed from `Ix`, `Iy` (cheaper than reading two more arrays: the kernel
+    /// is bound by memory traffic once the divider is out of it).
+    #[target_feature(enable = "avx2,fma")]
+    unsafe fn primal_row(
+        lin: (&[f32], &[f32], &[f32], &[f32]),
+        p: (&[f32], &[f32], &[f32], &[f32]),
+        (p12_up, p22_up): (&[f32], &[f32]),
+        u1: &mut [f32],
+        u2: &mut [f32],
+        e: &mut [f32],
+        s: Steps,
+    ) {
+        let w = u1.len();
+        let (ix, iy, g, rc) = (&lin.0[..w], &lin.1[..w], &lin.2[..w], &lin.3[..w]);
+        let (p11, p12, p21, p22) = (&p.0[..w], &p.1[..w], &p.2[..w], &p.3[..w]);
+        let (p12_up, p22_up) = (&p12_up[..w], &p22_up[..w]);
+        let (u2, e) = (&mut u2[..w], &mut e[..w]);
+        // Column 0 (p is 0 left of the image): the exact code.
+        {
+            let d1 = p11[0] + (p12[0] - p12_up[0]);
+            let d2 = p21[0] + (p22[0] - p22_up[0]);
+            let (n1, n2) = primal_px(ix[0], iy[0], g[0], rc[0], u1[0], u2[0], d1, d2, s);
+            let (a, b) = (n1 - u1[0], n2 - u2[0]);
+            e[0] = a * a + b * b;
+            u1[0] = n1;
+            u2[0] = n2;
+        }
+        let (lt, theta) = (_mm256_set1_ps(s.lt), _mm256_set1_ps(s.theta));
+        let (neg_lt, eps) = (_mm256_set1_ps(-s.lt), _mm256_set1_ps(GRAD_EPS));
+        let sign = _mm256_set1_ps(-0.0);
+        let mut x = 1;
+        while x < w {
+            let span = if x + 8 <= w {
+                Span::Full
+            } else {
+                Span::Part(first_lanes(w - x))
+            };
+            let d1 = _mm256_add_ps(
+                _mm256_sub_ps(span.ld(p11, x), span.ld(p11, x - 1)),
+                _mm256_sub_ps(span.ld(p12, x), span.ld(p12_up, x)),
+            );
+            let d2 = _mm256_add_ps(
+                _mm256_sub_ps(span.ld(p21, x), span.ld(p21, x - 1)),
+                _mm256_sub_ps(span.ld(p22, x), span.ld(p22_up, x)),
+            );
+            let (vx, vy) = (span.ld(ix, x), span.ld(iy, x));
+            let (o1, o2) = (span.ld(u1, x), span.ld(u2, x));
+            let rho = _mm256_add_ps(
+                span.ld(rc, x),
+                _mm256_fmadd_ps(vy, o2, _mm256_mul_ps(vx, o1)),
+            );
+            let gg = _mm256_fmadd_ps(vy, vy, _mm256_mul_ps(vx, vx));
+            let lg = _mm256_mul_ps(lt, gg);
+            // -rho / g where the gradient is not flat, else 0.
+            let flat = _mm256_cmp_ps::<_CMP_LE_OQ>(gg, eps);
+            let inv = _mm256_andnot_ps(flat, recip(_mm256_max_ps(gg, eps)));
+            let mut f = _mm256_xor_ps(_mm256_mul_ps(rho, inv), sign);
+            let below = _mm256_cmp_ps::<_CMP_LT_OQ>(rho, _mm256_xor_ps(lg, sign));
+            f = _mm256_blendv_ps(f, lt, below);
+            let above = _mm256_cmp_ps::<_CMP_GT_OQ>(rho, lg);
+            f = _mm256_blendv_ps(f, neg_lt, above);
+            let n1 = _mm256_fmadd_ps(theta, d1, _mm256_fmadd_ps(f, vx, o1));
+            let n2 = _mm256_fmadd_ps(theta, d2, _mm256_fmadd_ps(f, vy, o2));
+            let (a, b) = (_mm256_sub_ps(n1, o1), _mm256_sub_ps(n2, o2));
+            span.st(e, x, _mm256_fmadd_ps(b, b, _mm256_mul_ps(a, a)));
+            span.st(u1, x, n1);
+            span.st(u2, x, n2);
+            x += 8;
+        }
+    }
+
+    /// Step 3 on the pixels `x..` of `span` for one flow component.
+    ///
+    /// # Safety
+    /// The CPU must have AVX2 and FMA (it is inlined into the `dual_row` that requires
+    /// them).
+    #[inline(always)]
+    unsafe fn dual_block(
+        span: Span,
+        right: Span,
+        has_right: __m256,
+        (u, un): (&[f32], &[f32]),
+        (pa, pb): (&mut [f32], &mut [f32]),
+        x: usize,
+        taut: f32,
+    ) {
+        // SAFETY: the caller guarantees AVX2 and FMA.
+        unsafe {
+            let t = _mm256_set1_ps(taut);
+            let c = span.ld(u, x);
+            let ux = _mm256_and_ps(has_right, _mm256_sub_ps(right.ld(u, x + 1), c));
+            let uy = _mm256_sub_ps(span.ld(un, x), c);
+            let q = _mm256_fmadd_ps(uy, uy, _mm256_mul_ps(ux, ux));
+            let r = recip(_mm256_fmadd_ps(t, sqrt(q), _mm256_set1_ps(1.0)));
+            span.st(
+                pa,
+                x,
+                _mm256_mul_ps(_mm256_fmadd_ps(t, ux, span.ld(pa, x)), r),
+            );
+            span.st(
+                pb,
+                x,
+                _mm256_mul_ps(_mm256_fmadd_ps(t, uy, span.ld(pb, x)), r),
+            );
+        }
+    }
+
+    /// Step 3 on one row (as `super::dual_row`).
+    #[target_feature(enable = "avx2,fma")]
+    pub(super) unsafe fn dual_row(
+        (u1, u2): (&[f32], &[f32]),
+        (u1n, u2n): (&[f32], &[f32]),
+        p11: &mut [f32],
+        p12: &mut [f32],
+        p21: &mut [f32],
+        p22: &mut [f32],
+        taut: f32,
+    ) {
+        let w = u1.len();
+        let (u2, u1n, u2n) = (&u2[..w], &u1n[..w], &u2n[..w]);
+        let (p11, p12, p21, p22) = (&mut p11[..w], &mut p12[..w], &mut p21[..w], &mut p22[..w]);
+        let mut x = 0;
+        while x < w {
+            // The right neighbour exists for the lanes before the last column; there the
+            // horizontal difference is 0.
+            let (span, right) = if x + 9 <= w {
+                (Span::Full, Span::Full)
+            } else {
+                (
+                    Span::Part(first_lanes(w - x)),
+                    Span::Part(first_lanes(w - x - 1)),
+                )
+            };
+            let has_right = match right {
+                Span::Full => _mm256_castsi256_ps(_mm256_set1_epi32(-1)),
+                Span::Part(m) => _mm256_castsi256_ps(m),
+            };
+            // SAFETY: this function requires AVX2 and FMA.
+            unsafe {
+                dual_block(span, right, has_right, (u1, u1n), (p11, p12), x, taut);
+                dual_block(span, right, has_right, (u2, u2n), (p21, p22), x, taut);
+            }
+            x += 8;
+        }
+    }
 }
 
 /// What differs between levels: the finest solved level may have its own warps,
@@ -542,6 +971,7 @@ pub(crate) fn solve_level(
     debug_assert_eq!(p.p11.len(), n);
     let mut lin = Linearised::default();
     let mut scratch = FastScratch::default();
+    let simd = kernel == Kernel::Fast && simd_rows();
     let mut median_scratch = Vec::new();
     let (mut t_lin, mut t_med, mut t_it, mut n_it, mut n_med) = (0.0, 0.0, 0.0, 0usize, 0usize);
     for _ in 0..plan.warps {
@@ -571,7 +1001,8 @@ pub(crate) fn solve_level(
             let mut inner = 0;
             while error > scaled_eps && inner < plan.inner_iterations {
                 error = match kernel {
-                    Kernel::Fast => iterate_fast(&lin, u1, u2, p, w, h, s, &mut scratch),
+                    Kernel::Fast => iterate_fast(&lin, u1, u2, p, w, h, s, &mut scratch, simd),
+                    Kernel::Portable => iterate_fast(&lin, u1, u2, p, w, h, s, &mut scratch, false),
                     Kernel::Reference => iterate_reference(&lin, u1, u2, p, w, h, s),
                 };
                 inner += 1;
@@ -629,6 +1060,75 @@ mod tests {
         (lin, u1, u2)
     }
 
+    /// The AVX2 + FMA rows against the reference, one iteration at a time from the same
+    /// state, on widths that exercise every masked row end (1 to 8 leftover pixels).
+    #[test]
+    fn simd_iteration_is_close_to_reference() {
+        if !simd_rows() {
+            println!("no AVX2 + FMA on this CPU: the SIMD rows are not used here");
+            return;
+        }
+        let s = Steps {
+            lt: 0.045,
+            theta: 0.3,
+            taut: 0.25 / 0.3,
+        };
+        let close = |a: &[f32], b: &[f32], what: &str| {
+            for (i, (x, y)) in a.iter().zip(b).enumerate() {
+                assert!(
+                    (x - y).abs() <= 1e-5 * (1.0 + x.abs()),
+                    "{what}[{i}]: {x} vs {y}"
+                );
+            }
+        };
+        for (w, h) in [
+            (1, 7),
+            (2, 2),
+            (9, 1),
+            (10, 3),
+            (16, 4),
+            (17, 5),
+            (37, 29),
+            (64, 70),
+        ] {
+            let (lin, u1, u2) = setup(w, h);
+            let (mut a1, mut a2, mut pa) = (u1.clone(), u2.clone(), Dual::zeros(w * h));
+            let mut scratch = FastScratch::default();
+            for it in 0..6 {
+                // Both kernels start every iteration from the reference's state.
+                let (mut b1, mut b2, mut pb) = (a1.clone(), a2.clone(), pa.clone());
+                let ea = iterate_reference(&lin, &mut a1, &mut a2, &mut pa, w, h, s);
+                let eb = iterate_bands(
+                    &lin,
+                    &mut b1,
+                    &mut b2,
+                    &mut pb,
+                    w,
+                    h,
+                    s,
+                    &mut scratch,
+                    5,
+                    true,
+                );
+                let at = format!("{w}x{h} iteration {it}");
+                assert!(
+                    (ea - eb).abs() <= 1e-4 * (1.0 + ea),
+                    "{at}: error {ea} vs {eb}"
+                );
+                close(&a1, &b1, &format!("{at} u1"));
+                close(&a2, &b2, &format!("{at} u2"));
+                for (x, y, name) in [
+                    (&pa.p11, &pb.p11, "p11"),
+                    (&pa.p12, &pb.p12, "p12"),
+                    (&pa.p21, &pb.p21, "p21"),
+                    (&pa.p22, &pb.p22, "p22"),
+                ] {
+                    close(x, y, &format!("{at} {name}"));
+                }
+            }
+        }
+    }
+
     #[test]
     fn fast_iteration_equals_reference() {
         let s = Steps {
@@ -638,15 +1138,29 @@ mod tests {
         };
         for (w, h) in [(37usize, 29usize), (64, 70), (2, 2), (9, 1), (1, 7)] {
             let (lin, u1, u2) = setup(w, h);
-            let (mut a1, mut a2, mut pa) = (u1.clone(), u2.clone(), Dual::zeros(w * h));
-            let (mut b1, mut b2, mut pb) = (u1.clone(), u2.clone(), Dual::zeros(w * h));
-            let mut scratch = FastScratch::default();
-            for it in 0..6 {
-                let ea = iterate_reference(&lin, &mut a1, &mut a2, &mut pa, w, h, s);
-                let eb = iterate_fast(&lin, &mut b1, &mut b2, &mut pb, w, h, s, &mut scratch);
-                assert_eq!(ea, eb, "{w}x{h} iteration {it}");
-                assert_eq!((&a1, &a2), (&b1, &b2), "{w}x{h} iteration {it}");
-                assert_eq!(pa, pb, "{w}x{h} iteration {it}");
+            for rows in [1, 2, 5, 16, h] {
+                let (mut b1, mut b2, mut pb) = (u1.clone(), u2.clone(), Dual::zeros(w * h));
+                let mut scratch = FastScratch::default();
+                let (mut a1, mut a2, mut pa) = (u1.clone(), u2.clone(), Dual::zeros(w * h));
+                for it in 0..6 {
+                    let ea = iterate_reference(&lin, &mut a1, &mut a2, &mut pa, w, h, s);
+                    let eb = iterate_bands(
+                        &lin,
+                        &mut b1,
+                        &mut b2,
+                        &mut pb,
+                        w,
+                        h,
+                        s,
+                        &mut scratch,
+                        rows,
+                        false,
+                    );
+                    let at = format!("{w}x{h} bands of {rows} rows, iteration {it}");
+                    assert_eq!(ea, eb, "{at}");
+                    assert_eq!((&a1, &a2), (&b1, &b2), "{at}");
+                    assert_eq!(pa, pb, "{at}");
+                }
             }
         }
     }

@@ -8,7 +8,10 @@
 use rayon::prelude::*;
 
 use super::params::Interpolation;
-use super::pyramid::ROWS_PER_TASK;
+use super::pyramid::{ROWS_PER_TASK, run_parallel};
+
+/// `|grad I1w|^2` below which the data term is treated as flat (as OpenCV).
+pub(crate) const GRAD_EPS: f32 = f32::EPSILON;
 
 /// Per-warp arrays of one level.
 #[derive(Clone, Debug, Default)]
@@ -223,16 +226,36 @@ pub(crate) fn linearise(
         height,
         interpolation,
     };
-    out.ix
-        .par_chunks_mut(chunk)
-        .zip(out.iy.par_chunks_mut(chunk))
-        .zip(out.grad.par_chunks_mut(chunk))
-        .zip(out.rho_c.par_chunks_mut(chunk))
-        .enumerate()
-        .for_each(|(band, (((ix, iy), grad), rho))| {
-            dispatch(&job, band * chunk, [ix, iy, grad, rho]);
-        });
+    let run = |(band, (((ix, iy), grad), rho)): Bands<'_>| {
+        dispatch(&job, band * chunk, [ix, iy, grad, rho]);
+    };
+    if run_parallel(n) {
+        out.ix
+            .par_chunks_mut(chunk)
+            .zip(out.iy.par_chunks_mut(chunk))
+            .zip(out.grad.par_chunks_mut(chunk))
+            .zip(out.rho_c.par_chunks_mut(chunk))
+            .enumerate()
+            .for_each(run);
+    } else {
+        out.ix
+            .chunks_mut(chunk)
+            .zip(out.iy.chunks_mut(chunk))
+            .zip(out.grad.chunks_mut(chunk))
+            .zip(out.rho_c.chunks_mut(chunk))
+            .enumerate()
+            .for_each(run);
+    }
 }
+
+/// One band of the four output arrays, numbered.
+type Bands<'a> = (
+    usize,
+    (
+        ((&'a mut [f32], &'a mut [f32]), &'a mut [f32]),
+        &'a mut [f32],
+    ),
+);
 
 /// Inputs of the linearisation.
 struct Job<'a> {
@@ -247,53 +270,52 @@ struct Job<'a> {
 
 fn dispatch(job: &Job<'_>, start: usize, out: [&mut [f32]; 4]) {
     #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2") {
-        // SAFETY: the CPU supports AVX2 (checked just above).
-        unsafe { linearise_band_avx2(job, start, out) };
+    if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
+        // SAFETY: the CPU supports AVX2 and FMA (checked just above).
+        unsafe { simd::linearise_band(job, start, out) };
         return;
     }
     linearise_band(job, start, out);
 }
 
-/// [`linearise_band`] compiled with AVX2 (no FMA: identical results).
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-fn linearise_band_avx2(job: &Job<'_>, start: usize, out: [&mut [f32]; 4]) {
-    linearise_band(job, start, out);
+/// One pixel of the linearisation at `(x, y)` (index `k` of the level): `[Ix, Iy,
+/// |grad|^2, rho_c]`.
+#[inline(always)]
+fn linearise_px(job: &Job<'_>, k: usize, x: usize, y: usize) -> [f32; 4] {
+    let (u1, u2) = (job.u1[k], job.u2[k]);
+    let (sx, sy) = (x as f32 + u1, y as f32 + u2);
+    let (w, h) = (job.width, job.height);
+    let (wi, hi) = (w as isize, h as isize);
+    // Interior fast paths: integer/fraction split once, weights once for the three
+    // planes, no border checks; the border goes through `sample`.
+    let (fx, fy, tx, ty) = split(sx, sy, w, h);
+    let s = match job.interpolation {
+        Interpolation::Bicubic if fx >= 1 && fx + 2 < wi && fy >= 1 && fy + 2 < hi => {
+            let base = (fy - 1) as usize * w + (fx - 1) as usize;
+            bicubic_inside(job.packed1, w, base, cubic_weights(tx), cubic_weights(ty))
+        }
+        Interpolation::Bilinear if fx >= 0 && fx + 1 < wi && fy >= 0 && fy + 1 < hi => {
+            bilinear_inside(job.packed1, w, fy as usize * w + fx as usize, tx, ty)
+        }
+        interpolation => sample(job.packed1, w, h, sx, sy, interpolation),
+    };
+    let (gx, gy) = (s[1], s[2]);
+    [
+        gx,
+        gy,
+        gx * gx + gy * gy,
+        s[0] - gx * u1 - gy * u2 - job.i0[k],
+    ]
 }
 
-#[inline(always)]
+/// The portable linearisation of the pixels `start..start + ix.len()`.
 fn linearise_band(job: &Job<'_>, start: usize, [ix, iy, grad, rho]: [&mut [f32]; 4]) {
     let n = ix.len();
     let (iy, grad, rho) = (&mut iy[..n], &mut grad[..n], &mut rho[..n]);
-    let (u1, u2, i0) = (
-        &job.u1[start..][..n],
-        &job.u2[start..][..n],
-        &job.i0[start..][..n],
-    );
     let w = job.width;
     let (mut x, mut y) = (start % w, start / w);
-    let (wi, hi) = (w as isize, job.height as isize);
     for k in 0..n {
-        let (sx, sy) = (x as f32 + u1[k], y as f32 + u2[k]);
-        // Interior fast paths: integer/fraction split once, weights once for the three
-        // planes, no border checks; the border goes through `sample`.
-        let (fx, fy, tx, ty) = split(sx, sy, w, job.height);
-        let s = match job.interpolation {
-            Interpolation::Bicubic if fx >= 1 && fx + 2 < wi && fy >= 1 && fy + 2 < hi => {
-                let base = (fy - 1) as usize * w + (fx - 1) as usize;
-                bicubic_inside(job.packed1, w, base, cubic_weights(tx), cubic_weights(ty))
-            }
-            Interpolation::Bilinear if fx >= 0 && fx + 1 < wi && fy >= 0 && fy + 1 < hi => {
-                bilinear_inside(job.packed1, w, fy as usize * w + fx as usize, tx, ty)
-            }
-            interpolation => sample(job.packed1, w, job.height, sx, sy, interpolation),
-        };
-        let (gx, gy) = (s[1], s[2]);
-        ix[k] = gx;
-        iy[k] = gy;
-        grad[k] = gx * gx + gy * gy;
-        rho[k] = s[0] - gx * u1[k] - gy * u2[k] - i0[k];
+        [ix[k], iy[k], grad[k], rho[k]] = linearise_px(job, start + k, x, y);
         x += 1;
         if x == w {
             x = 0;
@@ -302,10 +324,234 @@ fn linearise_band(job: &Job<'_>, start: usize, [ix, iy, grad, rho]: [&mut [f32];
     }
 }
 
+/// The linearisation eight pixels at a time with AVX2 and FMA: positions, the integer /
+/// fraction split and the cubic weights are computed for eight pixels at once, the 4x4
+/// taps of one pixel as two 8-wide products per row (two `[I, Ix, Iy, 0]` taps per
+/// register), and the outputs for eight pixels at once. Blocks with a tap outside the
+/// image, a non-finite position or bilinear interpolation go through [`linearise_px`].
+/// FMA rounds differently from the portable path, so results differ from it in the last
+/// bits (the tests bound the difference).
+#[cfg(target_arch = "x86_64")]
+mod simd {
+    use std::arch::x86_64::*;
+
+    use super::{Interpolation, Job, linearise_px};
+
+    const A: f32 = -0.75;
+
+    /// Keys kernel for `|d| <= 1`.
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    fn near(d: __m256) -> __m256 {
+        let a = _mm256_fmsub_ps(_mm256_set1_ps(A + 2.0), d, _mm256_set1_ps(A + 3.0));
+        _mm256_fmadd_ps(_mm256_mul_ps(a, d), d, _mm256_set1_ps(1.0))
+    }
+
+    /// Keys kernel for `1 <= |d| <= 2`.
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    fn far(d: __m256) -> __m256 {
+        let a = _mm256_fmsub_ps(_mm256_set1_ps(A), d, _mm256_set1_ps(5.0 * A));
+        let b = _mm256_fmadd_ps(a, d, _mm256_set1_ps(8.0 * A));
+        _mm256_fmsub_ps(b, d, _mm256_set1_ps(4.0 * A))
+    }
+
+    /// Keys weights of the taps at -1, 0, 1, 2 for fractions `t` (as `cubic_weights`),
+    /// as lanes.
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    fn weights(t: __m256) -> [[f32; 8]; 4] {
+        let one = _mm256_set1_ps(1.0);
+        let w0 = far(_mm256_add_ps(t, one));
+        let w1 = near(t);
+        let w2 = near(_mm256_sub_ps(one, t));
+        let w3 = _mm256_sub_ps(_mm256_sub_ps(_mm256_sub_ps(one, w0), w1), w2);
+        [w0, w1, w2, w3].map(|v| {
+            let mut out = [0.0f32; 8];
+            // SAFETY: writes eight lanes to the local array of eight.
+            unsafe { _mm256_storeu_ps(out.as_mut_ptr(), v) };
+            out
+        })
+    }
+
+    /// The first eight values of `v`.
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    fn load8(v: &[f32]) -> __m256 {
+        let v = &v[..8];
+        // SAFETY: `v` holds eight values (the slicing above checks it).
+        unsafe { _mm256_loadu_ps(v.as_ptr()) }
+    }
+
+    #[target_feature(enable = "avx2,fma")]
+    pub(super) unsafe fn linearise_band(
+        job: &Job<'_>,
+        start: usize,
+        [ix, iy, grad, rho]: [&mut [f32]; 4],
+    ) {
+        let n = ix.len();
+        let (iy, grad, rho) = (&mut iy[..n], &mut grad[..n], &mut rho[..n]);
+        let (w, h) = (job.width, job.height);
+        let packed = job.packed1;
+        // The unchecked tap loads below rely on this.
+        assert!(packed.len() >= w * h && job.u1.len() >= start + n && job.i0.len() >= start + n);
+        let bicubic = job.interpolation == Interpolation::Bicubic;
+        let offsets = _mm256_setr_ps(0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0);
+        let (lo, hi_x, hi_y) = (
+            _mm256_set1_ps(1.0),
+            _mm256_set1_ps(w as f32 - 3.0),
+            _mm256_set1_ps(h as f32 - 3.0),
+        );
+        let mut k = 0;
+        while k < n {
+            let (x, y) = ((start + k) % w, (start + k) / w);
+            let g = start + k;
+            // A block of eight pixels of one row.
+            if bicubic && x + 8 <= w && k + 8 <= n {
+                let u1 = load8(&job.u1[g..]);
+                let u2 = load8(&job.u2[g..]);
+                let sx = _mm256_add_ps(_mm256_add_ps(_mm256_set1_ps(x as f32), offsets), u1);
+                let sy = _mm256_add_ps(_mm256_set1_ps(y as f32), u2);
+                let (fx, fy) = (_mm256_floor_ps(sx), _mm256_floor_ps(sy));
+                // All taps inside: 1 <= floor <= size - 3 (false for NaN).
+                let inside = _mm256_and_ps(
+                    _mm256_and_ps(
+                        _mm256_cmp_ps::<_CMP_GE_OQ>(fx, lo),
+                        _mm256_cmp_ps::<_CMP_LE_OQ>(fx, hi_x),
+                    ),
+                    _mm256_and_ps(
+                        _mm256_cmp_ps::<_CMP_GE_OQ>(fy, lo),
+                        _mm256_cmp_ps::<_CMP_LE_OQ>(fy, hi_y),
+                    ),
+                );
+                if _mm256_movemask_ps(inside) == 0xff {
+                    let wx = weights(_mm256_sub_ps(sx, fx));
+                    let wy = weights(_mm256_sub_ps(sy, fy));
+                    // Index of the top-left tap, exact in i32 (checked above).
+                    let base = _mm256_add_epi32(
+                        _mm256_mullo_epi32(
+                            _mm256_cvttps_epi32(_mm256_sub_ps(fy, lo)),
+                            _mm256_set1_epi32(w as i32),
+                        ),
+                        _mm256_cvttps_epi32(_mm256_sub_ps(fx, lo)),
+                    );
+                    let mut bases = [0i32; 8];
+                    unsafe { _mm256_storeu_si256(bases.as_mut_ptr().cast(), base) };
+                    let taps = packed.as_ptr().cast::<f32>();
+                    let mut px = [_mm_setzero_ps(); 8];
+                    for l in 0..8 {
+                        let w01 = _mm256_set_m128(_mm_set1_ps(wx[1][l]), _mm_set1_ps(wx[0][l]));
+                        let w23 = _mm256_set_m128(_mm_set1_ps(wx[3][l]), _mm_set1_ps(wx[2][l]));
+                        let mut acc = _mm256_setzero_ps();
+                        for (j, wyj) in wy.iter().enumerate() {
+                            // SAFETY: the inside test puts the 4x4 taps, `base + j * w +
+                            // 0..4` for j in 0..4, inside the `w * h` packed pixels.
+                            let row = unsafe { taps.add((bases[l] as usize + j * w) * 4) };
+                            let (a, b) =
+                                unsafe { (_mm256_loadu_ps(row), _mm256_loadu_ps(row.add(8))) };
+                            let r = _mm256_fmadd_ps(b, w23, _mm256_mul_ps(a, w01));
+                            acc = _mm256_fmadd_ps(_mm256_set1_ps(wyj[l]), r, acc);
+                        }
+                        px[l] = _mm_add_ps(
+                            _mm256_castps256_ps128(acc),
+                            _mm256_extractf128_ps::<1>(acc),
+                        );
+                    }
+                    // Transpose eight [I, Ix, Iy, 0] into I, Ix, Iy registers.
+                    let r0 = _mm256_set_m128(px[4], px[0]);
+                    let r1 = _mm256_set_m128(px[5], px[1]);
+                    let r2 = _mm256_set_m128(px[6], px[2]);
+                    let r3 = _mm256_set_m128(px[7], px[3]);
+                    let (t0, t1) = (_mm256_unpacklo_ps(r0, r1), _mm256_unpackhi_ps(r0, r1));
+                    let (t2, t3) = (_mm256_unpacklo_ps(r2, r3), _mm256_unpackhi_ps(r2, r3));
+                    let i1 = _mm256_shuffle_ps::<0x44>(t0, t2);
+                    let gx = _mm256_shuffle_ps::<0xEE>(t0, t2);
+                    let gy = _mm256_shuffle_ps::<0x44>(t1, t3);
+                    let i0 = load8(&job.i0[g..]);
+                    let gg = _mm256_fmadd_ps(gy, gy, _mm256_mul_ps(gx, gx));
+                    let r =
+                        _mm256_sub_ps(_mm256_fnmadd_ps(gy, u2, _mm256_fnmadd_ps(gx, u1, i1)), i0);
+                    unsafe {
+                        _mm256_storeu_ps(ix[k..k + 8].as_mut_ptr(), gx);
+                        _mm256_storeu_ps(iy[k..k + 8].as_mut_ptr(), gy);
+                        _mm256_storeu_ps(grad[k..k + 8].as_mut_ptr(), gg);
+                        _mm256_storeu_ps(rho[k..k + 8].as_mut_ptr(), r);
+                    }
+                    k += 8;
+                    continue;
+                }
+            }
+            // One pixel (row tails, blocks near the border, bilinear).
+            let end = if bicubic && x + 8 <= w { 8 } else { 1 }.min(n - k);
+            for d in 0..end {
+                let (x, y) = ((g + d) % w, (g + d) / w);
+                [ix[k + d], iy[k + d], grad[k + d], rho[k + d]] = linearise_px(job, g + d, x, y);
+            }
+            k += end;
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::vision::flow::pyramid::pack_with_gradient;
+
+    /// The AVX2 + FMA linearisation against the portable one, on a flow that sends
+    /// pixels inside, across the border and far outside the image.
+    #[test]
+    fn simd_linearisation_is_close_to_portable() {
+        let (w, h) = (37, 23);
+        let img: Vec<f32> = (0..w * h)
+            .map(|i| {
+                let (x, y) = ((i % w) as f32, (i / w) as f32);
+                100.0 + 60.0 * (0.37 * x).sin() * (0.23 * y).cos() + 0.5 * x
+            })
+            .collect();
+        let packed = pack_with_gradient(&img, w, h);
+        let i0: Vec<f32> = img.iter().map(|v| v * 0.9 + 3.0).collect();
+        let u1: Vec<f32> = (0..w * h)
+            .map(|i| {
+                3.0 * ((i * 7919 % 113) as f32 / 113.0 - 0.5) + if i % 97 == 0 { 60.0 } else { 0.0 }
+            })
+            .collect();
+        let u2: Vec<f32> = (0..w * h)
+            .map(|i| 2.5 * ((i * 104729 % 89) as f32 / 89.0 - 0.5))
+            .collect();
+        for interpolation in [Interpolation::Bicubic, Interpolation::Bilinear] {
+            let job = Job {
+                i0: &i0,
+                packed1: &packed,
+                u1: &u1,
+                u2: &u2,
+                width: w,
+                height: h,
+                interpolation,
+            };
+            let mut a = vec![vec![0.0f32; w * h]; 4];
+            let mut b = vec![vec![0.0f32; w * h]; 4];
+            {
+                let [x0, x1, x2, x3] = &mut a[..] else {
+                    unreachable!()
+                };
+                linearise_band(&job, 0, [x0, x1, x2, x3]);
+            }
+            {
+                let [x0, x1, x2, x3] = &mut b[..] else {
+                    unreachable!()
+                };
+                dispatch(&job, 0, [x0, x1, x2, x3]);
+            }
+            for (k, (ra, rb)) in a.iter().zip(&b).enumerate() {
+                for (i, (x, y)) in ra.iter().zip(rb).enumerate() {
+                    assert!(
+                        (x - y).abs() <= 1e-3 * (1.0 + x.abs()),
+                        "{interpolation:?} output {k} pixel {i}: {x} vs {y}"
+                    );
+                }
+            }
+        }
+    }
 
     #[test]
     fn cubic_weights_interpolate() {
