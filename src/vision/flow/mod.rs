@@ -30,6 +30,7 @@
 
 mod median;
 pub mod params;
+mod planes;
 mod pyramid;
 mod tvl1;
 mod warp;
@@ -37,7 +38,7 @@ mod warp;
 pub use params::{FlowParams, Interpolation, PRESET_NAMES};
 
 use crate::vision::image::{FlowField, GrayImage};
-use pyramid::{Pyramid, level_count, resize_bilinear};
+use pyramid::{Pyramid, level_count, resize_bilinear, resize_bilinear_into};
 use tvl1::{Dual, Kernel, LevelPlan, solve_level};
 
 /// Smallest side of a pyramid level, pixels; also the smallest accepted image side.
@@ -242,17 +243,13 @@ impl FlowEstimator {
             u1.iter_mut().chain(u2.iter_mut()).for_each(|v| *v *= k);
             // The dual is dimensionless and bounded by 1 in norm; bilinear interpolation
             // keeps that bound (a convex combination), so no rescaling.
-            dual = if p.warm_start_dual {
-                let up = |q: &[f32]| resize_bilinear(q, src, dst, inv);
-                Dual {
-                    p11: up(&dual.p11),
-                    p12: up(&dual.p12),
-                    p21: up(&dual.p21),
-                    p22: up(&dual.p22),
+            let mut next = Dual::zeros(u1.len());
+            if p.warm_start_dual {
+                for (fine, coarse) in next.parts_mut().into_iter().zip(dual.parts()) {
+                    resize_bilinear_into(coarse, src, dst, inv, fine);
                 }
-            } else {
-                Dual::zeros(u1.len())
-            };
+            }
+            dual = next;
             s -= 1;
         }
         if finest > 0 {

@@ -96,10 +96,23 @@ pub(crate) fn resize_bilinear(
     (dw, dh): (usize, usize),
     (inv_x, inv_y): (f32, f32),
 ) -> Vec<f32> {
+    let mut out = vec![0.0f32; dw * dh];
+    resize_bilinear_into(src, (sw, sh), (dw, dh), (inv_x, inv_y), &mut out);
+    out
+}
+
+/// [`resize_bilinear`] into `out` (`dw * dh` values).
+pub(crate) fn resize_bilinear_into(
+    src: &[f32],
+    (sw, sh): (usize, usize),
+    (dw, dh): (usize, usize),
+    (inv_x, inv_y): (f32, f32),
+    out: &mut [f32],
+) {
+    debug_assert_eq!(out.len(), dw * dh);
     // Horizontal taps are the same for every row.
     let taps: Vec<(usize, usize, f32)> = (0..dw).map(|x| axis_tap(x, inv_x, sw)).collect();
-    let mut out = vec![0.0f32; dw * dh];
-    for_each_band(&mut out, dw, |band, rows| {
+    for_each_band(out, dw, |band, rows| {
         for (r, dst) in rows.chunks_exact_mut(dw).enumerate() {
             let y = band * ROWS_PER_TASK + r;
             let (y0, y1, fy) = axis_tap(y, inv_y, sh);
@@ -111,7 +124,6 @@ pub(crate) fn resize_bilinear(
             }
         }
     });
-    out
 }
 
 /// The two source indices and the weight of the second for destination index `i`.

@@ -8,18 +8,24 @@
 use rayon::prelude::*;
 
 use super::params::Interpolation;
+use super::planes::Planes;
 use super::pyramid::{ROWS_PER_TASK, run_parallel};
 
 /// `|grad I1w|^2` below which the data term is treated as flat (as OpenCV).
 pub(crate) const GRAD_EPS: f32 = f32::EPSILON;
 
-/// Per-warp arrays of one level.
+/// Per-warp arrays of one level: `[Ix, Iy, |grad|^2, rho_c]`, staggered (see
+/// [`Planes`]; lead 0, the dual arrays follow them).
 #[derive(Clone, Debug, Default)]
 pub(crate) struct Linearised {
-    pub ix: Vec<f32>,
-    pub iy: Vec<f32>,
-    pub grad: Vec<f32>,
-    pub rho_c: Vec<f32>,
+    planes: Planes<4>,
+}
+
+impl Linearised {
+    /// `[Ix, Iy, |grad|^2, rho_c]`.
+    pub(crate) fn parts(&self) -> [&[f32]; 4] {
+        self.planes.all()
+    }
 }
 
 /// Keys cubic convolution weights (`a = -0.75`, OpenCV's `INTER_CUBIC`) for the taps at
@@ -213,9 +219,8 @@ pub(crate) fn linearise(
     out: &mut Linearised,
 ) {
     let n = width * height;
-    for v in [&mut out.ix, &mut out.iy, &mut out.grad, &mut out.rho_c] {
-        v.resize(n, 0.0);
-    }
+    out.planes.resize(n);
+    let [out_ix, out_iy, out_grad, out_rho] = out.planes.all_mut();
     let chunk = width * ROWS_PER_TASK;
     let job = Job {
         i0,
@@ -230,19 +235,19 @@ pub(crate) fn linearise(
         dispatch(&job, band * chunk, [ix, iy, grad, rho]);
     };
     if run_parallel(n) {
-        out.ix
+        out_ix
             .par_chunks_mut(chunk)
-            .zip(out.iy.par_chunks_mut(chunk))
-            .zip(out.grad.par_chunks_mut(chunk))
-            .zip(out.rho_c.par_chunks_mut(chunk))
+            .zip(out_iy.par_chunks_mut(chunk))
+            .zip(out_grad.par_chunks_mut(chunk))
+            .zip(out_rho.par_chunks_mut(chunk))
             .enumerate()
             .for_each(run);
     } else {
-        out.ix
+        out_ix
             .chunks_mut(chunk)
-            .zip(out.iy.chunks_mut(chunk))
-            .zip(out.grad.chunks_mut(chunk))
-            .zip(out.rho_c.chunks_mut(chunk))
+            .zip(out_iy.chunks_mut(chunk))
+            .zip(out_grad.chunks_mut(chunk))
+            .zip(out_rho.chunks_mut(chunk))
             .enumerate()
             .for_each(run);
     }
