@@ -157,6 +157,10 @@ fn median_rows(job: &Job<'_>, rows: &mut [f32]) {
         median5_rows(job, rows);
         return;
     }
+    if side == 3 {
+        median3_rows(job, rows);
+        return;
+    }
     let mut v = [[0.0f32; LANES]; 49];
     for (ry, dst) in rows.chunks_exact_mut(width).enumerate() {
         let y = job.y0 + ry;
@@ -260,6 +264,59 @@ fn load(s: &[f32]) -> [f32; LANES] {
 /// its inputs, so writing a value twice writes it identically).
 fn blocks(len: usize) -> impl Iterator<Item = usize> {
     (0..len.div_ceil(LANES)).map(move |b| (b * LANES).min(len - LANES))
+}
+
+/// Lane-wise `(min, max)`.
+#[inline(always)]
+fn minmax(p: [f32; LANES], q: [f32; LANES]) -> ([f32; LANES], [f32; LANES]) {
+    let mut v = [p, q];
+    cx(&mut v, 0, 1);
+    (v[0], v[1])
+}
+
+/// Lane-wise median of three.
+#[inline(always)]
+fn med3(a: [f32; LANES], b: [f32; LANES], c: [f32; LANES]) -> [f32; LANES] {
+    let (lo, hi) = minmax(a, b);
+    let (_, m) = minmax(lo, c);
+    minmax(m, hi).0
+}
+
+/// 3x3 median of the rows of a band (`width >= LANES`): each 3-pixel column of the
+/// padded image is sorted once (3 compare-exchanges), and the median of a window is
+/// the median of the largest of its three column minima, the median of its three
+/// column medians and the smallest of its three column maxima (an exact identity for
+/// nine values in sorted columns): 3 compare-exchanges per column, then four minima or
+/// maxima and two medians of three per pixel, instead of the 19 exchanges of the
+/// direct network.
+#[inline(always)]
+fn median3_rows(job: &Job<'_>, rows: &mut [f32]) {
+    let width = job.width;
+    let pw = width + 2;
+    let mut cols = vec![0.0f32; 3 * pw];
+    for (ry, dst) in rows.chunks_exact_mut(width).enumerate() {
+        let y = job.y0 + ry;
+        let src = &job.padded[y * pw..(y + 3) * pw];
+        for x0 in blocks(pw) {
+            let mut v = [[0.0f32; LANES]; 3];
+            for k in 0..3 {
+                v[k] = load(&src[k * pw + x0..]);
+            }
+            exchange!(v; (0, 1), (1, 2), (0, 1));
+            for k in 0..3 {
+                cols[k * pw + x0..][..LANES].copy_from_slice(&v[k]);
+            }
+        }
+        let (lo, rest) = cols.split_at(pw);
+        let (mid, hi) = rest.split_at(pw);
+        for x0 in blocks(width) {
+            let at = |c: &[f32], d: usize| load(&c[x0 + d..]);
+            let low = minmax(minmax(at(lo, 0), at(lo, 1)).1, at(lo, 2)).1;
+            let high = minmax(minmax(at(hi, 0), at(hi, 1)).0, at(hi, 2)).0;
+            let m = med3(at(mid, 0), at(mid, 1), at(mid, 2));
+            dst[x0..x0 + LANES].copy_from_slice(&med3(low, m, high));
+        }
+    }
 }
 
 /// 5x5 median of the rows of a band (`width >= LANES`), sharing work between

@@ -38,8 +38,8 @@ mod warp;
 pub use params::{FlowParams, Interpolation, PRESET_NAMES};
 
 use crate::vision::image::{FlowField, GrayImage};
-use pyramid::{Pyramid, level_count, resize_bilinear, resize_bilinear_into};
-use tvl1::{Dual, Kernel, LevelPlan, solve_level};
+use pyramid::{Pyramid, level_count, resize_bilinear_into};
+use tvl1::{Dual, Kernel, LevelPlan, Workspace, solve_level};
 
 /// Smallest side of a pyramid level, pixels; also the smallest accepted image side.
 pub const MIN_LEVEL_SIZE_PX: usize = 16;
@@ -146,6 +146,11 @@ pub struct FlowEstimator {
     params: FlowParams,
     prev: Option<Cached>,
     kernel: Kernel,
+    /// Buffers reused by every level of every frame.
+    work: Workspace,
+    /// Flow and dual arrays of the level being solved and of the next finer one.
+    flow_bufs: [Vec<f32>; 4],
+    duals: [Dual; 2],
 }
 
 impl FlowEstimator {
@@ -156,6 +161,9 @@ impl FlowEstimator {
             params,
             prev: None,
             kernel: Kernel::Fast,
+            work: Workspace::default(),
+            flow_bufs: Default::default(),
+            duals: [Dual::zeros(0), Dual::zeros(0)],
         })
     }
 
@@ -193,10 +201,13 @@ impl FlowEstimator {
         let levels = level_count(width, height, p.n_scales, p.scale_step, MIN_LEVEL_SIZE_PX);
         let finest = p.finest_scale.min(levels - 1);
         let pyramid = Pyramid::build(frame.data(), width, height, levels, p.scale_step, finest);
-        let flow = self
-            .prev
-            .as_ref()
-            .map(|prev| self.flow_between(&prev.pyramid, &pyramid, width, height, finest));
+        let flow = match self.prev.take() {
+            Some(prev) => {
+                let flow = self.flow_between(&prev.pyramid, &pyramid, width, height, finest);
+                Some(flow)
+            }
+            None => None,
+        };
         self.prev = Some(Cached {
             width,
             height,
@@ -207,7 +218,7 @@ impl FlowEstimator {
 
     /// Coarse-to-fine TV-L1 between two pyramids of the same geometry.
     fn flow_between(
-        &self,
+        &mut self,
         p0: &Pyramid,
         p1: &Pyramid,
         width: usize,
@@ -215,16 +226,31 @@ impl FlowEstimator {
         finest: usize,
     ) -> FlowField {
         let p = &self.params;
+        let [mut u1, mut u2, mut f1, mut f2] = std::mem::take(&mut self.flow_bufs);
+        let [mut dual, mut next] = std::mem::replace(&mut self.duals, [Dual::zeros(0), Dual::zeros(0)]);
         let coarsest = p0.levels.len() - 1;
         let top = &p0.levels[coarsest];
-        let mut u1 = vec![0.0f32; top.width * top.height];
-        let mut u2 = u1.clone();
-        let mut dual = Dual::zeros(u1.len());
+        let n_top = top.width * top.height;
+        for u in [&mut u1, &mut u2] {
+            u.clear();
+            u.resize(n_top, 0.0);
+        }
+        dual.reset(n_top);
         let mut s = coarsest;
         loop {
             let (l0, l1) = (&p0.levels[s], &p1.levels[s]);
             let plan = LevelPlan::new(p, s == finest);
-            solve_level(l0, l1, &mut u1, &mut u2, &mut dual, p, plan, self.kernel);
+            solve_level(
+                l0,
+                l1,
+                &mut u1,
+                &mut u2,
+                &mut dual,
+                p,
+                plan,
+                self.kernel,
+                &mut self.work,
+            );
             if s == finest {
                 break;
             }
@@ -238,32 +264,40 @@ impl FlowEstimator {
                 l0.height as f32 / fine.height as f32,
             );
             let k = 1.0 / p.scale_step;
-            u1 = resize_bilinear(&u1, src, dst, inv);
-            u2 = resize_bilinear(&u2, src, dst, inv);
-            u1.iter_mut().chain(u2.iter_mut()).for_each(|v| *v *= k);
+            for (coarse, fine) in [(&u1, &mut f1), (&u2, &mut f2)] {
+                fine.resize(dst.0 * dst.1, 0.0);
+                resize_bilinear_into(coarse, src, dst, inv, fine);
+                fine.iter_mut().for_each(|v| *v *= k);
+            }
+            std::mem::swap(&mut u1, &mut f1);
+            std::mem::swap(&mut u2, &mut f2);
             // The dual is dimensionless and bounded by 1 in norm; bilinear interpolation
             // keeps that bound (a convex combination), so no rescaling.
-            let mut next = Dual::zeros(u1.len());
+            next.reset(dst.0 * dst.1);
             if p.warm_start_dual {
                 for (fine, coarse) in next.parts_mut().into_iter().zip(dual.parts()) {
                     resize_bilinear_into(coarse, src, dst, inv, fine);
                 }
             }
-            dual = next;
+            std::mem::swap(&mut dual, &mut next);
             s -= 1;
         }
+        let mut flow = FlowField::zeros(width, height);
         if finest > 0 {
             let l = &p0.levels[finest];
             let ratio = (p.scale_step as f64).powi(finest as i32) as f32;
             let src = (l.width, l.height);
-            u1 = resize_bilinear(&u1, src, (width, height), (ratio, ratio));
-            u2 = resize_bilinear(&u2, src, (width, height), (ratio, ratio));
             let k = 1.0 / ratio;
-            u1.iter_mut().chain(u2.iter_mut()).for_each(|v| *v *= k);
+            for (coarse, out) in [(&u1, &mut flow.u), (&u2, &mut flow.v)] {
+                resize_bilinear_into(coarse, src, (width, height), (ratio, ratio), out);
+                out.iter_mut().for_each(|v| *v *= k);
+            }
+        } else {
+            flow.u.copy_from_slice(&u1);
+            flow.v.copy_from_slice(&u2);
         }
-        let mut flow = FlowField::zeros(width, height);
-        flow.u = u1;
-        flow.v = u2;
+        self.flow_bufs = [u1, u2, f1, f2];
+        self.duals = [dual, next];
         flow
     }
 }

@@ -113,14 +113,17 @@ pub(crate) fn resize_bilinear_into(
     // Horizontal taps are the same for every row.
     let taps: Vec<(usize, usize, f32)> = (0..dw).map(|x| axis_tap(x, inv_x, sw)).collect();
     for_each_band(out, dw, |band, rows| {
+        let mut mid = vec![0.0f32; sw];
         for (r, dst) in rows.chunks_exact_mut(dw).enumerate() {
             let y = band * ROWS_PER_TASK + r;
             let (y0, y1, fy) = axis_tap(y, inv_y, sh);
             let (r0, r1) = (&src[y0 * sw..(y0 + 1) * sw], &src[y1 * sw..(y1 + 1) * sw]);
+            // Vertical pass over the source row (vectorised), then the horizontal taps.
+            for ((m, &a), &b) in mid.iter_mut().zip(r0).zip(r1) {
+                *m = a + fy * (b - a);
+            }
             for (d, &(x0, x1, fx)) in dst.iter_mut().zip(&taps) {
-                let top = r0[x0] + fx * (r0[x1] - r0[x0]);
-                let bottom = r1[x0] + fx * (r1[x1] - r1[x0]);
-                *d = top + fy * (bottom - top);
+                *d = mid[x0] + fx * (mid[x1] - mid[x0]);
             }
         }
     });

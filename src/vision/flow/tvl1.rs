@@ -64,6 +64,14 @@ impl Dual {
         }
     }
 
+    /// Zero arrays of `n` pixels, reusing the allocation.
+    pub(crate) fn reset(&mut self, n: usize) {
+        self.planes.resize(n);
+        for a in self.planes.all_mut() {
+            a.fill(0.0);
+        }
+    }
+
     /// Pixels per array.
     pub(crate) fn len(&self) -> usize {
         self.planes.len()
@@ -314,7 +322,7 @@ struct Band<'a> {
 }
 
 /// Scratch of the fast kernel, reused across iterations.
-#[derive(Debug, Default)]
+#[derive(Clone, Debug, Default)]
 pub(crate) struct FastScratch {
     /// Old `p12`, `p22` rows above each band's first row.
     above: Vec<f32>,
@@ -352,6 +360,8 @@ fn simd_rows() -> bool {
 
 /// Row kernels of a band pass.
 trait Rows {
+    /// Steps 1 and 2 on one row; returns the row's summed squared update (`e` is
+    /// scratch of the row's length).
     #[allow(clippy::too_many_arguments)]
     fn primal(
         lin: (&[f32], &[f32], &[f32], &[f32]),
@@ -361,7 +371,7 @@ trait Rows {
         u2: &mut [f32],
         e: &mut [f32],
         s: Steps,
-    );
+    ) -> f64;
     #[allow(clippy::too_many_arguments)]
     fn dual(
         u: (&[f32], &[f32]),
@@ -387,8 +397,9 @@ impl Rows for ExactRows {
         u2: &mut [f32],
         e: &mut [f32],
         s: Steps,
-    ) {
+    ) -> f64 {
         primal_row(lin, p, up, u1, u2, e, s);
+        row_sum(e)
     }
 
     #[inline(always)]
@@ -466,7 +477,7 @@ fn band_pass<R: Rows>(
                 &p22[row.start - w..row.start],
             )
         };
-        R::primal(
+        err[r] = R::primal(
             lin_row,
             (
                 &p11[row.clone()],
@@ -480,7 +491,6 @@ fn band_pass<R: Rows>(
             &mut e,
             s,
         );
-        err[r] = row_sum(&e);
         if r > 0 {
             let prev = row.start - w..row.start;
             R::dual(
@@ -687,8 +697,7 @@ fn pair_pass<R: Rows>(
             &mut u2[r],
             e,
             s,
-        );
-        row_sum(e)
+        )
     };
     // Dual step of row `y` (the row below is `y` itself on the last row).
     let dual = |y: usize, u1: &[f32], u2: &[f32], p: [&mut [f32]; 4]| {
@@ -768,12 +777,12 @@ mod simd {
             up: (&[f32], &[f32]),
             u1: &mut [f32],
             u2: &mut [f32],
-            e: &mut [f32],
+            _e: &mut [f32],
             s: Steps,
-        ) {
+        ) -> f64 {
             // SAFETY: `SimdRows` is only used by `band_pass` below, which requires AVX2
             // and FMA.
-            unsafe { primal_row(lin, p, up, u1, u2, e, s) }
+            unsafe { primal_row(lin, p, up, u1, u2, s) }
         }
 
         #[inline(always)]
@@ -917,24 +926,25 @@ mod simd {
         (p12_up, p22_up): (&[f32], &[f32]),
         u1: &mut [f32],
         u2: &mut [f32],
-        e: &mut [f32],
         s: Steps,
-    ) {
+    ) -> f64 {
         let w = u1.len();
         let (ix, iy, g, rc) = (&lin.0[..w], &lin.1[..w], &lin.2[..w], &lin.3[..w]);
         let (p11, p12, p21, p22) = (&p.0[..w], &p.1[..w], &p.2[..w], &p.3[..w]);
         let (p12_up, p22_up) = (&p12_up[..w], &p22_up[..w]);
-        let (u2, e) = (&mut u2[..w], &mut e[..w]);
+        let u2 = &mut u2[..w];
         // Column 0 (p is 0 left of the image): the exact code.
-        {
+        let first = {
             let d1 = p11[0] + (p12[0] - p12_up[0]);
             let d2 = p21[0] + (p22[0] - p22_up[0]);
             let (n1, n2) = primal_px(ix[0], iy[0], g[0], rc[0], u1[0], u2[0], d1, d2, s);
             let (a, b) = (n1 - u1[0], n2 - u2[0]);
-            e[0] = a * a + b * b;
             u1[0] = n1;
             u2[0] = n2;
-        }
+            a * a + b * b
+        };
+        // Squared updates summed in eight lanes (masked-off lanes add 0).
+        let mut acc = _mm256_setzero_ps();
         let (lt, theta) = (_mm256_set1_ps(s.lt), _mm256_set1_ps(s.theta));
         let (neg_lt, eps) = (_mm256_set1_ps(-s.lt), _mm256_set1_ps(GRAD_EPS));
         let sign = _mm256_set1_ps(-0.0);
@@ -972,11 +982,15 @@ mod simd {
             let n1 = _mm256_fmadd_ps(theta, d1, _mm256_fmadd_ps(f, vx, o1));
             let n2 = _mm256_fmadd_ps(theta, d2, _mm256_fmadd_ps(f, vy, o2));
             let (a, b) = (_mm256_sub_ps(n1, o1), _mm256_sub_ps(n2, o2));
-            span.st(e, x, _mm256_fmadd_ps(b, b, _mm256_mul_ps(a, a)));
+            acc = _mm256_add_ps(acc, _mm256_fmadd_ps(b, b, _mm256_mul_ps(a, a)));
             span.st(u1, x, n1);
             span.st(u2, x, n2);
             x += 8;
         }
+        let mut lanes = [0.0f32; 8];
+        // SAFETY: writes eight lanes to the local array of eight.
+        unsafe { _mm256_storeu_ps(lanes.as_mut_ptr(), acc) };
+        lanes.iter().map(|&v| v as f64).sum::<f64>() + first as f64
     }
 
     /// Step 3 on the pixels `x..` of `span` for one flow component.
@@ -1055,6 +1069,15 @@ mod simd {
     }
 }
 
+/// Buffers of the level solver, kept by the estimator from level to level and frame to
+/// frame (allocating and first touching them per level cost about as much as a warp).
+#[derive(Clone, Debug, Default)]
+pub(crate) struct Workspace {
+    lin: Linearised,
+    scratch: FastScratch,
+    median: Vec<f32>,
+}
+
 /// What differs between levels: the finest solved level may have its own warps,
 /// iterations, interpolation and median filter (see [`FlowParams`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -1099,6 +1122,7 @@ pub(crate) fn solve_level(
     params: &FlowParams,
     plan: LevelPlan,
     kernel: Kernel,
+    work: &mut Workspace,
 ) {
     let (w, h) = (i0.width, i0.height);
     let n = w * h;
@@ -1109,10 +1133,12 @@ pub(crate) fn solve_level(
     };
     let scaled_eps = (params.epsilon as f64).powi(2) * n as f64;
     debug_assert_eq!(p.len(), n);
-    let mut lin = Linearised::default();
-    let mut scratch = FastScratch::default();
+    let Workspace {
+        lin,
+        scratch,
+        median: median_scratch,
+    } = work;
     let simd = kernel == Kernel::Fast && simd_rows();
-    let mut median_scratch = Vec::new();
     let (mut t_lin, mut t_med, mut t_it, mut n_it, mut n_med) = (0.0, 0.0, 0.0, 0usize, 0usize);
     for _ in 0..plan.warps {
         let t0 = std::time::Instant::now();
@@ -1124,7 +1150,7 @@ pub(crate) fn solve_level(
             w,
             h,
             plan.interpolation,
-            &mut lin,
+            lin,
         );
         t_lin += t0.elapsed().as_secs_f64();
         let mut error = f64::MAX;
@@ -1132,8 +1158,8 @@ pub(crate) fn solve_level(
         while error > scaled_eps && outer < params.outer_iterations {
             if plan.median_filter > 1 {
                 let t0 = std::time::Instant::now();
-                median_filter(u1, w, h, plan.median_filter, &mut median_scratch);
-                median_filter(u2, w, h, plan.median_filter, &mut median_scratch);
+                median_filter(u1, w, h, plan.median_filter, median_scratch);
+                median_filter(u2, w, h, plan.median_filter, median_scratch);
                 t_med += t0.elapsed().as_secs_f64();
                 n_med += 1;
             }
@@ -1147,15 +1173,15 @@ pub(crate) fn solve_level(
                     && error > PAIR_MARGIN * scaled_eps
                     && band_rows(w, h) >= h;
                 if pair {
-                    error = iterate_pair(&lin, u1, u2, p, w, h, s, simd);
+                    error = iterate_pair(lin, u1, u2, p, w, h, s, simd);
                     inner += 2;
                     n_it += 2;
                     continue;
                 }
                 error = match kernel {
-                    Kernel::Fast => iterate_fast(&lin, u1, u2, p, w, h, s, &mut scratch, simd),
-                    Kernel::Portable => iterate_fast(&lin, u1, u2, p, w, h, s, &mut scratch, false),
-                    Kernel::Reference => iterate_reference(&lin, u1, u2, p, w, h, s),
+                    Kernel::Fast => iterate_fast(lin, u1, u2, p, w, h, s, scratch, simd),
+                    Kernel::Portable => iterate_fast(lin, u1, u2, p, w, h, s, scratch, false),
+                    Kernel::Reference => iterate_reference(lin, u1, u2, p, w, h, s),
                 };
                 inner += 1;
                 n_it += 1;
