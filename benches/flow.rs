@@ -1,5 +1,7 @@
-//! TV-L1 timing: `default`, `realtime` and `balanced` presets at three sizes, on one thread (a rayon
-//! pool of 1) and on all threads, on synthetic smooth-motion pairs.
+//! TV-L1 timing: every preset at three sizes, on one thread (a rayon pool of 1) and on
+//! all threads, on synthetic smooth-motion pairs. One estimator per benchmark, reset
+//! before every pair, so its buffers are reused as in a stream (both frames' pyramids are
+//! built in every iteration).
 
 // criterion_group! generates undocumented items.
 #![allow(missing_docs)]
@@ -7,7 +9,7 @@
 use std::time::Duration;
 
 use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
-use vamos::vision::flow::{FlowParams, tvl1};
+use vamos::vision::flow::{FlowEstimator, FlowParams, PRESET_NAMES};
 use vamos::vision::synthetic::{Motion, pair};
 
 fn bench_flow(c: &mut Criterion) {
@@ -22,7 +24,7 @@ fn bench_flow(c: &mut Criterion) {
             seed: 2,
         };
         let (a, b, _) = pair(w, h, &motion, 7);
-        for preset in ["default", "realtime", "balanced"] {
+        for preset in PRESET_NAMES {
             let Ok(params) = FlowParams::preset(preset) else {
                 continue;
             };
@@ -31,8 +33,17 @@ fn bench_flow(c: &mut Criterion) {
                     continue;
                 };
                 let id = BenchmarkId::new(format!("{preset}/{threads}t"), format!("{w}x{h}"));
+                let Ok(mut est) = FlowEstimator::new(params.clone()) else {
+                    continue;
+                };
                 group.bench_with_input(id, &(&a, &b), |bench, (a, b)| {
-                    bench.iter(|| pool.install(|| tvl1(a, b, &params)));
+                    bench.iter(|| {
+                        pool.install(|| {
+                            est.reset();
+                            let _ = est.push(a);
+                            est.push(b)
+                        })
+                    });
                 });
             }
         }

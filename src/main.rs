@@ -83,8 +83,8 @@ enum Command {
         /// Also write the raw field in Middlebury `.flo` format.
         #[arg(long)]
         raw: Option<PathBuf>,
-        /// Parameter preset: `default` (OpenCV DualTVL1's defaults), `realtime` or `balanced`;
-        /// without it the settings' `[vision.flow]` apply.
+        /// Parameter preset: `default` (OpenCV DualTVL1's defaults), `realtime`,
+        /// `realtime-hq` or `balanced`; without it the settings' `[vision.flow]` apply.
         #[arg(long)]
         preset: Option<String>,
         /// Worker threads (0 = one per core; default from the settings).
@@ -766,9 +766,11 @@ fn run(cli: Cli) -> Result<()> {
             let pool = pool(threads)?;
             let mut times = Vec::new();
             let mut flow = None;
+            // One estimator for every repeat: its buffers are reused, as in a stream.
+            let mut est = FlowEstimator::new(params.clone())?;
             for _ in 0..repeat.max(1) {
                 let start = Instant::now();
-                let f = pool.install(|| flow_of(&ia, &ib, &params))?;
+                let f = pool.install(|| flow_of(&mut est, &ia, &ib))?;
                 times.push(start.elapsed().as_secs_f64() * 1e3);
                 flow = Some(f);
             }
@@ -878,8 +880,9 @@ fn load(path: &Path) -> Result<GrayImage> {
     Ok(GrayImage::load(path)?)
 }
 
-fn flow_of(a: &GrayImage, b: &GrayImage, params: &FlowParams) -> Result<FlowField> {
-    let mut est = FlowEstimator::new(params.clone())?;
+/// The flow `a -> b` from `est`, reset first (so it holds no earlier frame).
+fn flow_of(est: &mut FlowEstimator, a: &GrayImage, b: &GrayImage) -> Result<FlowField> {
+    est.reset();
     est.push(a)?;
     est.push(b)?
         .context("the estimator returned no flow for the second frame")

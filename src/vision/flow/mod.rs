@@ -10,7 +10,7 @@
 //! in 0..=255 units; the data weight `lambda` is tuned for that range.
 //!
 //! # Layout
-//! - [`params`]: [`FlowParams`] (OpenCV's defaults), the `realtime` and `balanced`
+//! - [`params`]: [`FlowParams`] (OpenCV's defaults), the `realtime`, `realtime-hq` and `balanced`
 //!   presets, validation.
 //! - `pyramid`: OpenCV-geometry bilinear pyramid, gradients, flow resizing.
 //! - `warp`: bicubic / bilinear warp and linearisation of the data term.
@@ -22,9 +22,14 @@
 //! use fewer than `n_scales` levels, as OpenCV does); an image smaller than that on a
 //! side is [`FlowError::TooSmall`].
 //!
-//! # Threads
-//! Every kernel runs on the ambient rayon pool over row bands. Results are bit-for-bit
-//! identical whatever the number of threads (tested with pools of 1 and 2).
+//! # Threads and kernels
+//! Passes over levels of at least 16k pixels run on the ambient rayon pool over row
+//! bands when it has more than one thread; smaller ones, and all with one thread, run on
+//! the calling thread. Results are bit-for-bit identical whatever the number of threads
+//! (tested with pools of 1 and 2). On x86-64 with AVX2 and FMA the warp and the inner
+//! iteration use vectorised kernels with FMA and refined reciprocal / square-root
+//! estimates; they differ from the exact scalar kernels by about 1e-5 px on average (the
+//! tests bound it), and the estimator reuses its buffers from frame to frame.
 //!
 //! This module imports only [`crate::vision::image`] (and `synthetic` in tests).
 
@@ -227,7 +232,8 @@ impl FlowEstimator {
     ) -> FlowField {
         let p = &self.params;
         let [mut u1, mut u2, mut f1, mut f2] = std::mem::take(&mut self.flow_bufs);
-        let [mut dual, mut next] = std::mem::replace(&mut self.duals, [Dual::zeros(0), Dual::zeros(0)]);
+        let [mut dual, mut next] =
+            std::mem::replace(&mut self.duals, [Dual::zeros(0), Dual::zeros(0)]);
         let coarsest = p0.levels.len() - 1;
         let top = &p0.levels[coarsest];
         let n_top = top.width * top.height;

@@ -1142,16 +1142,7 @@ pub(crate) fn solve_level(
     let (mut t_lin, mut t_med, mut t_it, mut n_it, mut n_med) = (0.0, 0.0, 0.0, 0usize, 0usize);
     for _ in 0..plan.warps {
         let t0 = std::time::Instant::now();
-        linearise(
-            &i0.image,
-            &i1.packed,
-            u1,
-            u2,
-            w,
-            h,
-            plan.interpolation,
-            lin,
-        );
+        linearise(&i0.image, &i1.packed, u1, u2, w, h, plan.interpolation, lin);
         t_lin += t0.elapsed().as_secs_f64();
         let mut error = f64::MAX;
         let mut outer = 0;
@@ -1166,14 +1157,21 @@ pub(crate) fn solve_level(
             let t0 = std::time::Instant::now();
             let mut inner = 0;
             while error > scaled_eps && inner < plan.inner_iterations {
-                // Two iterations in one pass where the level runs as one band and the
-                // first of the two is unlikely to meet epsilon (see `iterate_pair`).
+                // Two iterations without a stopping test between them while the first is
+                // unlikely to meet epsilon (see `PAIR_MARGIN`); in one pass where the
+                // level runs as one band (`iterate_pair`), else as two passes. The
+                // decision does not depend on the thread count, so neither does the
+                // result.
                 let pair = kernel == Kernel::Fast
                     && inner + 2 <= plan.inner_iterations
-                    && error > PAIR_MARGIN * scaled_eps
-                    && band_rows(w, h) >= h;
+                    && error > PAIR_MARGIN * scaled_eps;
                 if pair {
-                    error = iterate_pair(lin, u1, u2, p, w, h, s, simd);
+                    error = if band_rows(w, h) >= h {
+                        iterate_pair(lin, u1, u2, p, w, h, s, simd)
+                    } else {
+                        iterate_fast(lin, u1, u2, p, w, h, s, scratch, simd);
+                        iterate_fast(lin, u1, u2, p, w, h, s, scratch, simd)
+                    };
                     inner += 2;
                     n_it += 2;
                     continue;
