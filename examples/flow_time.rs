@@ -21,46 +21,9 @@ fn process_cpu_ms() -> f64 {
 }
 
 use vamos::vision::flow::{FlowEstimator, FlowParams, Interpolation};
-use vamos::vision::synthetic::{Motion, accuracy_cases, moving_square_valid, pair};
-
-/// The motion `m` of `accuracy_cases(w, h)` with the displacements of the 160x120 case.
-fn shrink(m: Motion, w: usize, h: usize) -> Motion {
-    let k = (160.0 / w as f64).min(120.0 / h as f64);
-    match m {
-        Motion::Translation { dx, dy } => Motion::Translation {
-            dx: dx * k,
-            dy: dy * k,
-        },
-        Motion::Similarity {
-            tx,
-            ty,
-            scale,
-            rotation_deg,
-        } => Motion::Similarity {
-            tx,
-            ty,
-            scale: 1.0 + (scale - 1.0) * k,
-            rotation_deg: rotation_deg * k,
-        },
-        Motion::Smooth { amplitude_px, seed } => Motion::Smooth {
-            amplitude_px: amplitude_px * k,
-            seed,
-        },
-        Motion::MovingSquare {
-            x,
-            y,
-            size_px,
-            dx,
-            dy,
-        } => Motion::MovingSquare {
-            x,
-            y,
-            size_px,
-            dx: dx * k,
-            dy: dy * k,
-        },
-    }
-}
+use vamos::vision::synthetic::{
+    accuracy_cases, moving_square_valid, pair, with_160x120_displacements,
+};
 
 fn main() -> anyhow::Result<()> {
     tracing_subscriber::fmt()
@@ -120,9 +83,16 @@ fn main() -> anyhow::Result<()> {
     let mut total_ms = 0.0;
     let mut total_cpu = 0.0;
     let mut aees = Vec::new();
-    let cases = accuracy_cases(w, h)
-        .into_iter()
-        .map(|(name, m)| (name, if fixed_motion { shrink(m, w, h) } else { m }));
+    let cases = accuracy_cases(w, h).into_iter().map(|(name, m)| {
+        (
+            name,
+            if fixed_motion {
+                with_160x120_displacements(m, w, h)
+            } else {
+                m
+            },
+        )
+    });
     for (name, m) in cases {
         let (a, b, gt) = pair(w, h, &m, 7);
         let mut best = f64::MAX;

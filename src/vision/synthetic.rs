@@ -144,6 +144,48 @@ pub enum Motion {
     },
 }
 
+/// `m` (a case of [`accuracy_cases`] at `width x height`) with the displacements of the
+/// 160x120 case: translations, the smooth amplitude and the square's step shrink by
+/// `160 / width` (or `120 / height`, the smaller), as do the rotation angle and the scale
+/// change (`benches/compare_flow.py`'s `pixels` scaling); positions and sizes stay.
+pub fn with_160x120_displacements(m: Motion, width: usize, height: usize) -> Motion {
+    let k = (160.0 / width as f64).min(120.0 / height as f64);
+    match m {
+        Motion::Translation { dx, dy } => Motion::Translation {
+            dx: dx * k,
+            dy: dy * k,
+        },
+        Motion::Similarity {
+            tx,
+            ty,
+            scale,
+            rotation_deg,
+        } => Motion::Similarity {
+            tx,
+            ty,
+            scale: 1.0 + (scale - 1.0) * k,
+            rotation_deg: rotation_deg * k,
+        },
+        Motion::Smooth { amplitude_px, seed } => Motion::Smooth {
+            amplitude_px: amplitude_px * k,
+            seed,
+        },
+        Motion::MovingSquare {
+            x,
+            y,
+            size_px,
+            dx,
+            dy,
+        } => Motion::MovingSquare {
+            x,
+            y,
+            size_px,
+            dx: dx * k,
+            dy: dy * k,
+        },
+    }
+}
+
 /// The four accuracy cases of the flow tests, benches and sweeps, scaled to a
 /// `width x height` image (displacements grow with the width from their 160x120 values):
 /// `translation` (2.5, -1.25 px), `rotation` (3 deg about the centre), `smooth`

@@ -10,7 +10,9 @@
 #![allow(clippy::unwrap_used)]
 
 use vamos::vision::flow::{FlowParams, tvl1};
-use vamos::vision::synthetic::{Motion, accuracy_cases, moving_square_valid, pair};
+use vamos::vision::synthetic::{
+    Motion, accuracy_cases, moving_square_valid, pair, with_160x120_displacements,
+};
 
 fn motion(name: &str, w: usize, h: usize) -> Motion {
     accuracy_cases(w, h)
@@ -122,46 +124,6 @@ fn balanced_all_cases_320x240() {
     }
 }
 
-/// `m` with the displacements of the 160x120 case (`benches/compare_flow.py`'s scaling:
-/// rotation and translations shrink by `160 / w`, the square keeps its place).
-fn small_motion(m: Motion, w: usize, h: usize) -> Motion {
-    let k = (160.0 / w as f64).min(120.0 / h as f64);
-    match m {
-        Motion::Translation { dx, dy } => Motion::Translation {
-            dx: dx * k,
-            dy: dy * k,
-        },
-        Motion::Similarity {
-            tx,
-            ty,
-            scale,
-            rotation_deg,
-        } => Motion::Similarity {
-            tx,
-            ty,
-            scale: 1.0 + (scale - 1.0) * k,
-            rotation_deg: rotation_deg * k,
-        },
-        Motion::Smooth { amplitude_px, seed } => Motion::Smooth {
-            amplitude_px: amplitude_px * k,
-            seed,
-        },
-        Motion::MovingSquare {
-            x,
-            y,
-            size_px,
-            dx,
-            dy,
-        } => Motion::MovingSquare {
-            x,
-            y,
-            size_px,
-            dx: dx * k,
-            dy: dy * k,
-        },
-    }
-}
-
 /// The goal of `realtime-hq`: at 320x240, on every accuracy pair, with motions that grow
 /// with the image and with the 160x120 motions, its AEE is within 10 % of the default's
 /// (measured ratios: 0.49 / 0.07 / 0.49 / 0.05 and 1.01 / 1.00 / 1.00 / 0.97).
@@ -172,7 +134,11 @@ fn realtime_hq_within_ten_percent_of_default_at_320x240() {
     let default = FlowParams::default();
     for small in [false, true] {
         for (name, m) in accuracy_cases(w, h) {
-            let m = if small { small_motion(m, w, h) } else { m };
+            let m = if small {
+                with_160x120_displacements(m, w, h)
+            } else {
+                m
+            };
             let (a, b, gt) = pair(w, h, &m, 7);
             let valid = moving_square_valid(w, h, &m, 2.0);
             let err = |p: &FlowParams| {
