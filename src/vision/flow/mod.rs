@@ -279,11 +279,13 @@ impl FlowEstimator {
             std::mem::swap(&mut u2, &mut f2);
             // The dual is dimensionless and bounded by 1 in norm; bilinear interpolation
             // keeps that bound (a convex combination), so no rescaling.
-            next.reset(dst.0 * dst.1);
             if p.warm_start_dual {
+                next.resize(dst.0 * dst.1);
                 for (fine, coarse) in next.parts_mut().into_iter().zip(dual.parts()) {
                     resize_bilinear_into(coarse, src, dst, inv, fine);
                 }
+            } else {
+                next.reset(dst.0 * dst.1);
             }
             std::mem::swap(&mut dual, &mut next);
             s -= 1;

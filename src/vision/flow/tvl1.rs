@@ -64,9 +64,15 @@ impl Dual {
         }
     }
 
+    /// Arrays of `n` pixels, reusing the allocation; contents unspecified (callers
+    /// overwrite them or [`reset`](Self::reset)).
+    pub(crate) fn resize(&mut self, n: usize) {
+        self.planes.resize(n);
+    }
+
     /// Zero arrays of `n` pixels, reusing the allocation.
     pub(crate) fn reset(&mut self, n: usize) {
-        self.planes.resize(n);
+        self.resize(n);
         for a in self.planes.all_mut() {
             a.fill(0.0);
         }
@@ -328,6 +334,10 @@ pub(crate) struct FastScratch {
     above: Vec<f32>,
     /// Per-row error sums.
     row_err: Vec<f64>,
+    /// A row of zeros (the dual above row 0) and a row of squared updates, for
+    /// [`iterate_pair`].
+    zeros: Vec<f32>,
+    row: Vec<f32>,
 }
 
 /// Splits the first `n` elements off `s`.
@@ -642,15 +652,20 @@ fn iterate_pair(
     w: usize,
     h: usize,
     s: Steps,
+    scratch: &mut FastScratch,
     simd: bool,
 ) -> f64 {
+    scratch.zeros.clear();
+    scratch.zeros.resize(w, 0.0);
+    scratch.row.resize(w, 0.0);
+    let (zeros, e) = (&scratch.zeros[..], &mut scratch.row[..]);
     #[cfg(target_arch = "x86_64")]
     if simd {
         // SAFETY: `simd` is only set where the CPU has AVX2 and FMA (`simd_rows`).
-        return unsafe { simd::pair_pass(lin, u1, u2, p, w, h, s) };
+        return unsafe { simd::pair_pass(lin, u1, u2, p, (w, h), s, (zeros, e)) };
     }
     let _ = simd;
-    pair_pass::<ExactRows>(lin, u1, u2, p, w, h, s)
+    pair_pass::<ExactRows>(lin, u1, u2, p, (w, h), s, (zeros, e))
 }
 
 /// The body of [`iterate_pair`] for one set of row kernels.
@@ -660,12 +675,10 @@ fn pair_pass<R: Rows>(
     u1: &mut [f32],
     u2: &mut [f32],
     p: &mut Dual,
-    w: usize,
-    h: usize,
+    (w, h): (usize, usize),
     s: Steps,
+    (zeros, e): (&[f32], &mut [f32]),
 ) -> f64 {
-    let zeros = vec![0.0f32; w];
-    let mut e = vec![0.0f32; w];
     let mut second = 0.0f64;
     let row = |y: usize| y * w..(y + 1) * w;
     let [lix, liy, lgrad, lrho] = lin.parts();
@@ -674,7 +687,7 @@ fn pair_pass<R: Rows>(
     let primal = |y: usize, u: [&mut [f32]; 2], p: [&[f32]; 4], e: &mut [f32]| {
         let r = row(y);
         let ups = if y == 0 {
-            (&zeros[..], &zeros[..])
+            (zeros, zeros)
         } else {
             (&p[1][row(y - 1)], &p[3][row(y - 1)])
         };
@@ -715,11 +728,11 @@ fn pair_pass<R: Rows>(
     };
     for t in 0..h + 2 {
         if t < h {
-            primal(t, [&mut *u1, &mut *u2], [p11, p12, p21, p22], &mut e);
+            primal(t, [&mut *u1, &mut *u2], [p11, p12, p21, p22], e);
         }
         if (1..=h).contains(&t) {
             dual(t - 1, u1, u2, [&mut *p11, &mut *p12, &mut *p21, &mut *p22]);
-            second += primal(t - 1, [&mut *u1, &mut *u2], [p11, p12, p21, p22], &mut e);
+            second += primal(t - 1, [&mut *u1, &mut *u2], [p11, p12, p21, p22], e);
         }
         if (2..=h + 1).contains(&t) {
             dual(t - 2, u1, u2, [&mut *p11, &mut *p12, &mut *p21, &mut *p22]);
@@ -820,11 +833,11 @@ mod simd {
         u1: &mut [f32],
         u2: &mut [f32],
         p: &mut Dual,
-        w: usize,
-        h: usize,
+        size: (usize, usize),
         s: Steps,
+        rows: (&[f32], &mut [f32]),
     ) -> f64 {
-        generic_pair_pass::<SimdRows>(lin, u1, u2, p, w, h, s)
+        generic_pair_pass::<SimdRows>(lin, u1, u2, p, size, s, rows)
     }
 
     #[inline(always)]
@@ -1167,7 +1180,7 @@ pub(crate) fn solve_level(
                     && error > PAIR_MARGIN * scaled_eps;
                 if pair {
                     error = if band_rows(w, h) >= h {
-                        iterate_pair(lin, u1, u2, p, w, h, s, simd)
+                        iterate_pair(lin, u1, u2, p, w, h, s, scratch, simd)
                     } else {
                         iterate_fast(lin, u1, u2, p, w, h, s, scratch, simd);
                         iterate_fast(lin, u1, u2, p, w, h, s, scratch, simd)
@@ -1341,7 +1354,8 @@ mod tests {
                             simd,
                         );
                     }
-                    let eb = iterate_pair(&lin, &mut b1, &mut b2, &mut pb, w, h, s, simd);
+                    let eb =
+                        iterate_pair(&lin, &mut b1, &mut b2, &mut pb, w, h, s, &mut scratch, simd);
                     let at = format!("{w}x{h} simd {simd} pair {it}");
                     assert_eq!(ea, eb, "{at}");
                     assert_eq!((&a1, &a2), (&b1, &b2), "{at}");
