@@ -363,8 +363,9 @@ fn model_bundle() -> Result<()> {
     Ok(())
 }
 
+/// Request sequences for `stream_requests` and `stream_session`; the session target also
+/// gets the first images of a real episode (its arm, its joint states), as PNG at 40x30.
 fn stream_requests() -> Result<()> {
-    let mut c = Corpus::new("stream_requests")?;
     let open = In::Open(proto::OpenSession {
         robot_id: "robot".into(),
         profile: "sim-arm".into(),
@@ -456,14 +457,78 @@ fn stream_requests() -> Result<()> {
             ],
         ),
     ];
-    for (label, messages) in sequences {
+    let encode = |messages: Vec<In>| -> Result<Vec<u8>> {
         let mut bytes = Vec::new();
         for m in messages {
             proto::StreamRequest { message: Some(m) }.encode_length_delimited(&mut bytes)?;
         }
-        c.add(label, None, &bytes)?;
+        Ok(bytes)
+    };
+    let mut requests = Corpus::new("stream_requests")?;
+    let mut session = Corpus::new("stream_session")?;
+    for (label, messages) in sequences {
+        let bytes = encode(messages)?;
+        requests.add(label, None, &bytes)?;
+        session.add(label, None, &bytes)?;
     }
+    session.add("episode", None, &encode(episode_requests(5)?)?)?;
     Ok(())
+}
+
+/// The open and the first `images` images (40x30 PNG) with their joint states of the
+/// simulator's nominal episode, in log-time order.
+fn episode_requests(images: usize) -> Result<Vec<In>> {
+    use vamos::vision::preprocess::{ResizeFilter, resize};
+    let path = root().join("tests/fixtures/sim/test/test_0000.mcap");
+    let rec = vamos::service::replay::record(&path, &Default::default())?;
+    let episode = vamos::episode::McapEpisode::open(&path, &Default::default())?;
+    let grays: std::collections::HashMap<i64, vamos::vision::GrayImage> = episode
+        .frames()
+        .filter_map(|f| f.ok())
+        .map(|f| (f.stamp_ns, f.image))
+        .collect();
+    let mut out = vec![In::Open(proto::OpenSession {
+        robot_id: "robot".into(),
+        profile: "fuzz".into(),
+        camera_info: rec.camera,
+        task: String::new(),
+        session_id: String::new(),
+    })];
+    let mut seen = 0;
+    for (_, m) in rec.messages {
+        if let In::Image(img) = &m {
+            seen += 1;
+            if seen > images {
+                break;
+            }
+            let gray = grays
+                .get(&img.stamp_ns)
+                .context("an image without a frame")?;
+            let small = resize(gray, 40, 30, ResizeFilter::Area)?;
+            let px: Vec<u8> = small
+                .data()
+                .iter()
+                .map(|v| v.clamp(0.0, 255.0) as u8)
+                .collect();
+            let mut data = Vec::new();
+            image::ImageEncoder::write_image(
+                image::codecs::png::PngEncoder::new(&mut data),
+                &px,
+                40,
+                30,
+                image::ExtendedColorType::L8,
+            )?;
+            out.push(In::Image(proto::Image {
+                stamp_ns: img.stamp_ns,
+                encoding: "png".into(),
+                data,
+                ..Default::default()
+            }));
+        } else {
+            out.push(m);
+        }
+    }
+    Ok(out)
 }
 
 fn rest_body() -> Result<()> {

@@ -167,7 +167,7 @@ pub fn image_message(data: &[u8]) {
         big_endian: data[1] & 1 == 1,
         data: data[8..].to_vec(),
     };
-    if let Ok(img) = crate::service::hub::decode_image(&image, FUZZ_MAX_PIXELS) {
+    if let Ok((img, _)) = crate::service::hub::decode_image(&image, FUZZ_MAX_PIXELS, None) {
         assert_finite(&img, "Image message");
         if !matches!(image.encoding.as_str(), "png" | "jpeg") {
             assert_eq!(
@@ -291,7 +291,7 @@ pub fn stream_requests(data: &[u8]) {
             }
             Some(In::Image(img)) => {
                 let stamp = img.stamp_ns;
-                if let Ok(g) = crate::service::hub::decode_image(&img, FUZZ_MAX_PIXELS) {
+                if let Ok((g, _)) = crate::service::hub::decode_image(&img, FUZZ_MAX_PIXELS, None) {
                     assert_finite(&g, "streamed image");
                 }
                 if let Some((names, positions)) = joints.at(stamp) {
@@ -302,6 +302,98 @@ pub fn stream_requests(data: &[u8]) {
                     );
                 }
                 joints.trim_before(stamp);
+            }
+            Some(In::Joints(j)) => {
+                let _ = joints.push(j.stamp_ns, j.names, j.positions);
+            }
+            Some(In::Phase(_)) | None => {}
+        }
+    }
+}
+
+/// The simulator's arm, its camera and a profile at a tiny processing size (so a fuzz
+/// input runs in milliseconds), loaded once; no flow predictor.
+fn fuzz_setup() -> Option<&'static crate::setup::Setup> {
+    static SETUP: OnceLock<Option<(tempfile::TempDir, crate::setup::Setup)>> = OnceLock::new();
+    SETUP
+        .get_or_init(|| {
+            let fixture = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/sim");
+            let dir = tempfile::tempdir().ok()?;
+            let profile = format!(
+                "name = \"fuzz\"\nrobot = {:?}\ncamera = {:?}\nflow_preset = \"realtime\"\n\
+                 [pipeline]\nstride = 1\n[pipeline.frames]\nwidth = 32\nheight = 24\n\
+                 variant = \"masked\"\n",
+                fixture.join("robot/vamos_arm.urdf"),
+                fixture.join("camera.json"),
+            );
+            let path = dir.path().join("fuzz.toml");
+            std::fs::write(&path, profile).ok()?;
+            let setup = crate::setup::Setup::load(&crate::config::Settings::default(), &path);
+            Some((dir, setup.ok()?))
+        })
+        .as_ref()
+        .map(|(_, s)| s)
+}
+
+/// A whole streamed session through the scorer, as a worker scores it: length-delimited
+/// `StreamRequest`s (an open's camera, images of any shape and encoding, joint states,
+/// stamps in any order) decoded, buffered and interpolated as the hub does, and every
+/// decoded image pushed through a [`crate::pipeline::Scorer`] of the simulator's arm
+/// (kinematics, body render, TV-L1, registration, `e_c`, `e_b`). Invariants: no panic;
+/// frame indices of the scores increase; a refused frame leaves the scorer usable.
+pub fn stream_session(data: &[u8]) {
+    harness();
+    use crate::pipeline::{FrameInput, JointInput};
+    use prost::Message;
+    use proto::stream_request::Message as In;
+    let Some(setup) = fuzz_setup() else {
+        return;
+    };
+    let Ok(mut scorer) = setup.calibrated_scorer("fuzz", false) else {
+        return;
+    };
+    let mut buf = data;
+    let mut joints = crate::service::hub::JointBuffer::default();
+    let mut camera = None;
+    let mut last_frame = None;
+    for _ in 0..16 {
+        let Ok(req) = proto::StreamRequest::decode_length_delimited(&mut buf) else {
+            return;
+        };
+        match req.message {
+            Some(In::Open(o)) => {
+                camera = o
+                    .camera_info
+                    .as_ref()
+                    .and_then(|c| crate::service::grpc::intrinsics_of(c).ok());
+            }
+            Some(In::Image(img)) => {
+                let stamp = img.stamp_ns;
+                let Ok((image, _)) = crate::service::hub::decode_image(&img, FUZZ_MAX_PIXELS, None)
+                else {
+                    continue;
+                };
+                let at = joints.at(stamp);
+                joints.trim_before(stamp);
+                let intrinsics = camera.filter(|k: &crate::robot::Intrinsics| {
+                    k.width as usize == image.width() && k.height as usize == image.height()
+                });
+                let input = FrameInput {
+                    stamp_ns: stamp,
+                    image: &image,
+                    joints: at.as_ref().map(|(n, p)| JointInput {
+                        names: n,
+                        positions: p,
+                    }),
+                    intrinsics: intrinsics.as_ref(),
+                };
+                if let Ok(Some(score)) = scorer.push(&input) {
+                    assert!(
+                        last_frame.is_none_or(|f| score.frame > f),
+                        "frame index did not increase"
+                    );
+                    last_frame = Some(score.frame);
+                }
             }
             Some(In::Joints(j)) => {
                 let _ = joints.push(j.stamp_ns, j.names, j.positions);

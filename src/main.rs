@@ -216,7 +216,7 @@ enum Command {
         #[arg(long, default_value_t = 30.0)]
         duration: f64,
         /// Bearer token (robot role).
-        #[arg(long, env = "VAMOS_LOADGEN_TOKEN")]
+        #[arg(long, env = "VAMOS_LOADGEN_TOKEN", hide_env_values = true)]
         token: Option<String>,
         /// Seconds between the samples of the report's `timeline` (scores/s, server CPU
         /// and RSS per interval; 0: none).
@@ -438,6 +438,10 @@ enum ModelCommand {
 
 fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
+    if matches!(cli.command, Command::Serve { .. }) {
+        // SAFETY: no thread has been started yet (the async runtime comes later).
+        unsafe { vamos::service::auth::take_env_tokens() };
+    }
     match run(cli) {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {

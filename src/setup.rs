@@ -88,11 +88,15 @@ impl Setup {
         };
         let robot = match (&profile.file.robot, &profile.camera) {
             (Some(path), Some(spec)) => {
-                let robot =
-                    Robot::load(path, &settings.robot).map_err(|source| SetupError::Robot {
-                        path: path.clone(),
-                        source,
-                    })?;
+                let load = if profile.robot_stored {
+                    Robot::load_stored
+                } else {
+                    Robot::load
+                };
+                let robot = load(path, &settings.robot).map_err(|source| SetupError::Robot {
+                    path: path.clone(),
+                    source,
+                })?;
                 for w in robot.warnings() {
                     tracing::warn!(robot = %path.display(), "{w}");
                 }

@@ -155,6 +155,25 @@ pub struct ImageMsg<'a> {
     pub data: &'a [u8],
 }
 
+/// Longest image side vamos decodes, pixels. No camera comes near it; it keeps every
+/// per-axis buffer of the resize (its sampling plans) small whatever the pixel limit.
+pub const MAX_IMAGE_SIDE: usize = 1 << 15;
+
+/// Checks a declared image size (from a message or a file header, before anything is
+/// decoded): not empty, no side over [`MAX_IMAGE_SIDE`], at most `max_pixels`.
+pub fn check_image_size(w: usize, h: usize, max_pixels: usize) -> Result<(), MessageError> {
+    let reason = if w == 0 || h == 0 {
+        format!("empty image {w}x{h}")
+    } else if w > MAX_IMAGE_SIDE || h > MAX_IMAGE_SIDE {
+        format!("{w}x{h}: a side is longer than the limit of {MAX_IMAGE_SIDE} pixels")
+    } else if w.saturating_mul(h) > max_pixels {
+        format!("{w}x{h} exceeds the limit of {max_pixels} pixels")
+    } else {
+        return Ok(());
+    };
+    Err(MessageError::BadSize { reason })
+}
+
 /// Bytes per pixel and channel count of a raw encoding vamos decodes.
 fn encoding_layout(encoding: &str) -> Option<(usize, usize)> {
     Some(match encoding {
@@ -207,16 +226,7 @@ impl<'a> ImageMsg<'a> {
             self.height as usize,
             self.step as usize,
         );
-        if w == 0 || h == 0 {
-            return Err(MessageError::BadSize {
-                reason: format!("empty image {w}x{h}"),
-            });
-        }
-        if w.saturating_mul(h) > max_pixels {
-            return Err(MessageError::BadSize {
-                reason: format!("{w}x{h} exceeds the limit of {max_pixels} pixels"),
-            });
-        }
+        check_image_size(w, h, max_pixels)?;
         if step < w * bpp {
             return Err(MessageError::BadSize {
                 reason: format!(
@@ -318,37 +328,53 @@ impl<'a> CompressedImageMsg<'a> {
         w.into_bytes()
     }
 
+    /// The format named by [`Self::format`] (`jpeg`/`jpg` or `png`, any case).
+    fn image_format(&self) -> Result<image::ImageFormat, MessageError> {
+        let lower = self.format.to_ascii_lowercase();
+        if lower.contains("jpeg") || lower.contains("jpg") {
+            Ok(image::ImageFormat::Jpeg)
+        } else if lower.contains("png") {
+            Ok(image::ImageFormat::Png)
+        } else {
+            Err(MessageError::UnknownEncoding {
+                encoding: self.format.clone(),
+            })
+        }
+    }
+
+    /// Width and height from the file's header, nothing decoded.
+    pub fn dimensions(&self) -> Result<(usize, usize), MessageError> {
+        let fmt = self.image_format()?;
+        image::ImageReader::with_format(std::io::Cursor::new(self.data), fmt)
+            .into_dimensions()
+            .map(|(w, h)| (w as usize, h as usize))
+            .map_err(|e| MessageError::Decode {
+                format: self.format.clone(),
+                reason: e.to_string(),
+            })
+    }
+
     /// Decodes the image to gray (colour as BT.601 luma, 8-bit gray exact, 16-bit scaled).
     /// The image's declared size is checked against `max_pixels` before decoding.
     pub fn to_gray(&self, max_pixels: usize) -> Result<GrayImage, MessageError> {
-        let lower = self.format.to_ascii_lowercase();
-        let fmt = if lower.contains("jpeg") || lower.contains("jpg") {
-            image::ImageFormat::Jpeg
-        } else if lower.contains("png") {
-            image::ImageFormat::Png
-        } else {
-            return Err(MessageError::UnknownEncoding {
-                encoding: self.format.clone(),
-            });
-        };
+        let fmt = self.image_format()?;
         let err = |reason: String| MessageError::Decode {
             format: self.format.clone(),
             reason,
         };
+        let (w, h) = self.dimensions()?;
+        check_image_size(w, h, max_pixels)?;
         let mut reader = image::ImageReader::with_format(std::io::Cursor::new(self.data), fmt);
         let mut limits = image::Limits::default();
-        let max_px = u32::try_from(max_pixels).unwrap_or(u32::MAX);
-        limits.max_image_width = Some(max_px);
-        limits.max_image_height = Some(max_px);
-        limits.max_alloc = Some((max_pixels as u64).saturating_mul(16));
+        // The header was checked; the limits hold the decoder to what it declared.
+        let side = u32::try_from(MAX_IMAGE_SIDE).unwrap_or(u32::MAX);
+        limits.max_image_width = Some(side);
+        limits.max_image_height = Some(side);
+        limits.max_alloc = Some((w * h) as u64 * 8 + (1 << 20));
         reader.limits(limits);
         let img = reader.decode().map_err(|e| err(e.to_string()))?;
         let (w, h) = (img.width() as usize, img.height() as usize);
-        if w.saturating_mul(h) > max_pixels {
-            return Err(MessageError::BadSize {
-                reason: format!("{w}x{h} exceeds the limit of {max_pixels} pixels"),
-            });
-        }
+        check_image_size(w, h, max_pixels)?;
         let data: Vec<f32> = if img.color().has_color() {
             match img.as_rgb8() {
                 Some(rgb) => rgb

@@ -188,6 +188,9 @@ pub struct Profile {
     pub camera: Option<CameraSpec>,
     /// The calibration, if `vamos calibrate` has run.
     pub calibration: Option<Calibration>,
+    /// The robot is one the service stores: it is loaded sealed
+    /// ([`crate::robot::Robot::load_stored`]), never reading files outside its package.
+    pub robot_stored: bool,
 }
 
 impl Profile {
@@ -240,6 +243,7 @@ impl Profile {
             file,
             camera,
             calibration,
+            robot_stored: false,
         })
     }
 

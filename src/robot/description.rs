@@ -89,6 +89,7 @@ pub struct Robot {
     visuals: Vec<Vec<VisualInfo>>,
     link_meshes: Vec<LinkMesh>,
     warnings: Vec<String>,
+    outside_meshes: Vec<String>,
 }
 
 impl Robot {
@@ -106,6 +107,27 @@ impl Robot {
             return Self::from_archive_file(path, cfg);
         }
         Self::from_urdf_file(path, cfg)
+    }
+
+    /// A robot as the service stores it (see [`Robot::meshes_outside_package`]): an
+    /// archive is read as [`Robot::from_archive_file`] does; a single URDF file is
+    /// sealed, no mesh file is looked up on the file system (it has no package, so only
+    /// its primitive shapes load, and every mesh is left out with a warning).
+    pub fn load_stored(path: &Path, cfg: &RobotConfig) -> Result<Self, RobotError> {
+        let lower = path.to_string_lossy().to_ascii_lowercase();
+        if [".zip", ".tar.gz", ".tgz"]
+            .iter()
+            .any(|ext| lower.ends_with(ext))
+        {
+            return Self::from_archive_file(path, cfg);
+        }
+        let xml = std::fs::read_to_string(path).map_err(|e| RobotError::io(path, &e))?;
+        let label = path.display().to_string();
+        let store = Store::Memory {
+            label: label.clone(),
+            files: HashMap::new(),
+        };
+        Self::from_parts(&xml, &label, &store, Path::new(""), Path::new(""), cfg)
     }
 
     /// A URDF file; meshes resolved against its folder.
@@ -239,12 +261,26 @@ impl Robot {
         for w in &warnings {
             tracing::warn!(robot = %urdf.name, "{w}");
         }
+        let mut outside_meshes: Vec<String> = urdf
+            .links
+            .iter()
+            .flat_map(|l| &l.visual)
+            .filter_map(|v| match &v.geometry {
+                urdf_rs::Geometry::Mesh { filename, .. } if resolver.leaves_package(filename) => {
+                    Some(filename.clone())
+                }
+                _ => None,
+            })
+            .collect();
+        outside_meshes.sort();
+        outside_meshes.dedup();
         Ok(Self {
             name: urdf.name,
             kinematics,
             visuals,
             link_meshes,
             warnings,
+            outside_meshes,
         })
     }
 
@@ -294,6 +330,14 @@ impl Robot {
     /// What was left out while loading (missing or unreadable meshes, limits), by name.
     pub fn warnings(&self) -> &[String] {
         &self.warnings
+    }
+
+    /// Mesh paths of a package read from an archive or of a stored robot
+    /// ([`Robot::load_stored`]) that point outside it: absolute, `file://`, or leaving
+    /// it with `..`. They are never read (the service refuses such robots at upload);
+    /// empty for robots read from folders, where absolute paths are allowed.
+    pub fn meshes_outside_package(&self) -> &[String] {
+        &self.outside_meshes
     }
 
     /// All joints at zero.
@@ -634,6 +678,20 @@ struct Resolver<'a> {
 }
 
 impl Resolver<'_> {
+    /// Whether `uri` points outside a sealed (in-memory) package: absolute, or leaving
+    /// it with `..`. Never for the file system, where absolute paths are allowed.
+    fn leaves_package(&self, uri: &str) -> bool {
+        if !matches!(self.store, Store::Memory { .. }) {
+            return false;
+        }
+        if let Some(rest) = uri.strip_prefix("package://") {
+            let rel = rest.split_once('/').map_or("", |(_, rel)| rel);
+            return normalize_relative(Path::new(rel)).is_none();
+        }
+        let path = Path::new(uri.strip_prefix("file://").unwrap_or(uri));
+        path.is_absolute() || normalize_relative(&self.urdf_dir.join(path)).is_none()
+    }
+
     /// The path of a mesh `uri` in the store, or why it was not found.
     fn resolve(&self, uri: &str) -> Result<PathBuf, String> {
         let in_memory = matches!(self.store, Store::Memory { .. });

@@ -2,6 +2,60 @@
 //! and in memory) and compared in constant time.
 
 use sha2::{Digest, Sha256};
+use std::sync::OnceLock;
+
+/// The environment variables of plain tokens, admin then robot.
+const TOKEN_VARS: [&str; 2] = ["VAMOS_ADMIN_TOKEN", "VAMOS_ROBOT_TOKEN"];
+
+/// Digests of the plain tokens taken out of the environment by [`take_env_tokens`].
+static TAKEN: OnceLock<[Vec<[u8; 32]>; 2]> = OnceLock::new();
+
+fn plain_digests(s: Option<&str>) -> Vec<[u8; 32]> {
+    s.unwrap_or("")
+        .split(',')
+        .map(str::trim)
+        .filter(|t| !t.is_empty())
+        .map(digest)
+        .collect()
+}
+
+/// Hashes `VAMOS_ADMIN_TOKEN` and `VAMOS_ROBOT_TOKEN`, overwrites their values in the
+/// process's initial environment block (what `/proc/PID/environ` shows) and removes
+/// them from the environment, so no plain token outlives the start: neither the running
+/// server's memory nor a child process holds it. `vamos serve` calls it first thing.
+///
+/// # Safety
+/// No other thread may read or write the environment while it runs: call it from
+/// `main` before any thread is started.
+pub unsafe fn take_env_tokens() {
+    let taken = TOKEN_VARS.map(|var| plain_digests(std::env::var(var).ok().as_deref()));
+    for var in TOKEN_VARS {
+        #[cfg(unix)]
+        if let Ok(name) = std::ffi::CString::new(var) {
+            // SAFETY: the caller guarantees no other thread touches the environment;
+            // getenv's pointer is the value's bytes in the environment block (the
+            // process's own writable memory), `strlen` of them long.
+            unsafe {
+                let value = libc::getenv(name.as_ptr());
+                if !value.is_null() {
+                    std::ptr::write_bytes(value, b'x', libc::strlen(value));
+                }
+            }
+        }
+        // SAFETY: as above.
+        unsafe { std::env::remove_var(var) };
+    }
+    let _ = TAKEN.set(taken);
+}
+
+/// Digests of the plain admin and robot tokens: those [`take_env_tokens`] took, else
+/// read from the environment now (a server started in-process by a program).
+pub fn env_token_digests() -> [Vec<[u8; 32]>; 2] {
+    match TAKEN.get() {
+        Some(t) => t.clone(),
+        None => TOKEN_VARS.map(|var| plain_digests(std::env::var(var).ok().as_deref())),
+    }
+}
 
 /// What a caller may do.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
@@ -87,19 +141,18 @@ impl Tokens {
                 .map(|(index, s)| parse_hex(s).ok_or(BadDigest { role, index }))
                 .collect()
         };
-        let plain = |s: Option<&str>| -> Vec<[u8; 32]> {
-            s.unwrap_or("")
-                .split(',')
-                .map(str::trim)
-                .filter(|t| !t.is_empty())
-                .map(digest)
-                .collect()
-        };
         let mut admin = parse(admin_sha256, "admin")?;
-        admin.extend(plain(admin_plain));
+        admin.extend(plain_digests(admin_plain));
         let mut robot = parse(robot_sha256, "robot")?;
-        robot.extend(plain(robot_plain));
+        robot.extend(plain_digests(robot_plain));
         Ok(Self { admin, robot })
+    }
+
+    /// Adds token digests: admin, then robot (e.g. [`env_token_digests`]).
+    pub fn with_digests(mut self, [admin, robot]: [Vec<[u8; 32]>; 2]) -> Self {
+        self.admin.extend(admin);
+        self.robot.extend(robot);
+        self
     }
 
     /// Whether any token is configured (otherwise every caller is admin).

@@ -116,6 +116,33 @@ pub struct ServiceConfig {
     pub shutdown_grace_s: f64,
     /// A store shared with other replicas; absent: the data directory is this replica's.
     pub shared_store: Option<SharedStoreConfig>,
+    /// Largest streamed image, pixels (checked from the message or file header before
+    /// decoding; no side may exceed 32768).
+    pub max_image_pixels: usize,
+    /// Memory the server may hold for its clients (buffered images and joint states,
+    /// images being decoded), MiB; work past it is refused with a clear error. 0: half of
+    /// the memory the process may use (cgroup limit or machine), at least 256 MiB.
+    pub memory_budget_mb: u64,
+    /// Most joints in one joint state.
+    pub max_joints: usize,
+    /// Joint states kept behind a session's newest one (stamp time) when no image waits
+    /// for them, seconds.
+    pub joint_buffer_s: f64,
+    /// Most bytes of joint states one session may buffer; past it joint states are
+    /// refused (the client is told).
+    pub max_joint_buffer_bytes: u64,
+    /// Uploads (episodes to score, models, robots, calibration episodes) in progress at
+    /// once; more are refused (HTTP 429, gRPC RESOURCE_EXHAUSTED) before a byte is read.
+    pub max_uploads: usize,
+    /// Temporary disk all uploads in progress may use together, MiB.
+    pub max_upload_disk_mb: u64,
+    /// Connections open at once, both listeners together; past it new ones are closed at
+    /// once. 0: the process's open-file limit less 64 (at most 4096).
+    pub max_connections: usize,
+    /// Seconds a connection has to send its first bytes and each HTTP/1 request head
+    /// (a tenth of it, at most 1 s, while more than three quarters of the connections
+    /// are in use).
+    pub header_timeout_s: f64,
 }
 
 impl Default for ServiceConfig {
@@ -145,6 +172,15 @@ impl Default for ServiceConfig {
             tls: None,
             shutdown_grace_s: 10.0,
             shared_store: None,
+            max_image_pixels: 1 << 24,
+            memory_budget_mb: 0,
+            max_joints: 1024,
+            joint_buffer_s: 10.0,
+            max_joint_buffer_bytes: 16 << 20,
+            max_uploads: 4,
+            max_upload_disk_mb: 32 << 10,
+            max_connections: 0,
+            header_timeout_s: 10.0,
         }
     }
 }

@@ -1,7 +1,8 @@
 //! `vamos.v1.Monitor`: streaming sessions and episode scoring over gRPC.
 
 use super::auth::{AuthError, Role};
-use super::hub::{Hub, ImagePayload, OpenRequest, ReadyFrame, Session};
+use super::budget::UploadTicket;
+use super::hub::{Hub, ImagePayload, OpenRequest, ReadyFrame, Session, SessionSlot};
 use super::proto::monitor_server::Monitor;
 use super::proto::{self, stream_request::Message as In};
 use super::{ServiceError, Shared};
@@ -177,6 +178,7 @@ impl Monitor for MonitorService {
                 camera,
                 episode: false,
                 seed_key: None,
+                slot: None,
             },
             tx.clone(),
         )?;
@@ -219,6 +221,8 @@ impl Monitor for MonitorService {
         request: Request<Streaming<proto::EpisodeChunk>>,
     ) -> Result<Response<Self::ScoreEpisodeStream>, Status> {
         self.authorize(&request)?;
+        // Admitted before a byte is buffered: a session place and an upload slot.
+        let (slot, mut ticket) = self.shared.admit_episode(None)?;
         let mut inbound = request.into_inner();
         let limit = self.shared.hub.config().max_episode_bytes;
         let mut file = tempfile::Builder::new()
@@ -240,6 +244,9 @@ impl Monitor for MonitorService {
                     "episode larger than the limit of {limit} bytes"
                 )));
             }
+            ticket
+                .written(size)
+                .map_err(|e| Status::resource_exhausted(e.to_string()))?;
             file.write_all(&chunk.data)
                 .map_err(|e| Status::internal(format!("cannot buffer the episode: {e}")))?;
         }
@@ -250,19 +257,30 @@ impl Monitor for MonitorService {
             .get_async(&name)
             .await
             .map_err(ServiceError::from)?;
-        let stream =
-            score_episode_file(self.shared.hub.clone(), profile, file, episode_name).await?;
+        let stream = score_episode_file(
+            self.shared.hub.clone(),
+            profile,
+            file,
+            episode_name,
+            slot,
+            Some(ticket),
+        )
+        .await?;
         Ok(Response::new(stream))
     }
 }
 
-/// Scores a buffered episode through the worker pool; the scores stream back in order,
-/// then DATA_LOSS if the file was damaged part-way.
+/// Scores a buffered episode through the worker pool, in the session place `slot`
+/// reserved before it was read; the scores stream back in order, then DATA_LOSS if the
+/// file was damaged part-way. `ticket` (the upload's slot and disk) is given back when
+/// the file is removed.
 pub async fn score_episode_file(
     hub: Arc<Hub>,
     profile: Arc<super::profiles::LoadedProfile>,
     file: tempfile::NamedTempFile,
     seed_key: String,
+    slot: SessionSlot,
+    ticket: Option<UploadTicket>,
 ) -> Result<BoxStream<proto::FrameScore>, Status> {
     let config = profile.setup.episode.clone();
     let path = file.path().to_path_buf();
@@ -280,11 +298,13 @@ pub async fn score_episode_file(
             camera: None,
             episode: true,
             seed_key: Some(seed_key),
+            slot: Some(slot),
         },
         tx.clone(),
     )?;
     tokio::task::spawn_blocking(move || {
         let _file = file;
+        let _ticket = ticket;
         let mut errors: Vec<FrameError> = Vec::new();
         let mut damage = None;
         for item in episode.frames() {
@@ -294,11 +314,25 @@ pub async fn score_episode_file(
                         .camera_info
                         .as_ref()
                         .and_then(|c| Intrinsics::from_k(c.width, c.height, &c.k).ok());
+                    // Decoded frames wait for room in the memory budget: the session's
+                    // queue, and others', drain as they are scored.
+                    // (A frame larger than the whole budget takes all of it.)
+                    let bytes = (4 * frame.image.data().len() as u64).min(hub.budget().limit());
+                    let charge = loop {
+                        match hub.budget().charge(bytes) {
+                            Ok(c) => break c,
+                            Err(_) if !hub.is_closed(&session) => {
+                                std::thread::sleep(Duration::from_millis(20));
+                            }
+                            Err(_) => return,
+                        }
+                    };
                     let ready = ReadyFrame {
                         stamp_ns: frame.stamp_ns,
                         image: ImagePayload::Decoded(frame.image, k),
                         joints: frame.joints.map(|j| (j.names, j.positions)),
                         arrived: Instant::now(),
+                        charge: Some(charge),
                     };
                     if !hub.push_blocking(&session, ready) {
                         return;

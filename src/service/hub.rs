@@ -11,6 +11,7 @@
 //! Scores go to the session's outbound channel without blocking: a client that does not
 //! read its scores loses them (counted as `undelivered`), it never stalls a worker.
 
+use super::budget::{ByteBudget, Charge};
 use super::config::{QueuePolicy, ServiceConfig};
 use super::metrics::Metrics;
 use super::profiles::LoadedProfile;
@@ -22,7 +23,8 @@ use crate::pipeline::{FrameInput, FrameScore, JointInput, Scorer};
 use crate::robot::Intrinsics;
 use crate::vision::GrayImage;
 use std::collections::{HashMap, VecDeque};
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::panic::{AssertUnwindSafe, catch_unwind};
+use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, Condvar, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 use tokio::sync::mpsc;
@@ -31,8 +33,12 @@ use tonic::Status;
 /// What a session's stream receives.
 pub type Outbound = mpsc::Sender<Result<proto::StreamResponse, Status>>;
 
-/// Largest image the service decodes, pixels (a 4K frame is 8.3 M).
-const MAX_PIXELS: usize = 40 << 20;
+/// Longest joint name accepted, bytes.
+const MAX_JOINT_NAME: usize = 256;
+
+/// Heap bytes a buffered image is charged beyond its pixel bytes (the frame's
+/// bookkeeping).
+const FRAME_OVERHEAD: u64 = 256;
 
 fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
     m.lock().unwrap_or_else(|e| e.into_inner())
@@ -104,6 +110,9 @@ pub struct ReadyFrame {
     pub joints: Option<(Vec<String>, Vec<f64>)>,
     /// When the image reached the server.
     pub arrived: Instant,
+    /// What the frame holds of the server's memory budget (given back when the frame is
+    /// scored or dropped).
+    pub charge: Option<Charge>,
 }
 
 /// Joint samples of one set of names (one publisher), stamps ascending.
@@ -127,6 +136,28 @@ impl JointBuffer {
             .min()
     }
 
+    /// Bytes of the samples and names held, for the session's cap and the server's
+    /// budget (the vectors' spare capacity, at most as much again, is not counted).
+    pub(crate) fn bytes(&self) -> u64 {
+        self.groups
+            .iter()
+            .map(|g| {
+                8 * (g.stamps_ns.len() + g.rows.len())
+                    + g.names.iter().map(|n| n.len() + 24).sum::<usize>()
+            })
+            .sum::<usize>() as u64
+    }
+
+    /// Bytes a push of `names` would add at most (before any growth of capacity).
+    pub(crate) fn push_cost(&self, names: &[String]) -> u64 {
+        let row = 8 * (names.len() + 1);
+        if self.groups.iter().any(|g| g.names == names) {
+            row as u64
+        } else {
+            (row + names.iter().map(|n| n.len() + 24).sum::<usize>()) as u64
+        }
+    }
+
     pub(crate) fn push(
         &mut self,
         stamp_ns: i64,
@@ -145,6 +176,13 @@ impl JointBuffer {
         }
         if let Some(bad) = names.iter().zip(&positions).find(|(_, p)| !p.is_finite()) {
             return Err(format!("joint {:?} has a non-finite position", bad.0));
+        }
+        if let Some(long) = names.iter().find(|n| n.len() > MAX_JOINT_NAME) {
+            return Err(format!(
+                "joint name of {} bytes (at most {MAX_JOINT_NAME}): {:?}...",
+                long.len(),
+                long.chars().take(32).collect::<String>()
+            ));
         }
         let group = match self.groups.iter_mut().position(|g| g.names == names) {
             Some(i) => &mut self.groups[i],
@@ -201,22 +239,49 @@ impl JointBuffer {
                 let n = g.names.len();
                 g.stamps_ns.drain(..keep_from);
                 g.rows.drain(..keep_from * n);
+                // A burst must not pin its capacity for the session's life.
+                if g.stamps_ns.capacity() > 4 * g.stamps_ns.len().max(64) {
+                    g.stamps_ns.shrink_to(2 * g.stamps_ns.len());
+                    g.rows.shrink_to(2 * g.rows.len());
+                }
             }
         }
     }
 }
 
 /// A streamed image decoded to gray: raw ROS encodings (a zero `step` means packed rows)
-/// and PNG / JPEG files, at most `max_pixels`.
-pub(crate) fn decode_image(image: &proto::Image, max_pixels: usize) -> Result<GrayImage, String> {
+/// and PNG / JPEG files, at most `max_pixels`. With a `budget`, the decoding's memory
+/// (estimated from the declared size, before anything is decoded) is charged to it for
+/// as long as the returned charge lives, or the image is refused.
+pub(crate) fn decode_image(
+    image: &proto::Image,
+    max_pixels: usize,
+    budget: Option<&Arc<ByteBudget>>,
+) -> Result<(GrayImage, Option<Charge>), String> {
     let enc = image.encoding.to_ascii_lowercase();
+    let charge = |w: usize, h: usize, bytes_per_px: u64| match budget {
+        Some(b) => b
+            .charge((w * h) as u64 * bytes_per_px)
+            .map(Some)
+            .map_err(|e| format!("{w}x{h} image not decoded: {e}")),
+        None => Ok(None),
+    };
     if matches!(enc.as_str(), "jpeg" | "jpg" | "png") {
         let msg = CompressedImageMsg {
             header: Header::from_stamp_ns(image.stamp_ns, ""),
             format: enc,
             data: &image.data,
         };
-        return msg.to_gray(max_pixels).map_err(|e| e.to_string());
+        let (w, h) = msg.dimensions().map_err(|e| e.to_string())?;
+        crate::episode::ros::check_image_size(w, h, max_pixels).map_err(|e| e.to_string())?;
+        // Decoded pixels (up to 16-bit RGBA), a float conversion of colour, the gray f32.
+        let mut held = charge(w, h, 24)?;
+        let gray = msg.to_gray(max_pixels).map_err(|e| e.to_string())?;
+        // Decoded: only the gray image stays.
+        if let Some(c) = held.as_mut() {
+            let _ = c.resize(4 * gray.data().len() as u64);
+        }
+        return Ok((gray, held));
     }
     let bpp = match enc.as_str() {
         "rgb8" | "bgr8" => 3,
@@ -240,7 +305,10 @@ pub(crate) fn decode_image(image: &proto::Image, max_pixels: usize) -> Result<Gr
         step,
         data: &image.data,
     };
-    msg.to_gray(max_pixels).map_err(|e| e.to_string())
+    let (w, h) = msg.validate(max_pixels).map_err(|e| e.to_string())?;
+    let held = charge(w, h, 4)?;
+    let gray = msg.to_gray(max_pixels).map_err(|e| e.to_string())?;
+    Ok((gray, held))
 }
 
 /// The latest score of a session, for listings.
@@ -294,6 +362,8 @@ struct SessionState {
     queue: VecDeque<ReadyFrame>,
     scheduled: bool,
     joints: JointBuffer,
+    /// The joint buffer's bytes, charged to the server's budget.
+    joint_charge: Charge,
     last_image_ns: Option<i64>,
     newest_ns: i64,
     out: Option<Outbound>,
@@ -427,6 +497,21 @@ pub struct OpenRequest {
     /// What seeds the predictor's sampling (default: the session id); `vamos score`
     /// uses the episode's file stem.
     pub seed_key: Option<String>,
+    /// A place reserved before the episode's upload was read ([`Hub::reserve_session`]).
+    pub slot: Option<SessionSlot>,
+}
+
+/// A session place held for an episode while its upload is read
+/// ([`Hub::reserve_session`]): [`Hub::open`] with it never finds the server full;
+/// dropped unused, it frees the place.
+pub struct SessionSlot {
+    reserved: Arc<AtomicUsize>,
+}
+
+impl Drop for SessionSlot {
+    fn drop(&mut self) {
+        self.reserved.fetch_sub(1, Ordering::SeqCst);
+    }
 }
 
 /// The sessions and the worker pool.
@@ -439,6 +524,16 @@ pub struct Hub {
     stopping: AtomicBool,
     next_id: AtomicU64,
     workers: Mutex<Vec<std::thread::JoinHandle<()>>>,
+    /// Workers running (a panicking one restarts; it is counted out only when it ends).
+    live_workers: AtomicUsize,
+    /// Session places held by [`SessionSlot`]s.
+    reserved: Arc<AtomicUsize>,
+    /// Memory the clients can make the server hold.
+    budget: Arc<ByteBudget>,
+    /// Test hooks: the next frames scored panic; the next worker turns panic outside a
+    /// frame.
+    injected_frame_panics: AtomicU64,
+    injected_worker_panics: AtomicU64,
 }
 
 impl Hub {
@@ -449,7 +544,21 @@ impl Hub {
         } else {
             config.workers
         };
+        let limit = match config.memory_budget_mb {
+            0 => super::budget::default_limit(),
+            mb => mb << 20,
+        };
+        let budget = ByteBudget::new("memory budget", limit, metrics.memory_budget_used.clone());
+        tracing::info!(
+            memory_budget_mib = limit >> 20,
+            "memory budget for buffered client data"
+        );
         let hub = Arc::new(Self {
+            budget,
+            live_workers: AtomicUsize::new(0),
+            reserved: Arc::new(AtomicUsize::new(0)),
+            injected_frame_panics: AtomicU64::new(0),
+            injected_worker_panics: AtomicU64::new(0),
             config,
             metrics,
             sessions: Mutex::new(HashMap::new()),
@@ -462,12 +571,18 @@ impl Hub {
         let mut handles = Vec::new();
         for i in 0..n {
             let h = hub.clone();
+            hub.live_workers.fetch_add(1, Ordering::SeqCst);
+            hub.metrics.workers_alive.inc();
             match std::thread::Builder::new()
                 .name(format!("vamos-worker-{i}"))
-                .spawn(move || h.worker())
+                .spawn(move || h.supervised_worker(i))
             {
                 Ok(handle) => handles.push(handle),
-                Err(e) => tracing::error!("cannot start worker {i}: {e}"),
+                Err(e) => {
+                    hub.live_workers.fetch_sub(1, Ordering::SeqCst);
+                    hub.metrics.workers_alive.dec();
+                    tracing::error!("cannot start worker {i}: {e}");
+                }
             }
         }
         tracing::info!(workers = handles.len(), "scoring workers started");
@@ -483,6 +598,36 @@ impl Hub {
     /// The metrics.
     pub fn metrics(&self) -> &Metrics {
         &self.metrics
+    }
+
+    /// The server's memory budget for client data.
+    pub fn budget(&self) -> &Arc<ByteBudget> {
+        &self.budget
+    }
+
+    /// Scoring workers running: 0 means nothing can be scored (health says so).
+    pub fn live_workers(&self) -> usize {
+        self.live_workers.load(Ordering::SeqCst)
+    }
+
+    /// Test hook: the next `frames` frames scored panic inside the scorer's turn.
+    #[doc(hidden)]
+    pub fn inject_frame_panics(&self, frames: u64) {
+        self.injected_frame_panics.store(frames, Ordering::SeqCst);
+    }
+
+    /// Test hook: the next `turns` worker turns panic outside any frame (the worker
+    /// itself fails and is restarted).
+    #[doc(hidden)]
+    pub fn inject_worker_panics(&self, turns: u64) {
+        self.injected_worker_panics.store(turns, Ordering::SeqCst);
+        self.work.notify_all();
+    }
+
+    fn take_injected(counter: &AtomicU64) -> bool {
+        counter
+            .fetch_update(Ordering::SeqCst, Ordering::SeqCst, |n| n.checked_sub(1))
+            .is_ok()
     }
 
     /// Opens (or resumes) a session whose scores go to `out`. Returns the session and
@@ -521,7 +666,11 @@ impl Hub {
             tracing::info!(session = %id, "session resumed");
             return Ok((s.clone(), true));
         }
-        if sessions.len() >= self.config.max_sessions {
+        // An episode whose place was reserved before its upload was read has it.
+        let slot = req.slot;
+        if slot.is_none()
+            && sessions.len() + self.reserved.load(Ordering::SeqCst) >= self.config.max_sessions
+        {
             self.metrics
                 .sessions_opened
                 .with_label_values(&[&profile.name, "refused"])
@@ -564,6 +713,7 @@ impl Hub {
                 queue: VecDeque::new(),
                 scheduled: false,
                 joints: JointBuffer::default(),
+                joint_charge: self.budget.empty(),
                 last_image_ns: None,
                 newest_ns: i64::MIN,
                 out: Some(out),
@@ -584,6 +734,8 @@ impl Hub {
             profile: Mutex::new(profile),
         });
         sessions.insert(id.clone(), session.clone());
+        // The place is the session's now (the table's lock is still held).
+        drop(slot);
         self.metrics
             .sessions_active
             .with_label_values(&[&session.profile_name])
@@ -594,6 +746,24 @@ impl Hub {
             .inc();
         tracing::info!(session = %id, robot = %session.robot_id, profile = %session.profile_name, "session opened");
         Ok((session, false))
+    }
+
+    /// Reserves a session place for an episode before its upload is read, so a full
+    /// server refuses it before a byte is buffered.
+    pub fn reserve_session(&self) -> Result<SessionSlot, OpenError> {
+        if self.stopping.load(Ordering::SeqCst) {
+            return Err(OpenError::ShuttingDown);
+        }
+        let sessions = lock(&self.sessions);
+        if sessions.len() + self.reserved.load(Ordering::SeqCst) >= self.config.max_sessions {
+            return Err(OpenError::TooMany {
+                max: self.config.max_sessions,
+            });
+        }
+        self.reserved.fetch_add(1, Ordering::SeqCst);
+        Ok(SessionSlot {
+            reserved: self.reserved.clone(),
+        })
     }
 
     /// Sessions, sorted by id.
@@ -703,6 +873,17 @@ impl Hub {
         self.message_error(s, kind, detail, stamp_ns);
     }
 
+    /// An image not buffered because the server's memory budget is spent: counted as
+    /// dropped (`memory_budget`) and reported to the client.
+    fn refuse_for_memory(&self, s: &Session, detail: String, stamp_ns: i64) {
+        s.dropped.fetch_add(1, Ordering::Relaxed);
+        self.metrics
+            .drops
+            .with_label_values(&[&s.profile_name, "memory_budget"])
+            .inc();
+        self.message_error(s, "memory", detail, stamp_ns);
+    }
+
     /// An image of a live session.
     pub fn image(&self, s: &Arc<Session>, image: proto::Image) {
         let stamp = image.stamp_ns;
@@ -721,6 +902,14 @@ impl Hub {
             );
             return;
         }
+        let charge = match self.budget.charge(image.data.len() as u64 + FRAME_OVERHEAD) {
+            Ok(c) => c,
+            Err(e) => {
+                drop(st);
+                self.refuse_for_memory(s, format!("image at {stamp} ns dropped: {e}"), stamp);
+                return;
+            }
+        };
         st.last_image_ns = Some(stamp);
         st.newest_ns = st.newest_ns.max(stamp);
         st.pending.push_back(ReadyFrame {
@@ -728,6 +917,7 @@ impl Hub {
             image: ImagePayload::Message(image),
             joints: None,
             arrived: Instant::now(),
+            charge: Some(charge),
         });
         let released = self.release(s, &mut st, false);
         drop(st);
@@ -739,11 +929,54 @@ impl Hub {
         let stamp = j.stamp_ns;
         let mut st = lock(&s.state);
         st.last_activity = Instant::now();
-        if let Err(e) = st.joints.push(stamp, j.names, j.positions) {
+        if j.names.len() > self.config.max_joints {
             drop(st);
-            self.message_error(s, "joints", format!("joint state refused: {e}"), stamp);
+            let e = format!(
+                "joint state refused: {} joints (at most {}, [service] max_joints)",
+                j.names.len(),
+                self.config.max_joints
+            );
+            self.message_error(s, "joints", e, stamp);
             return;
         }
+        // The buffer's growth is checked against the session's cap and charged to the
+        // server's budget before it happens.
+        let g = &mut *st;
+        let now = g.joints.bytes();
+        let cost = g.joints.push_cost(&j.names);
+        let limit = self.config.max_joint_buffer_bytes;
+        let refused = if now + cost > limit {
+            Some((
+                "memory",
+                format!(
+                    "joint state refused: the session's joint buffer holds {now} bytes (at \
+                     most {limit}, [service] max_joint_buffer_bytes); joint states run far \
+                     ahead of the images"
+                ),
+            ))
+        } else if let Err(e) = g.joint_charge.resize(now + cost) {
+            Some(("memory", format!("joint state refused: {e}")))
+        } else if let Err(e) = g.joints.push(stamp, j.names, j.positions) {
+            Some(("joints", format!("joint state refused: {e}")))
+        } else {
+            None
+        };
+        if let Some((kind, detail)) = refused {
+            let _ = g.joint_charge.resize(g.joints.bytes());
+            drop(st);
+            self.message_error(s, kind, detail, stamp);
+            return;
+        }
+        // Samples no waiting image can need, beyond the window, are forgotten.
+        let window_ns = (self.config.joint_buffer_s.max(0.0) * 1e9) as i64;
+        let horizon = stamp.saturating_sub(window_ns);
+        let keep = st
+            .pending
+            .front()
+            .map_or(horizon, |f| f.stamp_ns.min(horizon));
+        st.joints.trim_before(keep);
+        let bytes = st.joints.bytes();
+        let _ = st.joint_charge.resize(bytes);
         st.newest_ns = st.newest_ns.max(stamp);
         let released = self.release(s, &mut st, false);
         drop(st);
@@ -780,8 +1013,11 @@ impl Hub {
         let mut rejected = 0;
         while let Some(front) = st.pending.front() {
             let t = front.stamp_ns;
+            // A session may keep a few queues' worth of images waiting for joints; past
+            // that the oldest goes on with the joint states known.
             let ready = !s.needs_joints()
                 || flush
+                || st.pending.len() > 4 * self.config.queue_depth.max(1)
                 || st.joints.newest_ns().is_some_and(|n| n >= t)
                 || st.newest_ns.saturating_sub(t) > wait_ns
                 || front.arrived.elapsed() > wait;
@@ -794,6 +1030,7 @@ impl Hub {
             if s.needs_joints() {
                 frame.joints = st.joints.at(t);
                 st.joints.trim_before(t);
+                let _ = st.joint_charge.resize(st.joints.bytes());
             }
             if st.queue.len() >= self.config.queue_depth.max(1) {
                 match self.config.queue_policy {
@@ -871,6 +1108,11 @@ impl Hub {
         drop(st);
         self.after_release(s, (0, 0, schedule));
         true
+    }
+
+    /// Whether the session is closed.
+    pub fn is_closed(&self, s: &Session) -> bool {
+        lock(&s.state).closed
     }
 
     /// Blocks until the session is closed.
@@ -1021,8 +1263,31 @@ impl Hub {
         }
     }
 
+    /// A worker thread: [`Self::worker`] restarted after any panic that escapes a frame,
+    /// until the hub stops.
+    fn supervised_worker(self: &Arc<Self>, i: usize) {
+        loop {
+            match catch_unwind(AssertUnwindSafe(|| self.worker())) {
+                Ok(()) => break,
+                Err(panic) => {
+                    self.metrics.worker_restarts.inc();
+                    tracing::error!(
+                        worker = i,
+                        "scoring worker panicked ({}); restarted",
+                        panic_message(panic.as_ref())
+                    );
+                }
+            }
+        }
+        self.live_workers.fetch_sub(1, Ordering::SeqCst);
+        self.metrics.workers_alive.dec();
+    }
+
     fn worker(&self) {
         loop {
+            if Self::take_injected(&self.injected_worker_panics) {
+                panic!("injected worker panic");
+            }
             let session = {
                 let mut ready = lock(&self.ready);
                 loop {
@@ -1051,7 +1316,10 @@ impl Hub {
             };
             session.space.notify_all();
             if let Some(frame) = frame {
-                self.score(&session, frame);
+                let stamp = frame.stamp_ns;
+                if let Err(panic) = catch_unwind(AssertUnwindSafe(|| self.score(&session, frame))) {
+                    self.recover(&session, stamp, panic_message(panic.as_ref()));
+                }
             }
             let mut st = lock(&session.state);
             if !st.queue.is_empty() && !st.closed {
@@ -1069,19 +1337,54 @@ impl Hub {
         }
     }
 
+    /// After a panic while scoring frame `stamp` of `s`: the frame is reported failed,
+    /// the session's scorer (whose state the panic may have left half-updated) is
+    /// rebuilt from its profile, continuing its indices, and the session goes on.
+    fn recover(&self, s: &Arc<Session>, stamp: i64, what: String) {
+        self.metrics
+            .scoring_panics
+            .with_label_values(&[&s.profile_name])
+            .inc();
+        tracing::error!(session = %s.id, stamp_ns = stamp, "scoring panicked: {what}");
+        let profile = s.profile();
+        let rebuilt = match profile.setup.calibrated_scorer(&s.seed_key, false) {
+            Ok(mut fresh) => {
+                let mut current = lock(&s.scorer);
+                fresh.continue_after(&current);
+                *current = fresh;
+                "its scorer was rebuilt (the flow predictor warms up again)".to_string()
+            }
+            Err(e) => format!("its scorer could not be rebuilt ({e}) and goes on as it was"),
+        };
+        lock(&s.state).warm_reported = false;
+        self.refuse(
+            s,
+            "internal",
+            format!("frame failed: internal error while scoring it ({what}); {rebuilt}"),
+            stamp,
+        );
+    }
+
     fn score(&self, s: &Arc<Session>, frame: ReadyFrame) {
         let stamp = frame.stamp_ns;
         let started = Instant::now();
-        let (image, frame_camera) = match frame.image {
-            ImagePayload::Decoded(img, k) => (img, k),
-            ImagePayload::Message(msg) => match decode_image(&msg, MAX_PIXELS) {
-                Ok(img) => (img, None),
-                Err(e) => {
-                    self.refuse(s, "image", format!("image refused: {e}"), stamp);
-                    return;
+        // Held until the frame is scored: the buffered bytes, then the decoding's.
+        let _buffered = frame.charge;
+        let (image, frame_camera, _decoding) = match frame.image {
+            ImagePayload::Decoded(img, k) => (img, k, None),
+            ImagePayload::Message(msg) => {
+                match decode_image(&msg, self.config.max_image_pixels, Some(&self.budget)) {
+                    Ok((img, charge)) => (img, None, charge),
+                    Err(e) => {
+                        self.refuse(s, "image", format!("image refused: {e}"), stamp);
+                        return;
+                    }
                 }
-            },
+            }
         };
+        if Self::take_injected(&self.injected_frame_panics) {
+            panic!("injected scoring panic");
+        }
         let decode_s = started.elapsed().as_secs_f64();
         let intrinsics = frame_camera.or_else(|| {
             s.camera.and_then(|k| {
@@ -1208,6 +1511,15 @@ impl Hub {
             },
         );
     }
+}
+
+/// The text of a caught panic's payload.
+fn panic_message(panic: &(dyn std::any::Any + Send)) -> String {
+    panic
+        .downcast_ref::<&str>()
+        .map(|s| s.to_string())
+        .or_else(|| panic.downcast_ref::<String>().cloned())
+        .unwrap_or_else(|| "a panic without a message".into())
 }
 
 #[cfg(test)]

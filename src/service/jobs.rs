@@ -63,6 +63,16 @@ impl Jobs {
         self.running.lock().unwrap_or_else(|e| e.into_inner())
     }
 
+    /// Refuses as [`Jobs::start`] would if it were called now (checked before a job's
+    /// episodes are uploaded; `start` checks again).
+    pub fn check_room(&self) -> Result<(), JobError> {
+        let running = self.running().len();
+        if running >= self.max_running {
+            return Err(JobError::Busy { running });
+        }
+        Ok(())
+    }
+
     /// Records a new running job for `profile` with its inputs' names.
     pub fn start(
         &self,

@@ -44,6 +44,24 @@ pub struct Metrics {
     pub shared_store_errors: IntCounter,
     /// Last successful round with the shared store, seconds since the Unix epoch.
     pub shared_store_last_sync: Gauge,
+    /// Scoring workers running (health and readiness fail at 0).
+    pub workers_alive: IntGauge,
+    /// Scoring workers restarted after a panic outside a frame.
+    pub worker_restarts: IntCounter,
+    /// Frames whose scoring panicked (reported to the session as failed), by profile.
+    pub scoring_panics: IntCounterVec,
+    /// Bytes held for sessions under the server's memory budget (buffered images and
+    /// joint states, images being decoded).
+    pub memory_budget_used: IntGauge,
+    /// Temporary disk held by uploads in progress, bytes.
+    pub upload_disk_used: IntGauge,
+    /// Uploads and episode-scoring requests refused before their body was read, by
+    /// reason (`busy`, `disk`, `sessions`).
+    pub uploads_refused: IntCounterVec,
+    /// Connections open, both listeners.
+    pub connections_open: IntGauge,
+    /// Connections closed at once because the cap was reached.
+    pub connections_refused: IntCounter,
 }
 
 fn must<T>(r: prometheus::Result<T>) -> T {
@@ -142,6 +160,41 @@ impl Metrics {
             "Last successful round with the shared store (Unix time; 0: never)",
         ));
         must(registry.register(Box::new(shared_store_last_sync.clone())));
+        let gauge = |name: &str, help: &str| {
+            let g = must(IntGauge::new(name, help));
+            must(registry.register(Box::new(g.clone())));
+            g
+        };
+        let workers_alive = gauge("vamos_workers_alive", "Scoring workers running");
+        let worker_restarts = must(IntCounter::new(
+            "vamos_worker_restarts_total",
+            "Scoring workers restarted after a panic",
+        ));
+        must(registry.register(Box::new(worker_restarts.clone())));
+        let scoring_panics = counter(
+            "vamos_scoring_panics_total",
+            "Frames whose scoring panicked (reported to their session as failed)",
+            &["profile"],
+        );
+        let memory_budget_used = gauge(
+            "vamos_memory_budget_used_bytes",
+            "Bytes held under the server's memory budget",
+        );
+        let upload_disk_used = gauge(
+            "vamos_upload_disk_used_bytes",
+            "Temporary disk held by uploads in progress",
+        );
+        let uploads_refused = counter(
+            "vamos_uploads_refused_total",
+            "Uploads refused before their body was read",
+            &["reason"],
+        );
+        let connections_open = gauge("vamos_connections_open", "Connections open");
+        let connections_refused = must(IntCounter::new(
+            "vamos_connections_refused_total",
+            "Connections closed at once because the connection cap was reached",
+        ));
+        must(registry.register(Box::new(connections_refused.clone())));
         // process_cpu_seconds_total, process_resident_memory_bytes, ... (Linux).
         #[cfg(target_os = "linux")]
         must(registry.register(Box::new(
@@ -163,6 +216,14 @@ impl Metrics {
             shared_store_generation,
             shared_store_errors,
             shared_store_last_sync,
+            workers_alive,
+            worker_restarts,
+            scoring_panics,
+            memory_budget_used,
+            upload_disk_used,
+            uploads_refused,
+            connections_open,
+            connections_refused,
         }
     }
 

@@ -14,7 +14,9 @@
 //! scored (up to `shutdown_grace_s`), then every stream closes with UNAVAILABLE.
 
 pub mod auth;
+pub mod budget;
 pub mod config;
+pub mod conn;
 pub mod fleet;
 pub mod grpc;
 pub mod hub;
@@ -112,6 +114,10 @@ pub struct Shared {
     pub stop: tokio::sync::watch::Sender<bool>,
     /// The server is up (listeners bound, profiles loaded).
     pub ready: AtomicBool,
+    /// Uploads in progress and their temporary disk.
+    pub uploads: budget::Uploads,
+    /// Held while an uploaded model is validated (one at a time).
+    pub model_validation: tokio::sync::Mutex<()>,
 }
 
 impl Shared {
@@ -124,6 +130,39 @@ impl Shared {
     /// The metrics.
     pub fn metrics(&self) -> &Metrics {
         self.hub.metrics()
+    }
+
+    /// Admits an upload declaring `declared` bytes before its body is read (an upload
+    /// slot and its disk), or refuses it with RESOURCE_EXHAUSTED.
+    pub fn admit_upload(&self, declared: Option<u64>) -> Result<budget::UploadTicket, Status> {
+        self.uploads.admit(declared).map_err(|e| {
+            let reason = match e {
+                budget::UploadRefused::Busy { .. } => "busy",
+                budget::UploadRefused::Disk(_) => "disk",
+            };
+            self.metrics()
+                .uploads_refused
+                .with_label_values(&[reason])
+                .inc();
+            Status::resource_exhausted(e.to_string())
+        })
+    }
+
+    /// Admits an episode to score before its body is read: a session place, then an
+    /// upload slot.
+    pub fn admit_episode(
+        &self,
+        declared: Option<u64>,
+    ) -> Result<(hub::SessionSlot, budget::UploadTicket), Status> {
+        let slot = self.hub.reserve_session().inspect_err(|e| {
+            if matches!(e, hub::OpenError::TooMany { .. }) {
+                self.metrics()
+                    .uploads_refused
+                    .with_label_values(&["sessions"])
+                    .inc();
+            }
+        })?;
+        Ok((slot, self.admit_upload(declared)?))
     }
 }
 
@@ -183,13 +222,9 @@ impl Server {
         profiles: ProfileCatalog,
     ) -> Result<RunningServer, ServiceError> {
         let cfg = settings.service.clone();
-        let tokens = Tokens::new(
-            &cfg.admin_token_sha256,
-            &cfg.robot_token_sha256,
-            std::env::var("VAMOS_ADMIN_TOKEN").ok().as_deref(),
-            std::env::var("VAMOS_ROBOT_TOKEN").ok().as_deref(),
-        )
-        .map_err(|e| ServiceError::Config(e.to_string()))?;
+        let tokens = Tokens::new(&cfg.admin_token_sha256, &cfg.robot_token_sha256, None, None)
+            .map_err(|e| ServiceError::Config(e.to_string()))?
+            .with_digests(auth::env_token_digests());
         let store = Store::open(
             &cfg.data_dir,
             StoreLimits {
@@ -250,6 +285,7 @@ impl Server {
             );
         }
         let metrics = Metrics::new();
+        let metrics_for_uploads = metrics.upload_disk_used.clone();
         let hub = Hub::start(cfg.clone(), metrics);
         let (stop, _) = tokio::sync::watch::channel(false);
         let profiles = profiles.with_store(store.clone(), settings.clone());
@@ -263,6 +299,12 @@ impl Server {
             tokens,
             stop,
             ready: AtomicBool::new(false),
+            uploads: budget::Uploads::new(
+                cfg.max_uploads,
+                cfg.max_upload_disk_mb << 20,
+                metrics_for_uploads,
+            ),
+            model_validation: tokio::sync::Mutex::new(()),
         });
         let (transport_stop, _) = tokio::sync::watch::channel(false);
         let mut tasks = Vec::new();
@@ -293,33 +335,34 @@ impl Server {
         let rest_router = rest::router(shared.clone());
         let grpc_router = routes.prepare().into_axum_router();
         let tls = match &cfg.tls {
-            Some(t) => Some(tls::server_config(t)?),
+            Some(t) => Some(tokio_rustls::TlsAcceptor::from(tls::server_config(t)?)),
             None => None,
         };
+        let connections = conn::Connections::new(
+            conn::ConnLimits {
+                max_connections: match cfg.max_connections {
+                    0 => conn::default_max_connections(),
+                    n => n,
+                },
+                header_timeout: Duration::from_secs_f64(cfg.header_timeout_s.max(0.1)),
+                pressed_header_timeout: Duration::from_secs_f64(
+                    (cfg.header_timeout_s / 10.0).clamp(0.1, 1.0),
+                ),
+                keep_alive: Duration::from_secs(20),
+            },
+            shared.metrics().clone(),
+        );
         let mut serve = |listener: TcpListener, app: axum::Router| -> Result<(), ServiceError> {
             let mut rx = transport_stop.subscribe();
             let signal = async move {
                 let _ = rx.wait_for(|v| *v).await;
             };
-            let task = match &tls {
-                Some(config) => {
-                    let l = tls::TlsListener::new(listener, config.clone())
-                        .map_err(|e| ServiceError::Transport(e.to_string()))?;
-                    tokio::spawn(async move {
-                        axum::serve(l, app)
-                            .with_graceful_shutdown(signal)
-                            .await
-                            .map_err(|e| ServiceError::Transport(e.to_string()))
-                    })
-                }
-                None => tokio::spawn(async move {
-                    axum::serve(listener, app)
-                        .with_graceful_shutdown(signal)
-                        .await
-                        .map_err(|e| ServiceError::Transport(e.to_string()))
-                }),
-            };
-            tasks.push(task);
+            let connections = connections.clone();
+            let tls = tls.clone();
+            tasks.push(tokio::spawn(async move {
+                connections.serve(listener, tls, app, signal).await;
+                Ok(())
+            }));
             Ok(())
         };
         // gRPC (HTTP/2, content-type application/grpc) and REST are both axum routers;
@@ -336,13 +379,28 @@ impl Server {
         }
         // Images that waited long enough for joint states; detached sessions past their
         // window; over-age sessions.
+        // gRPC health follows the scoring capacity: NOT_SERVING while no worker runs.
         let sweeper = shared.clone();
         let mut stop_rx = shared.stop.subscribe();
         tokio::spawn(async move {
             let mut tick = tokio::time::interval(Duration::from_millis(50));
+            let mut serving = true;
             loop {
                 tokio::select! {
-                    _ = tick.tick() => { sweeper.hub.sweep(); }
+                    _ = tick.tick() => {
+                        sweeper.hub.sweep();
+                        let can_score = sweeper.hub.live_workers() > 0;
+                        if can_score != serving {
+                            serving = can_score;
+                            type Monitor = proto::monitor_server::MonitorServer<grpc::MonitorService>;
+                            if serving {
+                                health.set_serving::<Monitor>().await;
+                            } else {
+                                tracing::error!("no scoring worker is running: health NOT_SERVING");
+                                health.set_not_serving::<Monitor>().await;
+                            }
+                        }
+                    }
                     _ = stop_rx.changed() => return,
                 }
             }

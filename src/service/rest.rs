@@ -14,6 +14,7 @@
 
 use super::Shared;
 use super::auth::{AuthError, Role};
+use super::budget::UploadTicket;
 use super::grpc::score_episode_file;
 use super::proto;
 use crate::episode::{EpisodeError, McapEpisode};
@@ -21,8 +22,8 @@ use crate::model::FlowModel;
 use crate::pipeline::calibration::calibrate;
 use crate::pipeline::offline::score_episode as score_offline;
 use crate::store::{
-    ProfileSpec, RobotFormat, Store, StoreError, StoreErrorKind, ThresholdsPatch, Upload,
-    UploadKind, model_bundle_summary, robot_summary,
+    ProfileSpec, RobotFormat, StoreError, StoreErrorKind, ThresholdsPatch, Upload, UploadKind,
+    model_bundle_summary, robot_summary,
 };
 use axum::Json;
 use axum::Router;
@@ -257,7 +258,7 @@ async fn healthz() -> impl IntoResponse {
 }
 
 async fn readyz(State(s): State<Arc<Shared>>) -> Response {
-    if s.ready.load(Ordering::SeqCst) && !*s.stop.borrow() {
+    if s.ready.load(Ordering::SeqCst) && !*s.stop.borrow() && s.hub.live_workers() > 0 {
         Json(json!({ "status": "ready" })).into_response()
     } else {
         (
@@ -407,17 +408,15 @@ async fn score_episode(
         .await
         .map_err(|e| ApiError::new(StatusCode::NOT_FOUND, e.to_string()))?;
     let limit = s.hub.config().max_episode_bytes;
-    if let Some(len) = headers
-        .get(header::CONTENT_LENGTH)
-        .and_then(|v| v.to_str().ok())
-        .and_then(|v| v.parse::<u64>().ok())
-        && len > limit
-    {
+    let declared = content_length(&headers);
+    if declared.is_some_and(|len| len > limit) {
         return Err(ApiError::new(
             StatusCode::PAYLOAD_TOO_LARGE,
             format!("episode larger than the limit of {limit} bytes"),
         ));
     }
+    // Admitted before a byte is buffered: a session place and an upload slot.
+    let (slot, mut ticket) = s.admit_episode(declared)?;
     let mut file = tempfile::Builder::new()
         .prefix("episode-")
         .suffix(".mcap")
@@ -434,6 +433,7 @@ async fn score_episode(
                 format!("episode larger than the limit of {limit} bytes"),
             ));
         }
+        ticket.written(size).map_err(too_many)?;
         file.write_all(&chunk)
             .map_err(|e| ApiError::new(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?;
     }
@@ -445,6 +445,8 @@ async fn score_episode(
     // The scored bag copies the input's images: keep a second name for the upload,
     // since scoring consumes (and removes) the first.
     let input = if wants_mcap {
+        // The scored bag is about as large as the input again.
+        ticket.written(2 * size).map_err(too_many)?;
         let original = file.path().to_path_buf();
         let kept = tempfile::Builder::new()
             .prefix("episode-in-")
@@ -459,7 +461,15 @@ async fn score_episode(
         None
     };
     let config = profile.setup.episode.clone();
-    let mut scores = score_episode_file(s.hub.clone(), profile, file, name).await?;
+    // The ticket goes with the last file that holds the upload's bytes: the scored input
+    // (JSON answer) or the kept copy and the scored bag (MCAP answer).
+    let (scoring_ticket, answer_ticket) = if wants_mcap {
+        (None, Some(ticket))
+    } else {
+        (Some(ticket), None)
+    };
+    let mut scores =
+        score_episode_file(s.hub.clone(), profile, file, name, slot, scoring_ticket).await?;
     let mut frames = Vec::new();
     let mut damage = None;
     while let Some(item) = scores.next().await {
@@ -483,7 +493,7 @@ async fn score_episode(
             })
             .await
             .map_err(internal)??;
-            let mut response = file_body(out).await?;
+            let mut response = file_body(out, answer_ticket).await?;
             if let Some(d) = damage
                 && let Ok(v) = header::HeaderValue::from_str(&d.replace(['\r', '\n'], " "))
             {
@@ -537,7 +547,10 @@ fn scored_bag(
 /// A response streaming `file` as `application/x-mcap`. Its name is removed before the
 /// response is returned (the open handle keeps the data readable), so nothing is left in
 /// the upload folder however the transfer ends.
-async fn file_body(file: tempfile::NamedTempFile) -> Result<Response, ApiError> {
+async fn file_body(
+    file: tempfile::NamedTempFile,
+    ticket: Option<UploadTicket>,
+) -> Result<Response, ApiError> {
     use tokio::io::AsyncReadExt;
     let mut std_file = file.into_file();
     let len = std_file.metadata().map_err(internal)?.len();
@@ -545,6 +558,8 @@ async fn file_body(file: tempfile::NamedTempFile) -> Result<Response, ApiError> 
     let mut reader = tokio::fs::File::from_std(std_file);
     let (tx, rx) = tokio::sync::mpsc::channel::<Result<Vec<u8>, std::io::Error>>(4);
     tokio::spawn(async move {
+        // Held until the answer is sent (or the client goes).
+        let _ticket = ticket;
         loop {
             let mut buf = vec![0u8; 256 << 10];
             match reader.read(&mut buf).await {
@@ -631,31 +646,42 @@ fn to_json(v: &impl serde::Serialize) -> Result<serde_json::Value, ApiError> {
     serde_json::to_value(v).map_err(internal)
 }
 
+/// The declared `Content-Length`, if any.
+fn content_length(headers: &HeaderMap) -> Option<u64> {
+    headers
+        .get(header::CONTENT_LENGTH)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.parse::<u64>().ok())
+}
+
 /// Streams `body` into a new upload of `kind`, refusing with 413 a declared or actual
-/// size over the store's limit.
+/// size over the store's limit, and with 429 an upload the server has no slot or
+/// temporary disk for (before a byte is read). The ticket holds the slot and the disk
+/// until it is dropped (after the commit).
 async fn receive(
-    store: &Store,
+    s: &Shared,
     kind: UploadKind,
     headers: &HeaderMap,
     body: Body,
-) -> Result<Upload, ApiError> {
+) -> Result<(Upload, UploadTicket), ApiError> {
+    let store = &s.store;
     let limit = match kind {
         UploadKind::Model => store.limits().max_model_bytes,
         UploadKind::Robot { .. } => store.limits().max_robot_bytes,
     };
-    if let Some(len) = headers
-        .get(header::CONTENT_LENGTH)
-        .and_then(|v| v.to_str().ok())
-        .and_then(|v| v.parse::<u64>().ok())
-        && len > limit
-    {
+    let declared = content_length(headers);
+    if declared.is_some_and(|len| len > limit) {
         return Err(StoreError::TooLarge { limit_bytes: limit }.into());
     }
-    let s = store.clone();
-    let mut upload = blocking(move || s.begin_upload(kind)).await?;
+    let mut ticket = s.admit_upload(declared)?;
+    let st = store.clone();
+    let mut upload = blocking(move || st.begin_upload(kind)).await?;
     let mut stream = body.into_data_stream();
+    let mut size = 0u64;
     while let Some(chunk) = stream.next().await {
         let chunk = chunk.map_err(bad_request)?;
+        size += chunk.len() as u64;
+        ticket.written(size).map_err(too_many)?;
         match blocking(move || upload.write_chunk(&chunk).map(|()| upload)).await {
             Ok(u) => upload = u,
             // The upload is gone (its file removed). A full disk is not the client's
@@ -667,7 +693,11 @@ async fn receive(
             Err(e) => return Err(e),
         }
     }
-    Ok(upload)
+    Ok((upload, ticket))
+}
+
+fn too_many(e: impl std::fmt::Display) -> ApiError {
+    ApiError::new(StatusCode::TOO_MANY_REQUESTS, e.to_string())
 }
 
 /// Reads and drops up to `budget` more bytes of a body.
@@ -703,9 +733,16 @@ async fn put_model(
     headers: HeaderMap,
     body: Body,
 ) -> Result<Response, ApiError> {
-    let upload = receive(&s.store, UploadKind::Model, &headers, body).await?;
+    let (upload, _ticket) = receive(&s, UploadKind::Model, &headers, body).await?;
     let store = s.store.clone();
-    let options = s.settings.model.load_options();
+    // Validation loads the model once (one replica, one thread) and one upload at a time:
+    // its memory is one model's, however many uploads arrive together.
+    let options = crate::model::LoadOptions {
+        replicas: 1,
+        intra_threads: 1,
+        ..s.settings.model.load_options()
+    };
+    let _validating = s.model_validation.lock().await;
     let n = name.clone();
     let (info, active) = blocking(move || {
         let info = store.commit_model(&n, upload, |path| {
@@ -911,7 +948,7 @@ async fn put_robot(
     body: Body,
 ) -> Result<Response, ApiError> {
     let format = robot_format(&q, &headers)?;
-    let upload = receive(&s.store, UploadKind::Robot { format }, &headers, body).await?;
+    let (upload, _ticket) = receive(&s, UploadKind::Robot { format }, &headers, body).await?;
     let store = s.store.clone();
     let cfg = s.settings.robot.clone();
     let n = name.clone();
@@ -1127,6 +1164,8 @@ struct CalibrationUpload {
     request: CalibrateRequest,
     episodes: Vec<String>,
     holdout: Vec<String>,
+    /// The upload's slot and disk, held as long as the files.
+    ticket: UploadTicket,
 }
 
 /// A part's file name as a safe episode file name (`[A-Za-z0-9._-]`, ending in `.mcap`);
@@ -1161,6 +1200,7 @@ async fn receive_calibration(
     s: &Shared,
     content_type: &str,
     body: Body,
+    mut ticket: UploadTicket,
 ) -> Result<CalibrationUpload, ApiError> {
     let boundary = multer::parse_boundary(content_type)
         .map_err(|e| bad_request(format!("bad multipart content type: {e}")))?;
@@ -1174,12 +1214,21 @@ async fn receive_calibration(
         std::fs::create_dir(dir.path().join(sub)).map_err(internal)?;
     }
     let mut multipart = multer::Multipart::new(body.into_data_stream(), boundary);
-    match read_calibration_parts(&mut multipart, dir.path(), per_file, total_limit).await {
+    match read_calibration_parts(
+        &mut multipart,
+        dir.path(),
+        per_file,
+        total_limit,
+        &mut ticket,
+    )
+    .await
+    {
         Ok((request, episodes, holdout)) => Ok(CalibrationUpload {
             dir,
             request,
             episodes,
             holdout,
+            ticket,
         }),
         Err(e) => {
             // A request refused for what it says (not for its size or a broken body):
@@ -1216,6 +1265,7 @@ async fn read_calibration_parts(
     dir: &std::path::Path,
     per_file: u64,
     total_limit: u64,
+    ticket: &mut UploadTicket,
 ) -> Result<(CalibrateRequest, Vec<String>, Vec<String>), ApiError> {
     use tokio::io::AsyncWriteExt;
     let mut request = CalibrateRequest {
@@ -1273,6 +1323,7 @@ async fn read_calibration_parts(
                     ),
                 ));
             }
+            ticket.written(total).map_err(too_many)?;
             file.write_all(&chunk).await.map_err(internal)?;
         }
         file.flush().await.map_err(internal)?;
@@ -1302,12 +1353,35 @@ async fn start_calibration(
         .get(header::CONTENT_TYPE)
         .and_then(|v| v.to_str().ok())
         .unwrap_or("");
+    let busy = |e: super::jobs::JobError| match e {
+        super::jobs::JobError::Busy { .. } => too_many(e),
+        super::jobs::JobError::Store(e) => e.into(),
+    };
     let (req, upload, episodes, holdout) = if content_type
         .to_ascii_lowercase()
         .starts_with("multipart/form-data")
     {
-        let up = receive_calibration(&s, content_type, body).await?;
-        (up.request, Some(up.dir), up.episodes, up.holdout)
+        // Refused before the episodes are read when no job could start.
+        s.jobs.check_room().map_err(busy)?;
+        let declared = content_length(&headers);
+        if declared.is_some_and(|len| len > s.hub.config().max_calibration_bytes) {
+            return Err(ApiError::new(
+                StatusCode::PAYLOAD_TOO_LARGE,
+                format!(
+                    "the calibration upload is larger than the limit of {} bytes",
+                    s.hub.config().max_calibration_bytes
+                ),
+            ));
+        }
+        let ticket = s.admit_upload(declared)?;
+        let CalibrationUpload {
+            dir,
+            request,
+            episodes,
+            holdout,
+            ticket,
+        } = receive_calibration(&s, content_type, body, ticket).await?;
+        (request, Some((dir, ticket)), episodes, holdout)
     } else {
         let bytes = json_bytes(body, MAX_CALIBRATE_JSON_BYTES).await?;
         let req: CalibrateRequest = json_body(&bytes)?;
@@ -1316,15 +1390,7 @@ async fn start_calibration(
         (req, None, e, h)
     };
     check_calibrate_request(&req)?;
-    let job = s
-        .jobs
-        .start(&name, episodes, holdout)
-        .map_err(|e| match e {
-            super::jobs::JobError::Busy { .. } => {
-                ApiError::new(StatusCode::TOO_MANY_REQUESTS, e.to_string())
-            }
-            super::jobs::JobError::Store(e) => e.into(),
-        })?;
+    let job = s.jobs.start(&name, episodes, holdout).map_err(busy)?;
     let id = job.id;
     let shared = s.clone();
     tokio::task::spawn_blocking(move || {

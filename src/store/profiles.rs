@@ -340,6 +340,7 @@ impl Store {
                 file,
                 camera: spec.camera.clone(),
                 calibration: entry.calibration.clone(),
+                robot_stored: true,
             },
             model,
             robot: spec.robot.clone(),

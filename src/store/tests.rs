@@ -398,6 +398,73 @@ fn robots_round_trip_replace_and_load_from_their_stored_files() {
     assert_eq!(loaded.links(), direct.links());
     assert_eq!(loaded.joints().len(), direct.joints().len());
 
+    // Stored robots are sealed: a single URDF whose meshes point at the server's files
+    // (absolute, file://, escaping with ..) is refused, naming them; a relative mesh of a
+    // single URDF has no package to come from and is left out with a warning, never
+    // looked up beside the stored file.
+    let mesh_urdf = |uri: &str| {
+        format!(
+            "<robot name=\"m\"><link name=\"a\"><visual><geometry><mesh filename=\"{uri}\"/>\
+             </geometry></visual></link></robot>"
+        )
+    };
+    for uri in [
+        "/etc/passwd",
+        "file:///etc/hostname",
+        "../../../../etc/passwd",
+        "package://p/../../x.stl",
+    ] {
+        let u = upload(
+            &store,
+            UploadKind::Robot {
+                format: RobotFormat::Urdf,
+            },
+            mesh_urdf(uri).as_bytes(),
+        );
+        let e = store
+            .commit_robot("sealed", u, |p| robot_summary(p, &RobotConfig::default()))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("outside the robot package") && e.contains(uri),
+            "{e}"
+        );
+    }
+    assert!(store.robot("sealed").is_err());
+    let u = upload(
+        &store,
+        UploadKind::Robot {
+            format: RobotFormat::Urdf,
+        },
+        mesh_urdf("probe.stl").as_bytes(),
+    );
+    let info = store
+        .commit_robot("sealed", u, |p| robot_summary(p, &RobotConfig::default()))
+        .unwrap();
+    let warnings = info.summary["warnings"].to_string();
+    assert!(
+        warnings.contains("probe.stl") && warnings.contains("left out"),
+        "{warnings}"
+    );
+    // Even with a mesh file put beside the stored URDF, it is not read.
+    let stored = store.robot_path("sealed").unwrap();
+    std::fs::write(
+        stored.with_file_name("probe.stl"),
+        b"solid x\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 0\nvertex 0 1 0\n\
+          endloop\nendfacet\nendsolid x\n",
+    )
+    .unwrap();
+    let sealed = Robot::load_stored(&stored, &RobotConfig::default()).unwrap();
+    assert_eq!(sealed.triangle_count(), 0);
+    assert!(
+        sealed.warnings()[0].contains("probe.stl"),
+        "{:?}",
+        sealed.warnings()
+    );
+    let unsealed = Robot::load(&stored, &RobotConfig::default()).unwrap();
+    assert_eq!(unsealed.triangle_count(), 1, "{:?}", unsealed.warnings());
+    store.delete_robot("sealed").unwrap();
+
     // A URDF the validator refuses changes nothing.
     let u = upload(
         &store,

@@ -25,7 +25,16 @@ pub fn model_bundle_summary(path: &Path) -> Result<serde_json::Value, String> {
 /// extension) and summarises it: the URDF's `robot_name`, `links`, `joints`,
 /// `movable_joints` (names) and the loader's `warnings`.
 pub fn robot_summary(path: &Path, cfg: &RobotConfig) -> Result<serde_json::Value, String> {
-    let robot = Robot::load(path, cfg).map_err(|e| format!("not a loadable robot: {e}"))?;
+    let robot = Robot::load_stored(path, cfg).map_err(|e| format!("not a loadable robot: {e}"))?;
+    let outside = robot.meshes_outside_package();
+    if !outside.is_empty() {
+        return Err(format!(
+            "mesh paths outside the robot package are refused (a stored robot reads meshes \
+             only from its own package; upload a zip or tar.gz with the meshes inside and \
+             relative or package:// paths): {}",
+            outside.join(", ")
+        ));
+    }
     let movable: Vec<&str> = robot
         .joints()
         .iter()

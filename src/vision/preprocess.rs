@@ -229,8 +229,20 @@ fn resize_plane(
     (new_w, new_h): (usize, usize),
     filter: ResizeFilter,
 ) -> Vec<f32> {
-    let rows = apply_rows(src, width, height, &plan(width, new_w, filter));
-    apply_cols(&rows, new_w, height, &plan(height, new_h, filter))
+    // The axis pass that leaves the smaller intermediate goes first, so memory depends
+    // on the output size and not on the input's aspect ratio: a 1 x 6,000,000 image
+    // resized rows first would need a 160 x 6,000,000 intermediate. The intermediate is
+    // at most sqrt(width * height * new_w * new_h) samples. Ties (same aspect ratio)
+    // resize rows first.
+    let rows_plan = plan(width, new_w, filter);
+    let cols_plan = plan(height, new_h, filter);
+    if width.saturating_mul(new_h) < new_w.saturating_mul(height) {
+        let cols = apply_cols(src, width, height, &cols_plan);
+        apply_rows(&cols, width, new_h, &rows_plan)
+    } else {
+        let rows = apply_rows(src, width, height, &rows_plan);
+        apply_cols(&rows, new_w, height, &cols_plan)
+    }
 }
 
 /// Resizes `img` to `new_width x new_height` with `filter`.

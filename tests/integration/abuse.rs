@@ -215,7 +215,34 @@ async fn tokens_never_reach_the_logs() {
         assert!(!logs.contains(secret), "{secret} in the logs:\n{logs}");
     }
     drop(logs);
+    // The plain tokens worked (above) and are gone from the server's environment.
+    let environ = std::fs::read(format!("/proc/{}/environ", server.pid())).unwrap();
+    let environ = String::from_utf8_lossy(&environ);
+    assert!(environ.contains("VAMOS_LOG__LEVEL=debug"), "{environ}");
+    for secret in [ADMIN, ROBOT] {
+        assert!(
+            !environ.contains(secret),
+            "{secret} in the server's environment"
+        );
+    }
     server.kill();
+    // No client prints a token's value in its help.
+    for (command, var) in [
+        ("loadgen", "VAMOS_LOADGEN_TOKEN"),
+        ("stream", "VAMOS_ROBOT_TOKEN"),
+    ] {
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_vamos"))
+            .args([command, "--help"])
+            .env(var, "help-must-not-show-this")
+            .output()
+            .unwrap();
+        let help = String::from_utf8_lossy(&out.stdout);
+        assert!(out.status.success() && help.contains("--token"), "{help}");
+        assert!(
+            !help.contains("help-must-not-show-this"),
+            "{command}: {help}"
+        );
+    }
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

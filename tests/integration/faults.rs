@@ -160,6 +160,11 @@ impl Process {
     }
 
     pub(crate) fn start_with(data: &Path, log_level: &str) -> Self {
+        Self::start_env(data, log_level, &[])
+    }
+
+    /// Started with `env` added to its environment (e.g. `VAMOS_SERVICE__*` settings).
+    pub(crate) fn start_env(data: &Path, log_level: &str, env: &[(&str, &str)]) -> Self {
         let mut child = Command::new(env!("CARGO_BIN_EXE_vamos"))
             .args([
                 "serve",
@@ -175,6 +180,7 @@ impl Process {
             .env("VAMOS_LOG__FORMAT", "json")
             .env("VAMOS_LOG__LEVEL", log_level)
             .env("VAMOS_SERVICE__WORKERS", "2")
+            .envs(env.iter().copied())
             .stdout(Stdio::null())
             .stderr(Stdio::piped())
             .spawn()
@@ -207,6 +213,10 @@ impl Process {
             grpc: grpc.parse().expect("the logged gRPC address"),
             logs,
         }
+    }
+
+    pub(crate) fn pid(&self) -> u32 {
+        self.child.id()
     }
 
     pub(crate) fn api(&self) -> Api {

@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 
 type Target = fn(&[u8]);
 
-const TARGETS: [(&str, Target); 9] = [
+const TARGETS: [(&str, Target); 10] = [
     ("cdr_message", vamos::fuzz::cdr_message),
     ("mcap_episode", vamos::fuzz::mcap_episode),
     ("image_message", vamos::fuzz::image_message),
@@ -17,6 +17,7 @@ const TARGETS: [(&str, Target); 9] = [
     ("mesh", vamos::fuzz::mesh),
     ("model_bundle", vamos::fuzz::model_bundle),
     ("stream_requests", vamos::fuzz::stream_requests),
+    ("stream_session", vamos::fuzz::stream_session),
     ("rest_body", vamos::fuzz::rest_body),
 ];
 

@@ -23,6 +23,7 @@ mod fuzz_corpus;
 mod model;
 mod model_trained;
 mod registration_accuracy;
+mod reliability;
 mod render_cli;
 mod robot_fk;
 mod scorer_model;

@@ -1,0 +1,110 @@
+//! Memory bounds of image work, measured with a counting allocator: the peak of live
+//! heap bytes while one call runs. A test binary of its own (its allocator counts every
+//! allocation of the process), whose checks run one after another in one test.
+
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::sync::atomic::{AtomicUsize, Ordering};
+use vamos::episode::ros::{CompressedImageMsg, Header, MAX_IMAGE_SIDE};
+use vamos::vision::GrayImage;
+use vamos::vision::preprocess::{ResizeFilter, resize};
+
+struct Counting;
+
+static LIVE: AtomicUsize = AtomicUsize::new(0);
+static PEAK: AtomicUsize = AtomicUsize::new(0);
+
+// SAFETY: forwards to the system allocator unchanged; only counts bytes.
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        // SAFETY: same contract as the caller's.
+        let p = unsafe { System.alloc(layout) };
+        if !p.is_null() {
+            let live = LIVE.fetch_add(layout.size(), Ordering::Relaxed) + layout.size();
+            PEAK.fetch_max(live, Ordering::Relaxed);
+        }
+        p
+    }
+
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        // SAFETY: same contract as the caller's.
+        unsafe { System.dealloc(ptr, layout) };
+        LIVE.fetch_sub(layout.size(), Ordering::Relaxed);
+    }
+}
+
+#[global_allocator]
+static ALLOCATOR: Counting = Counting;
+
+/// Runs `f` and returns its result and the peak of heap bytes it added.
+fn peak_of<T>(f: impl FnOnce() -> T) -> (T, usize) {
+    let base = LIVE.load(Ordering::Relaxed);
+    PEAK.store(base, Ordering::Relaxed);
+    let out = f();
+    (out, PEAK.load(Ordering::Relaxed).saturating_sub(base))
+}
+
+/// A PNG of one grey level: it compresses to almost nothing (a decompression bomb).
+fn png(width: u32, height: u32) -> Vec<u8> {
+    use image::ImageEncoder;
+    use image::codecs::png::{CompressionType, FilterType, PngEncoder};
+    let pixels = vec![90u8; width as usize * height as usize];
+    let mut out = Vec::new();
+    PngEncoder::new_with_quality(&mut out, CompressionType::Best, FilterType::NoFilter)
+        .write_image(&pixels, width, height, image::ExtendedColorType::L8)
+        .unwrap();
+    out
+}
+
+const MIB: usize = 1 << 20;
+
+#[test]
+fn image_work_is_bounded_by_the_output_not_the_aspect_ratio() {
+    // 1. Resizing a tall, thin image: rows first it needed a 160 x height intermediate
+    //    (3.8 GB for 1 x 6,000,000); now the intermediate is tiny and the peak is the
+    //    sampling plans (a few floats per source row) and the output.
+    for (w, h) in [(1usize, 6_000_000usize), (6_000_000, 1), (3, 2_000_000)] {
+        let img = GrayImage::new(w, h, vec![7.0; w * h]).unwrap();
+        let (out, peak) = peak_of(|| resize(&img, 160, 120, ResizeFilter::Area).unwrap());
+        assert_eq!((out.width(), out.height()), (160, 120));
+        // (Each output sums 50,000 f32 products: rounding, not resampling, sets the error.)
+        assert!(
+            out.data().iter().all(|&v| (v - 7.0).abs() < 0.05),
+            "{w}x{h}"
+        );
+        // The input itself is 24 MB; the work must not be a multiple of it.
+        assert!(peak < 64 * MIB, "{w}x{h}: resize peak {} MiB", peak / MIB);
+        let (_, peak) = peak_of(|| resize(&img, 160, 120, ResizeFilter::Bilinear).unwrap());
+        assert!(peak < 64 * MIB, "{w}x{h} bilinear: peak {} MiB", peak / MIB);
+    }
+
+    // 2. A tiny PNG declaring a huge, thin image is refused from its header with a
+    //    clear reason, before a pixel is decoded.
+    let data = png(1, 6_000_000);
+    assert!(data.len() < 64 << 10, "{} bytes", data.len());
+    let msg = CompressedImageMsg {
+        header: Header::from_stamp_ns(0, ""),
+        format: "png".into(),
+        data: &data,
+    };
+    let (result, peak) = peak_of(|| msg.to_gray(40 << 20));
+    let err = result.unwrap_err().to_string();
+    assert!(err.contains("1x6000000") && err.contains("side"), "{err}");
+    assert!(peak < MIB, "refusal peak {} KiB", peak >> 10);
+
+    // 3. The longest side accepted decodes and resizes within a small multiple of its
+    //    own size (1 x 32768 gray: 128 KiB of f32).
+    let data = png(1, MAX_IMAGE_SIDE as u32);
+    let msg = CompressedImageMsg {
+        header: Header::from_stamp_ns(0, ""),
+        format: "png".into(),
+        data: &data,
+    };
+    let (small, peak) = peak_of(|| {
+        let g = msg.to_gray(40 << 20).unwrap();
+        resize(&g, 160, 120, ResizeFilter::Area).unwrap()
+    });
+    assert_eq!(small.width(), 160);
+    assert!(peak < 4 * MIB, "decode + resize peak {} KiB", peak >> 10);
+}
