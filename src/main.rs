@@ -445,11 +445,36 @@ fn main() -> std::process::ExitCode {
     match run(cli) {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
-            tracing::error!("{e:#}");
-            eprintln!("error: {e:#}");
+            // Once: through the log when it is set up (it writes to stderr), else plainly.
+            let text = error_text(&e);
+            let logged = tracing::dispatcher::has_been_set()
+                && tracing::level_filters::LevelFilter::current()
+                    >= tracing::level_filters::LevelFilter::ERROR;
+            if logged {
+                tracing::error!("{text}");
+            } else {
+                eprintln!("error: {text}");
+            }
             std::process::ExitCode::FAILURE
         }
     }
+}
+
+/// An error and its causes, joined by ": ", leaving out a cause whose text the message
+/// already holds (many errors print their source in their own message).
+fn error_text(e: &anyhow::Error) -> String {
+    let mut out = String::new();
+    for cause in e.chain() {
+        let text = cause.to_string();
+        if out.contains(&text) {
+            continue;
+        }
+        if !out.is_empty() {
+            out.push_str(": ");
+        }
+        out.push_str(&text);
+    }
+    out
 }
 
 fn run(cli: Cli) -> Result<()> {

@@ -1,7 +1,7 @@
 //! `vamos episode inspect|copy`: what a recorded ROS 2 bag (MCAP) holds, and a copy of it
 //! through vamos's reader and writer.
 
-use anyhow::{Context, Result};
+use anyhow::Result;
 use serde_json::{Value, json};
 use std::path::Path;
 use vamos::episode::{EpisodeConfig, EpisodeError, ImageData, McapEpisode, ScoreBagWriter};
@@ -12,8 +12,8 @@ use vamos::episode::{EpisodeConfig, EpisodeError, ImageData, McapEpisode, ScoreB
 /// frame and adds `frames` (count), `frame_errors` (messages) and the final
 /// `skipped_backwards`.
 pub fn inspect(bag: &Path, cfg: &EpisodeConfig, frames: bool) -> Result<Value> {
-    let ep =
-        McapEpisode::open(bag, cfg).with_context(|| format!("cannot open {}", bag.display()))?;
+    // The episode's errors name the file.
+    let ep = McapEpisode::open(bag, cfg)?;
     let labels = ep.labels()?;
     let camera = ep.camera_info()?.map(|c| {
         json!({ "width": c.width, "height": c.height, "k": c.k, "distortion_model": c.distortion_model })
@@ -51,8 +51,7 @@ pub fn inspect(bag: &Path, cfg: &EpisodeConfig, frames: bool) -> Result<Value> {
 /// Frames that fail and a damaged tail are skipped (the valid part of a truncated bag is
 /// recovered). Returns a JSON summary.
 pub fn copy(input: &Path, output: &Path, cfg: &EpisodeConfig) -> Result<Value> {
-    let ep = McapEpisode::open(input, cfg)
-        .with_context(|| format!("cannot open {}", input.display()))?;
+    let ep = McapEpisode::open(input, cfg)?;
     let info = ep.info();
     let mut w = ScoreBagWriter::create(output, Some(&info))?;
     let c = &info.chosen;

@@ -11,11 +11,19 @@
 //! log time (one, for the usual file whose chunks follow each other) plus a short queue of
 //! images waiting for the joint sample after their stamp (at most [`MAX_PENDING_IMAGES`]).
 //!
-//! A file without a usable summary (missing, or a truncated/corrupt file whose footer is
-//! gone) is read by a linear scan instead, in file order (without chunk indexes nothing
-//! says which later chunk holds earlier messages): every valid message is used, and the
-//! scan's break is reported as [`EpisodeError::Truncated`] (in [`EpisodeInfo::damage`] and
-//! as the last item of [`McapEpisode::frames`]).
+//! A file without a complete summary (missing, without channel records or chunk
+//! indexes, or a truncated/corrupt file whose footer is gone) is read by a linear scan
+//! instead: messages are put in log-time order within a window of [`REORDER_MESSAGES`]
+//! messages and [`REORDER_BYTES`] bytes (out-of-order writes inside a chunk come out as
+//! the indexed reader gives them), every valid message is used, and the scan's break is
+//! reported as [`EpisodeError::Truncated`] (in [`EpisodeInfo::damage`] and as the last item
+//! of [`McapEpisode::frames`]).
+//!
+//! What rosbag2 writes is read as it is: per-message zstd compression (each payload a
+//! zstd frame, decompressed up to `max_image_bytes`), file compression (`.mcap.zstd`,
+//! decompressed into a temporary file up to `max_decompressed_bytes`), and bag folders
+//! (`metadata.yaml` beside split files `<name>_<n>.mcap`, read one after another as one
+//! episode).
 //!
 //! Bad input never panics: a message that cannot be decoded, an unknown encoding, NaN
 //! joint positions or an image whose size differs from the first image become `Err`
@@ -94,6 +102,9 @@ pub struct EpisodeConfig {
     /// Largest accepted image message and MCAP record (bytes); also caps decoded pixels.
     /// Default 64 MiB.
     pub max_image_bytes: usize,
+    /// Largest decompressed size of a zstd-compressed bag file (rosbag2's `.mcap.zstd`),
+    /// bytes; it is decompressed into a temporary file. Default 16 GiB.
+    pub max_decompressed_bytes: u64,
 }
 
 impl Default for EpisodeConfig {
@@ -102,6 +113,7 @@ impl Default for EpisodeConfig {
             topics: EpisodeTopics::default(),
             max_joint_gap_ms: 100.0,
             max_image_bytes: 64 << 20,
+            max_decompressed_bytes: 16 << 30,
         }
     }
 }
@@ -226,10 +238,23 @@ pub struct EpisodeFrame {
 pub struct McapEpisode {
     path: PathBuf,
     cfg: EpisodeConfig,
-    summary: Option<Arc<Summary>>,
+    /// The MCAP files, in recording order (one, or the split files of a bag folder).
+    parts: Vec<Part>,
     info: EpisodeInfo,
-    damage: Option<(u64, String)>,
     skipped_backwards: Cell<usize>,
+}
+
+/// One MCAP file of an episode.
+#[derive(Debug)]
+struct Part {
+    /// The file read: the file itself, or a decompressed copy of a `.mcap.zstd` file.
+    read: PathBuf,
+    /// The file as named (messages name it).
+    path: PathBuf,
+    summary: Option<Arc<Summary>>,
+    damage: Option<(u64, String)>,
+    /// The decompressed copy of a zstd-compressed file (removed when dropped).
+    _copy: Option<tempfile::NamedTempFile>,
 }
 
 fn io_err(path: &Path, e: impl std::fmt::Display) -> EpisodeError {
@@ -283,10 +308,13 @@ struct RawMsg<'m> {
     data: &'m [u8],
 }
 
-/// Streams messages of some topics, indexed (log-time order) or by linear scan (file
-/// order).
+/// Streams messages of some topics in log-time order: indexed (the reader merges
+/// chunks), by linear scan (file order, put in log-time order within a window), or the
+/// files of a bag folder one after another.
 enum MessageSource {
     Indexed {
+        /// The file as named (for errors).
+        path: PathBuf,
         file: File,
         reader: Box<IndexedReader>,
         channels: HashMap<u16, ChannelMeta>,
@@ -295,7 +323,111 @@ enum MessageSource {
         /// Offset of the chunk requested last (where an index-based read breaks).
         last_chunk: u64,
     },
-    Linear(Box<LinearScan>),
+    Linear {
+        /// The file as named (for errors).
+        path: PathBuf,
+        scan: Box<LinearScan>,
+        order: Reorder,
+    },
+    Chain(VecDeque<MessageSource>),
+}
+
+/// Messages a linear scan holds back to hand them out in log-time order: a recorder may
+/// write messages out of order within a chunk, and a scan (unlike the indexed reader)
+/// sees them in file order. Disorder within the window (by count and bytes) is undone;
+/// beyond it, messages come in file order (and images whose stamps go back are skipped).
+#[derive(Default)]
+struct Reorder {
+    held: std::collections::BinaryHeap<std::cmp::Reverse<Held>>,
+    bytes: usize,
+    seq: u64,
+    ended: bool,
+    error: Option<EpisodeError>,
+}
+
+/// Messages held by [`Reorder`] at most, and their bytes.
+const REORDER_MESSAGES: usize = 1024;
+const REORDER_BYTES: usize = 32 << 20;
+
+/// A message held for reordering.
+struct Held {
+    log_time: u64,
+    seq: u64,
+    topic: Arc<str>,
+    schema: Arc<str>,
+    data: Vec<u8>,
+}
+
+impl PartialEq for Held {
+    fn eq(&self, other: &Self) -> bool {
+        (self.log_time, self.seq) == (other.log_time, other.seq)
+    }
+}
+
+impl Eq for Held {}
+
+impl PartialOrd for Held {
+    fn partial_cmp(&self, other: &Self) -> Option<std::cmp::Ordering> {
+        Some(self.cmp(other))
+    }
+}
+
+impl Ord for Held {
+    fn cmp(&self, other: &Self) -> std::cmp::Ordering {
+        (self.log_time, self.seq).cmp(&(other.log_time, other.seq))
+    }
+}
+
+impl Reorder {
+    fn full(&self) -> bool {
+        self.held.len() >= REORDER_MESSAGES || self.bytes >= REORDER_BYTES
+    }
+
+    /// The next message in log-time order from `scan`, handed to `f`.
+    fn next_with<R>(
+        &mut self,
+        path: &Path,
+        scan: &mut LinearScan,
+        f: impl FnOnce(RawMsg<'_>) -> R,
+    ) -> Option<Result<R, EpisodeError>> {
+        while !self.ended && !self.full() {
+            let seq = self.seq;
+            match scan.next_with(|m| Held {
+                log_time: m.log_time,
+                seq,
+                topic: m.topic.into(),
+                schema: m.schema.into(),
+                data: m.data.to_vec(),
+            }) {
+                Some(Ok(h)) => {
+                    self.seq += 1;
+                    self.bytes += h.data.len();
+                    self.held.push(std::cmp::Reverse(h));
+                }
+                Some(Err((offset, reason))) => {
+                    self.ended = true;
+                    self.error = Some(EpisodeError::Truncated {
+                        path: path.display().to_string(),
+                        offset,
+                        reason,
+                    });
+                }
+                None => self.ended = true,
+            }
+        }
+        match self.held.pop() {
+            Some(std::cmp::Reverse(h)) => {
+                self.bytes -= h.data.len();
+                Some(Ok(f(RawMsg {
+                    topic: &h.topic,
+                    schema: &h.schema,
+                    log_time: h.log_time,
+                    data: &h.data,
+                })))
+            }
+            None => self.error.take().map(Err),
+        }
+    }
 }
 
 /// A linear scan of a file, tolerant of damage at the end.
@@ -416,18 +548,28 @@ impl LinearScan {
 impl MessageSource {
     fn next_with<R>(
         &mut self,
-        path: &Path,
-        f: impl FnMut(RawMsg<'_>) -> R,
+        mut f: impl FnMut(RawMsg<'_>) -> R,
+    ) -> Option<Result<R, EpisodeError>> {
+        self.next_dyn(&mut f)
+    }
+
+    fn next_dyn<R>(
+        &mut self,
+        f: &mut dyn FnMut(RawMsg<'_>) -> R,
     ) -> Option<Result<R, EpisodeError>> {
         match self {
-            MessageSource::Linear(scan) => scan.next_with(f).map(|r| {
-                r.map_err(|(offset, reason)| EpisodeError::Truncated {
-                    path: path.display().to_string(),
-                    offset,
-                    reason,
-                })
-            }),
+            MessageSource::Linear { path, scan, order } => order.next_with(path, scan, f),
+            MessageSource::Chain(sources) => loop {
+                let first = sources.front_mut()?;
+                match first.next_dyn(f) {
+                    Some(r) => return Some(r),
+                    None => {
+                        sources.pop_front();
+                    }
+                }
+            },
             MessageSource::Indexed {
+                path,
                 file,
                 reader,
                 channels,
@@ -435,7 +577,6 @@ impl MessageSource {
                 file_len,
                 last_chunk,
             } => {
-                let mut f = f;
                 loop {
                     let (offset, length) = match reader.next_event()? {
                         Err(e) => {
@@ -490,24 +631,124 @@ impl MessageSource {
     }
 }
 
-impl McapEpisode {
-    /// Opens a bag: reads its summary (or scans it when the summary is missing) and
-    /// resolves the topics of `cfg.topics`.
-    pub fn open(path: &Path, cfg: &EpisodeConfig) -> Result<Self, EpisodeError> {
-        let mut file = File::open(path).map_err(|e| io_err(path, e))?;
+/// The episode name of a file or bag folder: the file name without `.mcap` and a
+/// compression suffix, or the folder's name.
+fn episode_name(path: &Path) -> String {
+    let file = path
+        .file_name()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "episode".into());
+    let mut name = file.as_str();
+    for suffix in [".zstd", ".zst", ".mcap"] {
+        name = name.strip_suffix(suffix).unwrap_or(name);
+    }
+    if name.is_empty() {
+        "episode".into()
+    } else {
+        name.to_string()
+    }
+}
+
+/// The MCAP files of a rosbag2 bag folder (what `ros2 bag record` writes: `metadata.yaml`
+/// beside `<name>_0.mcap`, `<name>_1.mcap`, ..., each possibly `.zstd`-compressed), in
+/// recording order (by the number after the last `_`, then by name).
+fn bag_folder_files(dir: &Path) -> Result<Vec<PathBuf>, EpisodeError> {
+    let entries = std::fs::read_dir(dir).map_err(|e| io_err(dir, e))?;
+    let mut files: Vec<(u64, String, PathBuf)> = Vec::new();
+    for entry in entries {
+        let path = entry.map_err(|e| io_err(dir, e))?.path();
         let name = path
-            .file_stem()
+            .file_name()
             .map(|s| s.to_string_lossy().into_owned())
-            .unwrap_or_else(|| "episode".into());
+            .unwrap_or_default();
+        if !path.is_file() || !(name.ends_with(".mcap") || name.ends_with(".mcap.zstd")) {
+            continue;
+        }
+        let stem = episode_name(&path);
+        let number = stem
+            .rsplit_once('_')
+            .and_then(|(_, n)| n.parse::<u64>().ok())
+            .unwrap_or(0);
+        files.push((number, name, path));
+    }
+    files.sort();
+    if files.is_empty() {
+        return Err(EpisodeError::Mcap {
+            path: dir.display().to_string(),
+            reason: "a folder without .mcap files (a rosbag2 bag folder holds metadata.yaml \
+                     and <name>_<n>.mcap files)"
+                .into(),
+        });
+    }
+    Ok(files.into_iter().map(|(_, _, p)| p).collect())
+}
+
+/// A zstd-compressed MCAP file (rosbag2's file compression, `.mcap.zstd`) decompressed
+/// into a temporary file, at most `limit` bytes.
+fn decompress_file(path: &Path, limit: u64) -> Result<tempfile::NamedTempFile, EpisodeError> {
+    let err = |reason: String| EpisodeError::Mcap {
+        path: path.display().to_string(),
+        reason,
+    };
+    let file = File::open(path).map_err(|e| io_err(path, e))?;
+    let mut decoder = zstd::stream::read::Decoder::new(file)
+        .map_err(|e| err(format!("zstd-compressed file: {e}")))?;
+    let mut copy = tempfile::Builder::new()
+        .prefix("vamos-episode-")
+        .suffix(".mcap")
+        .tempfile()
+        .map_err(|e| {
+            err(format!(
+                "cannot make a temporary file to decompress into: {e}"
+            ))
+        })?;
+    let copied = std::io::copy(&mut (&mut decoder).take(limit + 1), copy.as_file_mut())
+        .map_err(|e| err(format!("zstd-compressed file: {e}")))?;
+    if copied > limit {
+        return Err(err(format!(
+            "decompresses to more than {limit} bytes ([episode] max_decompressed_bytes)"
+        )));
+    }
+    Ok(copy)
+}
+
+/// The topics of one file, by name.
+type PartTopics = BTreeMap<String, TopicInfo>;
+
+impl Part {
+    /// Opens one file: its summary when complete, else a linear scan for the topics and
+    /// the damage. Returns the part, its topics and its (first, last) log times.
+    fn open(
+        path: &Path,
+        cfg: &EpisodeConfig,
+    ) -> Result<(Self, PartTopics, (u64, u64)), EpisodeError> {
+        let mut file = File::open(path).map_err(|e| io_err(path, e))?;
+        let mut magic = [0u8; 4];
+        let compressed = file.read_exact(&mut magic).is_ok() && magic == ZSTD_MAGIC;
+        let copy = if compressed {
+            Some(decompress_file(path, cfg.max_decompressed_bytes)?)
+        } else {
+            None
+        };
+        let read = copy
+            .as_ref()
+            .map_or(path.to_path_buf(), |c| c.path().to_path_buf());
+        let mut file = File::open(&read).map_err(|e| io_err(path, e))?;
         let summary = read_summary(&mut file, path)?.filter(|s| {
-            // Index-based reading needs statistics (counts) and, when there are
-            // messages, chunk indexes.
-            s.stats
-                .as_ref()
-                .is_some_and(|st| st.message_count == 0 || !s.chunk_indexes.is_empty())
+            // Index-based reading needs statistics (counts), chunk indexes and a channel
+            // for every channel with messages; anything less is read by a scan.
+            s.stats.as_ref().is_some_and(|st| {
+                st.message_count == 0
+                    || (!s.chunk_indexes.is_empty()
+                        && !s.channels.is_empty()
+                        && st
+                            .channel_message_counts
+                            .keys()
+                            .all(|id| s.channels.contains_key(id)))
+            })
         });
         let mut topics: BTreeMap<String, TopicInfo> = BTreeMap::new();
-        let (start_ns, end_ns, damage);
+        let (span, damage);
         if let Some(s) = &summary {
             // Invariant: the filter above kept only summaries with statistics.
             let stats = s.stats.clone().unwrap_or_default();
@@ -524,9 +765,9 @@ impl McapEpisode {
                 });
                 t.message_count += stats.channel_message_counts.get(id).copied().unwrap_or(0);
             }
-            (start_ns, end_ns, damage) = (stats.message_start_time, stats.message_end_time, None);
+            (span, damage) = ((stats.message_start_time, stats.message_end_time), None);
         } else {
-            let mut scan = LinearScan::new(path, record_limit(cfg), None)?;
+            let mut scan = LinearScan::new(&read, record_limit(cfg), None)?;
             let mut counts: HashMap<String, u64> = HashMap::new();
             let (mut lo, mut hi) = (u64::MAX, 0u64);
             let mut broke = None;
@@ -560,8 +801,112 @@ impl McapEpisode {
                     reason: reason.clone(),
                 });
             }
-            (start_ns, end_ns, damage) = (lo, hi, broke);
+            (span, damage) = ((lo, hi), broke);
         }
+        let part = Self {
+            read,
+            path: path.to_path_buf(),
+            summary: summary.map(Arc::new),
+            damage,
+            _copy: copy,
+        };
+        Ok((part, topics, span))
+    }
+
+    fn source(
+        &self,
+        topics: &[String],
+        cfg: &EpisodeConfig,
+    ) -> Result<MessageSource, EpisodeError> {
+        match &self.summary {
+            Some(summary) => {
+                let file = File::open(&self.read).map_err(|e| io_err(&self.path, e))?;
+                let file_len = file.metadata().map_err(|e| io_err(&self.path, e))?.len();
+                let reader = IndexedReader::new_with_options(
+                    summary,
+                    IndexedReaderOptions::new()
+                        .with_order(ReadOrder::LogTime)
+                        .include_topics(topics.iter().cloned())
+                        .with_record_length_limit(record_limit(cfg)),
+                )
+                .map_err(|e| io_err(&self.path, e))?;
+                let channels = summary
+                    .channels
+                    .iter()
+                    .map(|(id, ch)| {
+                        (
+                            *id,
+                            ChannelMeta {
+                                topic: ch.topic.as_str().into(),
+                                schema: ch
+                                    .schema
+                                    .as_ref()
+                                    .map_or_else(|| Arc::from(""), |s| s.name.as_str().into()),
+                                encoding: ch.message_encoding.as_str().into(),
+                                schema_id: ch.schema.as_ref().map_or(0, |s| s.id),
+                            },
+                        )
+                    })
+                    .collect();
+                Ok(MessageSource::Indexed {
+                    path: self.path.clone(),
+                    file,
+                    reader: Box::new(reader),
+                    channels,
+                    buf: Vec::new(),
+                    file_len,
+                    last_chunk: 0,
+                })
+            }
+            None => Ok(MessageSource::Linear {
+                path: self.path.clone(),
+                scan: Box::new(LinearScan::new(
+                    &self.read,
+                    record_limit(cfg),
+                    Some(topics.to_vec()),
+                )?),
+                order: Reorder::default(),
+            }),
+        }
+    }
+}
+
+impl McapEpisode {
+    /// Opens a bag: reads its summary (or scans it when the summary is missing) and
+    /// resolves the topics of `cfg.topics`.
+    pub fn open(path: &Path, cfg: &EpisodeConfig) -> Result<Self, EpisodeError> {
+        let name = episode_name(path);
+        let files = if path.is_dir() {
+            bag_folder_files(path)?
+        } else {
+            vec![path.to_path_buf()]
+        };
+        let mut topics: BTreeMap<String, TopicInfo> = BTreeMap::new();
+        let (mut start_ns, mut end_ns) = (u64::MAX, 0u64);
+        let mut parts = Vec::with_capacity(files.len());
+        for file in &files {
+            let (part, part_topics, (lo, hi)) = Part::open(file, cfg)?;
+            for t in part_topics.into_values() {
+                match topics.get_mut(&t.name) {
+                    Some(known) => known.message_count += t.message_count,
+                    None => {
+                        topics.insert(t.name.clone(), t);
+                    }
+                }
+            }
+            if part.summary.is_none() || lo != 0 || hi != 0 {
+                (start_ns, end_ns) = (start_ns.min(lo), end_ns.max(hi));
+            }
+            parts.push(part);
+        }
+        if start_ns == u64::MAX {
+            start_ns = 0;
+        }
+        let damage = parts.iter().find_map(|p| {
+            p.damage
+                .as_ref()
+                .map(|(offset, reason)| (p.path.clone(), *offset, reason.clone()))
+        });
         let topics: Vec<TopicInfo> = topics.into_values().collect();
         let mut warnings = Vec::new();
         let chosen = resolve_topics(&topics, &cfg.topics, path, &mut warnings)?;
@@ -573,7 +918,7 @@ impl McapEpisode {
         let info = EpisodeInfo {
             name,
             path: path.to_path_buf(),
-            indexed: summary.is_some(),
+            indexed: parts.iter().all(|p| p.summary.is_some()),
             image_messages: count(&Some(chosen.image.clone())),
             camera_info_messages: count(&chosen.camera_info),
             joint_messages: count(&chosen.joint_states),
@@ -584,16 +929,19 @@ impl McapEpisode {
             duration_s: end_ns.saturating_sub(start_ns) as f64 * 1e-9,
             skipped_backwards: 0,
             warnings,
-            damage: damage
-                .as_ref()
-                .map(|(offset, reason)| format!("breaks near byte {offset}: {reason}")),
+            damage: damage.as_ref().map(|(file, offset, reason)| {
+                if files.len() > 1 {
+                    format!("{} breaks near byte {offset}: {reason}", file.display())
+                } else {
+                    format!("breaks near byte {offset}: {reason}")
+                }
+            }),
         };
         Ok(Self {
             path: path.to_path_buf(),
             cfg: cfg.clone(),
-            summary: summary.map(Arc::new),
+            parts,
             info,
-            damage,
             skipped_backwards: Cell::new(0),
         })
     }
@@ -616,51 +964,17 @@ impl McapEpisode {
     }
 
     fn source(&self, topics: &[String]) -> Result<MessageSource, EpisodeError> {
-        match &self.summary {
-            Some(summary) => {
-                let file = File::open(&self.path).map_err(|e| io_err(&self.path, e))?;
-                let file_len = file.metadata().map_err(|e| io_err(&self.path, e))?.len();
-                let reader = IndexedReader::new_with_options(
-                    summary,
-                    IndexedReaderOptions::new()
-                        .with_order(ReadOrder::LogTime)
-                        .include_topics(topics.iter().cloned())
-                        .with_record_length_limit(record_limit(&self.cfg)),
-                )
-                .map_err(|e| io_err(&self.path, e))?;
-                let channels = summary
-                    .channels
-                    .iter()
-                    .map(|(id, ch)| {
-                        (
-                            *id,
-                            ChannelMeta {
-                                topic: ch.topic.as_str().into(),
-                                schema: ch
-                                    .schema
-                                    .as_ref()
-                                    .map_or_else(|| Arc::from(""), |s| s.name.as_str().into()),
-                                encoding: ch.message_encoding.as_str().into(),
-                                schema_id: ch.schema.as_ref().map_or(0, |s| s.id),
-                            },
-                        )
-                    })
-                    .collect();
-                Ok(MessageSource::Indexed {
-                    file,
-                    reader: Box::new(reader),
-                    channels,
-                    buf: Vec::new(),
-                    file_len,
-                    last_chunk: 0,
-                })
-            }
-            None => Ok(MessageSource::Linear(Box::new(LinearScan::new(
-                &self.path,
-                record_limit(&self.cfg),
-                Some(topics.to_vec()),
-            )?))),
-        }
+        let mut sources = self
+            .parts
+            .iter()
+            .map(|p| p.source(topics, &self.cfg))
+            .collect::<Result<VecDeque<_>, _>>()?;
+        Ok(match sources.len() {
+            1 => sources
+                .pop_front()
+                .unwrap_or(MessageSource::Chain(VecDeque::new())),
+            _ => MessageSource::Chain(sources),
+        })
     }
 
     /// The first message of `topic`, decoded by `f`; `Ok(None)` when it has none.
@@ -670,7 +984,17 @@ impl McapEpisode {
         f: impl Fn(&[u8]) -> Result<T, MessageError>,
     ) -> Result<Option<T>, EpisodeError> {
         let mut src = self.source(&[topic.to_string()])?;
-        match src.next_with(&self.path, |m| f(m.data)) {
+        let limit = self.cfg.max_image_bytes;
+        let decode = |m: RawMsg<'_>| {
+            if is_zstd(m.data) {
+                let data = decompress_payload(m.data, limit)
+                    .map_err(|reason| MessageError::BadSize { reason })?;
+                f(&data)
+            } else {
+                f(m.data)
+            }
+        };
+        match src.next_with(decode) {
             // A damaged file that breaks before the topic's first message has none.
             None | Some(Err(EpisodeError::Truncated { .. })) => Ok(None),
             Some(Err(e)) => Err(e),
@@ -682,27 +1006,49 @@ impl McapEpisode {
         }
     }
 
-    /// Every message of `topics` in log-time order (file order for a file read by a
-    /// linear scan), handed to `f(topic, schema, log_time_ns, cdr)`; for reading score topics or copying other topics. A damaged file yields its
-    /// valid messages, then [`EpisodeError::Truncated`].
+    /// Every message of `topics` in log-time order, handed to `f(topic, schema,
+    /// log_time_ns, cdr)` (zstd-compressed payloads decompressed); for reading score
+    /// topics or copying other topics. A damaged file yields its valid messages, then
+    /// [`EpisodeError::Truncated`].
     pub fn for_each_message(
         &self,
         topics: &[String],
         mut f: impl FnMut(&str, &str, u64, &[u8]),
     ) -> Result<(), EpisodeError> {
         let mut src = self.source(topics)?;
-        while let Some(r) = src.next_with(&self.path, |m| f(m.topic, m.schema, m.log_time, m.data))
-        {
+        let limit = record_limit(&self.cfg);
+        while let Some(r) = src.next_with(|m| {
+            let data = if is_zstd(m.data) {
+                decompress_payload(m.data, limit).ok()
+            } else {
+                None
+            };
+            f(
+                m.topic,
+                m.schema,
+                m.log_time,
+                data.as_deref().unwrap_or(m.data),
+            )
+        }) {
             r?;
         }
-        match &self.damage {
-            Some((offset, reason)) => Err(EpisodeError::Truncated {
-                path: self.path.display().to_string(),
-                offset: *offset,
-                reason: reason.clone(),
-            }),
+        match self.damage() {
+            Some(e) => Err(e),
             None => Ok(()),
         }
+    }
+
+    /// The damage a linear scan found at open (the first damaged file's), as an error.
+    fn damage(&self) -> Option<EpisodeError> {
+        self.parts.iter().find_map(|p| {
+            p.damage
+                .as_ref()
+                .map(|(offset, reason)| EpisodeError::Truncated {
+                    path: p.path.display().to_string(),
+                    offset: *offset,
+                    reason: reason.clone(),
+                })
+        })
     }
 
     /// The schema (name, encoding, definition bytes) of `topic`'s channel, read from the
@@ -710,6 +1056,29 @@ impl McapEpisode {
     pub fn schema_of(
         &self,
         topic: &str,
+    ) -> Result<Option<(String, String, Vec<u8>)>, EpisodeError> {
+        for part in &self.parts {
+            if let Some(found) = part.schema_of(topic, &self.cfg)? {
+                return Ok(Some(found));
+            }
+        }
+        Ok(None)
+    }
+
+    /// The URDF text: the first message of the robot-description topic, if there is one.
+    pub fn robot_description(&self) -> Result<Option<String>, EpisodeError> {
+        match &self.info.chosen.robot_description {
+            Some(t) => self.first_message(t, decode_string),
+            None => Ok(None),
+        }
+    }
+}
+
+impl Part {
+    fn schema_of(
+        &self,
+        topic: &str,
+        cfg: &EpisodeConfig,
     ) -> Result<Option<(String, String, Vec<u8>)>, EpisodeError> {
         if let Some(summary) = &self.summary {
             return Ok(summary
@@ -719,11 +1088,7 @@ impl McapEpisode {
                 .and_then(|c| c.schema.as_ref())
                 .map(|s| (s.name.clone(), s.encoding.clone(), s.data.to_vec())));
         }
-        let mut scan = LinearScan::new(
-            &self.path,
-            record_limit(&self.cfg),
-            Some(vec![topic.into()]),
-        )?;
+        let mut scan = LinearScan::new(&self.read, record_limit(cfg), Some(vec![topic.into()]))?;
         scan.keep_schema_data = true;
         while let Some(r) = scan.next_with(|_| ()) {
             if r.is_err() {
@@ -743,15 +1108,9 @@ impl McapEpisode {
                     .map(|(n, e, d)| (n.clone(), e.clone(), d.clone()))
             }))
     }
+}
 
-    /// The URDF text: the first message of the robot-description topic, if there is one.
-    pub fn robot_description(&self) -> Result<Option<String>, EpisodeError> {
-        match &self.info.chosen.robot_description {
-            Some(t) => self.first_message(t, decode_string),
-            None => Ok(None),
-        }
-    }
-
+impl McapEpisode {
     /// The first camera info, if there is one.
     pub fn camera_info(&self) -> Result<Option<CameraInfoMsg>, EpisodeError> {
         match &self.info.chosen.camera_info {
@@ -942,6 +1301,30 @@ fn resolve_topics(
     })
 }
 
+/// The zstd frame magic (rosbag2's message and file compression).
+const ZSTD_MAGIC: [u8; 4] = [0x28, 0xb5, 0x2f, 0xfd];
+
+fn is_zstd(data: &[u8]) -> bool {
+    data.starts_with(&ZSTD_MAGIC)
+}
+
+/// Decompresses a zstd-compressed message payload, refusing more than `limit` bytes
+/// (read in steps, so a bomb costs at most `limit`).
+fn decompress_payload(data: &[u8], limit: usize) -> Result<Vec<u8>, String> {
+    let mut out = Vec::new();
+    let decoder = zstd::stream::read::Decoder::new(data).map_err(|e| e.to_string())?;
+    let read = decoder
+        .take(limit as u64 + 1)
+        .read_to_end(&mut out)
+        .map_err(|e| format!("zstd-compressed message: {e}"))?;
+    if read > limit {
+        return Err(format!(
+            "zstd-compressed message decompresses to more than {limit} bytes"
+        ));
+    }
+    Ok(out)
+}
+
 /// A decoded image waiting for joint samples.
 struct PendingFrame {
     index: usize,
@@ -1012,6 +1395,31 @@ impl Assembler {
     }
 
     fn push(&mut self, m: RawMsg<'_>) {
+        // rosbag2's per-message compression: the payload is a zstd frame.
+        if is_zstd(m.data) {
+            match decompress_payload(m.data, self.max_image_bytes) {
+                Ok(data) => self.dispatch(RawMsg { data: &data, ..m }),
+                Err(reason) => {
+                    let index = if m.topic == self.image_topic {
+                        self.images_seen += 1;
+                        self.images_seen - 1
+                    } else {
+                        0
+                    };
+                    self.pending.push_back(Err(EpisodeError::BadMessage {
+                        topic: m.topic.into(),
+                        index,
+                        reason,
+                    }));
+                    self.release(false);
+                }
+            }
+        } else {
+            self.dispatch(m);
+        }
+    }
+
+    fn dispatch(&mut self, m: RawMsg<'_>) {
         if m.topic == self.image_topic {
             let index = self.images_seen;
             self.images_seen += 1;
@@ -1254,20 +1662,16 @@ impl Iterator for Frames<'_> {
             }
             let source = self.source.as_mut()?;
             let asm = &mut self.asm;
-            match source.next_with(&self.episode.path, |m| asm.push(m)) {
+            match source.next_with(|m| asm.push(m)) {
                 Some(Ok(())) => {}
                 end => {
                     self.asm.release(true);
                     self.episode.skipped_backwards.set(self.asm.skipped);
                     if let Some(Err(e)) = end {
                         self.asm.ready.push_back(Err(e));
-                    } else if let Some((offset, reason)) = &self.episode.damage {
+                    } else if let Some(e) = self.episode.damage() {
                         // The summary-less scan found damage: report it after the frames.
-                        self.asm.ready.push_back(Err(EpisodeError::Truncated {
-                            path: self.episode.path.display().to_string(),
-                            offset: *offset,
-                            reason: reason.clone(),
-                        }));
+                        self.asm.ready.push_back(Err(e));
                     }
                     self.source = None;
                 }

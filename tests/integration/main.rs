@@ -13,6 +13,7 @@ mod deploy;
 mod detect_cli;
 mod detect_episode;
 mod episode_mcap;
+mod episode_rosbag2;
 mod eval_metrics;
 mod export_dataset;
 mod faults;
