@@ -334,7 +334,8 @@ impl Robot {
         self.kinematics.forward_into(q, out)
     }
 
-    /// Joints outside their limits at `q` (limits are never enforced).
+    /// Joints outside their limits at `q` (limits are never enforced; mimic joints, which
+    /// follow their leaders, are not listed).
     pub fn out_of_limits(&self, q: &JointPositions) -> Vec<LimitViolation> {
         self.kinematics.out_of_limits(q)
     }
@@ -1301,9 +1302,10 @@ mod tests {
         let w = r.warnings();
         assert_eq!(w.len(), 2, "{w:?}");
         assert!(
-            w[0].contains("mesh \"a.stl\" of link \"a\"") && w[0].contains("first 3"),
+            w[0].contains("mesh \"a.stl\" in a visual of link \"a\"") && w[0].contains("first 3"),
             "{w:?}"
         );
+        assert!(w[1].contains("in a collision of link \"a\""), "{w:?}");
         match &r.visuals(0)[0].geometry {
             VisualGeometry::Mesh { scale, .. } => assert_eq!(*scale, [2.0, 3.0, 4.0]),
             other => panic!("{other:?}"),

@@ -188,9 +188,13 @@ fn check(e: Node<'_, '_>, xml: &str, edits: &mut Vec<Edit>) {
                 range,
                 replacement: kept.join(" "),
                 warning: format!(
-                    "mesh {:?} of {} has a scale of {} values ({value:?}); the first 3 are used",
+                    "mesh {:?} in {} has a scale of {} values ({value:?}); the first 3 are used",
                     e.attribute("filename").unwrap_or_default(),
-                    describe(e.ancestors().find(|a| a.has_tag_name("link"))),
+                    describe(e.ancestors().find(|a| {
+                        a.has_tag_name("visual")
+                            || a.has_tag_name("collision")
+                            || a.has_tag_name("link")
+                    })),
                     numbers.len()
                 ),
             });
