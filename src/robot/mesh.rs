@@ -88,13 +88,19 @@ pub fn mesh_from_bytes(
             });
         }
     };
-    let parts: Vec<(&[[f32; 3]], &[[u32; 3]])> = scene
+    let parts: Vec<Part<'_>> = scene
         .meshes
         .iter()
         .map(|m| (m.vertices.as_slice(), m.faces.as_slice()))
         .collect();
     weld(&parts, &name, scale, cfg)
 }
+
+/// One sub-mesh before welding: vertex positions and triangles indexing them.
+type Part<'a> = (&'a [[f32; 3]], &'a [[u32; 3]]);
+
+/// Vertex positions and the triangles (0-based indices into them) of a mesh file.
+pub type PositionsAndFaces = (Vec<[f32; 3]>, Vec<[u32; 3]>);
 
 fn check_triangles(triangles: usize, name: &str, cfg: &RobotConfig) -> Result<(), RobotError> {
     if triangles > cfg.max_mesh_triangles {
@@ -109,7 +115,7 @@ fn check_triangles(triangles: usize, name: &str, cfg: &RobotConfig) -> Result<()
 
 /// Merges indexed triangle lists into one welded, scaled mesh (`name` for messages).
 fn weld(
-    parts: &[(&[[f32; 3]], &[[u32; 3]])],
+    parts: &[Part<'_>],
     name: &str,
     scale: [f64; 3],
     cfg: &RobotConfig,
@@ -186,7 +192,7 @@ pub fn obj_positions_and_faces(
     bytes: &[u8],
     name: &str,
     cfg: &RobotConfig,
-) -> Result<(Vec<[f32; 3]>, Vec<[u32; 3]>), RobotError> {
+) -> Result<PositionsAndFaces, RobotError> {
     let text = String::from_utf8_lossy(bytes);
     let bad = |line: usize, what: String| RobotError::MeshUnreadable {
         path: name.to_string(),
