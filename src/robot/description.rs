@@ -10,7 +10,11 @@
 //! - `file:///abs` and absolute paths: as given (folders only; refused inside archives).
 //!
 //! A mesh that cannot be found, read or parsed, or is over a cap, is left out with a
-//! warning naming it ([`Robot::warnings`]); the robot still loads.
+//! warning naming it ([`Robot::warnings`]); the robot still loads. So do URDF constructs
+//! urdfdom (the ROS parser) accepts and `urdf-rs` refuses: a `<texture>` without a
+//! filename, a repeated `<axis>` (or other once-only element), a mesh `scale` of four
+//! values, `<plane>` (or other unsupported) geometry are dropped or fixed before parsing,
+//! each with a warning naming the element.
 
 use super::camera::{CameraConvention, CameraSpec};
 use super::config::RobotConfig;
@@ -22,6 +26,7 @@ use super::kinematics::{
     isometry_from_xyz_rpy,
 };
 use super::mesh;
+use super::prepass;
 use nalgebra::{Isometry3, Unit, Vector3};
 use rayon::prelude::*;
 use serde::Serialize;
@@ -247,7 +252,9 @@ impl Robot {
         package_root: &Path,
         cfg: &RobotConfig,
     ) -> Result<Self, RobotError> {
-        let urdf = urdf_rs::read_from_string(xml).map_err(|e| RobotError::MalformedUrdf {
+        // Constructs urdfdom tolerates and urdf-rs refuses: dropped or fixed, with warnings.
+        let (xml, mut warnings) = prepass::tolerate(xml);
+        let urdf = urdf_rs::read_from_string(&xml).map_err(|e| RobotError::MalformedUrdf {
             source_name: source_name.to_string(),
             message: e.to_string(),
         })?;
@@ -257,7 +264,8 @@ impl Robot {
             urdf_dir,
             package_root,
         };
-        let (visuals, link_meshes, warnings) = load_visuals(&urdf, &resolver, cfg)?;
+        let (visuals, link_meshes, mesh_warnings) = load_visuals(&urdf, &resolver, cfg)?;
+        warnings.extend(mesh_warnings);
         for w in &warnings {
             tracing::warn!(robot = %urdf.name, "{w}");
         }
@@ -327,7 +335,8 @@ impl Robot {
             .sum()
     }
 
-    /// What was left out while loading (missing or unreadable meshes, limits), by name.
+    /// What was left out or fixed while loading (missing or unreadable meshes, limits,
+    /// tolerated URDF constructs), by name.
     pub fn warnings(&self) -> &[String] {
         &self.warnings
     }
@@ -369,7 +378,8 @@ impl Robot {
         self.kinematics.forward_into(q, out)
     }
 
-    /// Joints outside their limits at `q` (limits are never enforced).
+    /// Joints outside their limits at `q` (limits are never enforced; mimic joints, which
+    /// follow their leaders, are not listed).
     pub fn out_of_limits(&self, q: &JointPositions) -> Vec<LimitViolation> {
         self.kinematics.out_of_limits(q)
     }
@@ -1291,6 +1301,126 @@ mod tests {
             (max_x - 1.2).abs() < 1e-5 && (min_x + 0.05).abs() < 1e-5,
             "{min_x} {max_x}"
         );
+    }
+
+    /// Loads `xml`, asserting it loads, and returns it with its warnings.
+    fn load_with_warnings(xml: &str) -> (Robot, Vec<String>) {
+        let r = load(xml).unwrap_or_else(|e| panic!("{e}\n{xml}"));
+        let w = r.warnings().to_vec();
+        (r, w)
+    }
+
+    #[test]
+    fn a_texture_without_filename_is_dropped_with_a_warning() {
+        // iCub, romeo: `<texture/>` in a material (urdf-rs: "missing field `filename`").
+        let xml = urdf(
+            &("<material name=\"skin\"><color rgba=\"1 1 1 1\"/><texture/></material>\
+             <link name=\"a\"><visual><geometry><box size=\"1 1 1\"/></geometry>\
+             <material name=\"paint\"><texture/></material></visual></link>\
+             <link name=\"b\"><visual><geometry><box size=\"1 1 1\"/></geometry>\
+             <material name=\"img\"><texture filename=\"t.png\"/></material></visual></link>"
+                .to_string()
+                + &joint("j", "fixed", "a", "b", "")),
+        );
+        let (r, w) = load_with_warnings(&xml);
+        assert_eq!(r.triangle_count(), 24);
+        assert_eq!(w.len(), 2, "{w:?}");
+        assert!(w[0].contains("material \"skin\"") && w[0].contains("texture"));
+        assert!(w[1].contains("material \"paint\" of link \"a\""), "{w:?}");
+    }
+
+    #[test]
+    fn a_duplicate_axis_keeps_the_first_with_a_warning() {
+        let xml = urdf(
+            &(link("a")
+                + &link("b")
+                + "<joint name=\"j\" type=\"revolute\"><parent link=\"a\"/><child link=\"b\"/>\
+                   <axis xyz=\"0 1 0\"/><axis xyz=\"1 0 0\"/>\
+                   <limit lower=\"-1\" upper=\"1\" effort=\"1\" velocity=\"1\"/>\
+                   <limit lower=\"-2\" upper=\"2\" effort=\"1\" velocity=\"1\"/></joint>"),
+        );
+        let (r, w) = load_with_warnings(&xml);
+        assert_eq!(r.joints()[0].axis.into_inner(), Vector3::y());
+        assert_eq!(r.joints()[0].limits.unwrap().upper, 1.0);
+        assert_eq!(w.len(), 2, "{w:?}");
+        assert!(w[0].contains("joint \"j\" has 2 <axis> elements"), "{w:?}");
+        assert!(w[1].contains("<limit>"), "{w:?}");
+    }
+
+    #[test]
+    fn a_four_value_mesh_scale_uses_the_first_three_with_a_warning() {
+        let tmp = tempfile::tempdir().unwrap();
+        write(tmp.path(), "a.stl", STL);
+        let xml = urdf(
+            "<link name=\"a\"><visual><geometry><mesh filename=\"a.stl\" scale=\" 2 3 4 1 \"/>\
+             </geometry></visual><collision><geometry>\
+             <mesh filename=\"a.stl\" scale=\"1 1 1 1\"/></geometry></collision></link>",
+        );
+        let r = Robot::from_urdf_str(&xml, Some(tmp.path()), &RobotConfig::default()).unwrap();
+        let w = r.warnings();
+        assert_eq!(w.len(), 2, "{w:?}");
+        assert!(
+            w[0].contains("mesh \"a.stl\" in a visual of link \"a\"") && w[0].contains("first 3"),
+            "{w:?}"
+        );
+        assert!(w[1].contains("in a collision of link \"a\""), "{w:?}");
+        match &r.visuals(0)[0].geometry {
+            VisualGeometry::Mesh { scale, .. } => assert_eq!(*scale, [2.0, 3.0, 4.0]),
+            other => panic!("{other:?}"),
+        }
+        assert!(
+            r.link_meshes()[0]
+                .mesh
+                .positions
+                .contains(&nalgebra::Point3::new(0.0, 3.0, 0.0))
+        );
+        // Fewer than three values, or words, stay errors.
+        let e = load(&urdf(
+            "<link name=\"a\"><visual><geometry><mesh filename=\"a.stl\" scale=\"1 1\"/>\
+             </geometry></visual></link>",
+        ))
+        .unwrap_err();
+        assert!(matches!(e, RobotError::MalformedUrdf { .. }), "{e}");
+    }
+
+    #[test]
+    fn plane_geometry_drops_that_visual_with_a_warning() {
+        let xml = urdf(
+            "<link name=\"floor\"><visual name=\"ground\"><geometry><plane normal=\"0 0 1\"/>\
+             </geometry></visual><visual><geometry><box size=\"1 1 1\"/></geometry></visual>\
+             <collision><geometry><plane normal=\"0 0 1\"/></geometry></collision></link>",
+        );
+        let (r, w) = load_with_warnings(&xml);
+        assert_eq!(r.visuals(0).len(), 1);
+        assert_eq!(r.triangle_count(), 12);
+        assert_eq!(w.len(), 2, "{w:?}");
+        assert!(
+            w[0].contains("a visual \"ground\" of link \"floor\"") && w[0].contains("<plane>"),
+            "{w:?}"
+        );
+        assert!(w[1].contains("a collision of link \"floor\""), "{w:?}");
+    }
+
+    #[test]
+    fn a_binary_stl_with_a_solid_header_loads_through_the_urdf() {
+        let tmp = tempfile::tempdir().unwrap();
+        let mut stl = b"solid foot (binary, SolidWorks)".to_vec();
+        stl.resize(80, 0);
+        stl.extend(1u32.to_le_bytes());
+        for v in [
+            [0f32, 0.0, 1.0],
+            [0.0, 0.0, 0.0],
+            [1.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0],
+        ] {
+            stl.extend(v.iter().flat_map(|c| c.to_le_bytes()));
+        }
+        stl.extend([0u8; 2]);
+        std::fs::write(tmp.path().join("foot.stl"), &stl).unwrap();
+        let xml = urdf(&mesh_link("foot", "foot.stl"));
+        let r = Robot::from_urdf_str(&xml, Some(tmp.path()), &RobotConfig::default()).unwrap();
+        assert!(r.warnings().is_empty(), "{:?}", r.warnings());
+        assert_eq!(r.triangle_count(), 1);
     }
 
     #[test]

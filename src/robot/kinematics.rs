@@ -345,12 +345,14 @@ impl Kinematics {
         Ok(())
     }
 
-    /// Joints (revolute and prismatic with limits, mimic joints by their effective
-    /// position) outside their limits at `q`.
+    /// Joints (revolute and prismatic with limits) outside their limits at `q`. Mimic
+    /// joints are not listed: their positions follow their leaders and cannot be set, so
+    /// a violation is reported on the leader (when it is outside its own limits) only.
     pub fn out_of_limits(&self, q: &JointPositions) -> Vec<LimitViolation> {
         self.joints
             .iter()
             .enumerate()
+            .filter(|(_, joint)| joint.mimic.is_none())
             .filter_map(|(j, joint)| {
                 let lim = joint.limits?;
                 let position = self.effective_position(q, j);
@@ -506,10 +508,18 @@ mod tests {
         let poses = k.forward(&q).unwrap();
         let angle = poses[2].rotation.scaled_axis().z;
         assert!((angle - (-2.0 * 0.4 + 0.1)).abs() < 1e-12, "{angle}");
-        let v = k.out_of_limits(&q);
-        assert_eq!(v.len(), 1);
-        assert_eq!(v[0].joint, "m");
-        assert!((v[0].position + 0.7).abs() < 1e-12);
+        // The mimic is at -0.7, past its limits, but it cannot be set: not listed.
+        assert!(k.out_of_limits(&q).is_empty(), "{:?}", k.out_of_limits(&q));
+        // A leader past its own limits is listed (and its mimic still is not).
+        let mut joints = k.joints().to_vec();
+        joints[0].limits = Some(JointLimits {
+            lower: -0.3,
+            upper: 0.3,
+        });
+        let k = Kinematics::new(names(3), joints).unwrap();
+        let v = k.out_of_limits(&k.positions(vec![0.4, 0.0]).unwrap());
+        assert_eq!(v.len(), 1, "{v:?}");
+        assert_eq!(v[0].joint, "a");
         assert!(
             k.out_of_limits(&k.positions(vec![0.1, 0.0]).unwrap())
                 .is_empty()

@@ -10,9 +10,15 @@ use std::f32::consts::PI;
 use std::path::Path;
 
 /// Parses a mesh file's bytes (`path` names it in messages and selects the format by its
-/// extension or content), merges its sub-meshes, welds duplicate vertices and applies
-/// `scale` (per axis). Caps: `cfg.max_mesh_file_bytes`, `cfg.max_mesh_triangles`.
+/// extension, in any case, or content), merges its sub-meshes, welds duplicate vertices and
+/// applies `scale` (per axis). Caps: `cfg.max_mesh_file_bytes`, `cfg.max_mesh_triangles`.
 /// OBJ material libraries are not read (the renderer draws no colours).
+///
+/// Beyond `mesh-loader`: an STL file is binary when its size is exactly
+/// `84 + 50 * triangle count` (the count read from bytes 80..84), whatever its header says
+/// (exporters often start binary headers with `solid`); an OBJ file `mesh-loader` refuses
+/// (e.g. faces with and without texture or normal indices in one file) is read again for
+/// its positions and faces only ([`obj_positions_and_faces`]).
 pub fn mesh_from_bytes(
     bytes: &[u8],
     path: &Path,
@@ -28,20 +34,48 @@ pub fn mesh_from_bytes(
             limit_bytes: cfg.max_mesh_file_bytes,
         });
     }
+    let ext = path
+        .extension()
+        .map(|e| e.to_string_lossy().to_ascii_lowercase());
+    let is_obj = ext.as_deref() == Some("obj");
+    if !matches!(ext.as_deref(), Some("obj" | "dae"))
+        && let Some(count) = binary_stl_triangle_count(bytes)
+    {
+        check_triangles(count, &name, cfg)?;
+        let vertices = binary_stl_vertices(bytes, count);
+        let faces: Vec<[u32; 3]> = (0..count as u32)
+            .map(|t| [3 * t, 3 * t + 1, 3 * t + 2])
+            .collect();
+        return weld(&[(&vertices, &faces)], &name, scale, cfg);
+    }
+    // mesh-loader picks the format from the extension in lower or upper case only.
+    let lower_path = match &ext {
+        Some(e) => path.with_extension(e),
+        None => path.to_path_buf(),
+    };
     let loader = mesh_loader::Loader::default();
     // No material files: the reader refuses, which mesh-loader treats as "no materials".
     // mesh-loader 0.1 panics on some malformed files (a COLLADA index past its positions,
     // found by the `mesh` fuzz target): a panic is this file's error, not the process's.
     let parsed = std::panic::catch_unwind(|| {
-        loader.load_from_slice_with_reader(bytes, path, |_| {
+        loader.load_from_slice_with_reader(bytes, &lower_path, |_| {
             Err(std::io::Error::from(std::io::ErrorKind::NotFound))
         })
     });
     let scene = match parsed {
-        Ok(r) => r.map_err(|e| RobotError::MeshUnreadable {
-            path: name.clone(),
-            message: e.to_string(),
-        })?,
+        Ok(Ok(scene)) => scene,
+        Ok(Err(e)) => {
+            if is_obj {
+                // mesh-loader refuses some OBJ files urdfdom's loaders read (mixed face
+                // formats): positions and faces are all vamos needs.
+                let (vertices, faces) = obj_positions_and_faces(bytes, &name, cfg)?;
+                return weld(&[(&vertices, &faces)], &name, scale, cfg);
+            }
+            return Err(RobotError::MeshUnreadable {
+                path: name,
+                message: e.to_string(),
+            });
+        }
         Err(panic) => {
             let what = panic
                 .downcast_ref::<String>()
@@ -54,29 +88,55 @@ pub fn mesh_from_bytes(
             });
         }
     };
-    let triangles: usize = scene.meshes.iter().map(|m| m.faces.len()).sum();
+    let parts: Vec<Part<'_>> = scene
+        .meshes
+        .iter()
+        .map(|m| (m.vertices.as_slice(), m.faces.as_slice()))
+        .collect();
+    weld(&parts, &name, scale, cfg)
+}
+
+/// One sub-mesh before welding: vertex positions and triangles indexing them.
+type Part<'a> = (&'a [[f32; 3]], &'a [[u32; 3]]);
+
+/// Vertex positions and the triangles (0-based indices into them) of a mesh file.
+pub type PositionsAndFaces = (Vec<[f32; 3]>, Vec<[u32; 3]>);
+
+fn check_triangles(triangles: usize, name: &str, cfg: &RobotConfig) -> Result<(), RobotError> {
     if triangles > cfg.max_mesh_triangles {
         return Err(RobotError::TooManyTriangles {
-            what: name,
+            what: name.to_string(),
             triangles,
             limit: cfg.max_mesh_triangles,
         });
     }
+    Ok(())
+}
+
+/// Merges indexed triangle lists into one welded, scaled mesh (`name` for messages).
+fn weld(
+    parts: &[Part<'_>],
+    name: &str,
+    scale: [f64; 3],
+    cfg: &RobotConfig,
+) -> Result<TriMesh, RobotError> {
+    let triangles: usize = parts.iter().map(|(_, f)| f.len()).sum();
+    check_triangles(triangles, name, cfg)?;
     let s = scale.map(|v| v as f32);
     let mut welder = Welder::with_capacity(triangles);
-    for m in &scene.meshes {
-        for face in &m.faces {
+    for (vertices, faces) in parts {
+        for face in *faces {
             let mut tri = [0u32; 3];
             for (slot, &i) in tri.iter_mut().zip(face) {
-                let Some(v) = m.vertices.get(i as usize) else {
+                let Some(v) = vertices.get(i as usize) else {
                     return Err(RobotError::MeshUnreadable {
-                        path: name,
+                        path: name.to_string(),
                         message: format!("face index {i} out of range"),
                     });
                 };
                 if !v.iter().all(|c| c.is_finite()) {
                     return Err(RobotError::MeshUnreadable {
-                        path: name,
+                        path: name.to_string(),
                         message: "non-finite vertex".into(),
                     });
                 }
@@ -86,6 +146,126 @@ pub fn mesh_from_bytes(
         }
     }
     Ok(welder.mesh)
+}
+
+/// Binary STL: an 80-byte header, a little-endian `u32` triangle count, then 50 bytes per
+/// triangle (normal and three vertices as 12 little-endian `f32`, a `u16` attribute).
+const STL_HEADER: usize = 84;
+const STL_TRIANGLE: usize = 50;
+
+/// The triangle count of a binary STL file: `Some` exactly when the size is
+/// `84 + 50 * count` for the count stored at bytes 80..84.
+pub fn binary_stl_triangle_count(bytes: &[u8]) -> Option<usize> {
+    let count_bytes: [u8; 4] = bytes.get(80..STL_HEADER)?.try_into().ok()?;
+    let count = u32::from_le_bytes(count_bytes) as usize;
+    let body = count.checked_mul(STL_TRIANGLE)?;
+    (bytes.len().checked_sub(STL_HEADER)? == body).then_some(count)
+}
+
+/// The `3 count` vertices of a binary STL file whose size
+/// [`binary_stl_triangle_count`] accepted (the normals are not needed).
+fn binary_stl_vertices(bytes: &[u8], count: usize) -> Vec<[f32; 3]> {
+    let mut vertices = Vec::with_capacity(3 * count);
+    for tri in bytes[STL_HEADER..].chunks_exact(STL_TRIANGLE).take(count) {
+        // 12 bytes of normal, then 3 x 12 bytes of vertices, then the attribute.
+        for corner in tri[12..48].chunks_exact(12) {
+            let f = |k: usize| {
+                f32::from_le_bytes([
+                    corner[4 * k],
+                    corner[4 * k + 1],
+                    corner[4 * k + 2],
+                    corner[4 * k + 3],
+                ])
+            };
+            vertices.push([f(0), f(1), f(2)]);
+        }
+    }
+    vertices
+}
+
+/// Positions and triangles of an OBJ file, nothing else: `v x y z` (further values, `w` or
+/// a colour, ignored) and `f` faces whose corners are `a`, `a/t`, `a/t/n` or `a//n`
+/// (negative indices count back from the last vertex read), polygons fan-triangulated.
+/// Faces of fewer than three corners (points, lines) and other statements are skipped; a
+/// line ending in `\` continues on the next. `name` names the file in errors.
+pub fn obj_positions_and_faces(
+    bytes: &[u8],
+    name: &str,
+    cfg: &RobotConfig,
+) -> Result<PositionsAndFaces, RobotError> {
+    let text = String::from_utf8_lossy(bytes);
+    let bad = |line: usize, what: String| RobotError::MeshUnreadable {
+        path: name.to_string(),
+        message: format!("OBJ line {line}: {what}"),
+    };
+    let mut vertices: Vec<[f32; 3]> = Vec::new();
+    let mut faces: Vec<[u32; 3]> = Vec::new();
+    let mut corners: Vec<u32> = Vec::new();
+    let mut pending = String::new();
+    for (k, raw) in text.lines().enumerate() {
+        let line_no = k + 1;
+        let raw = raw.split('#').next().unwrap_or("");
+        if let Some(head) = raw.trim_end().strip_suffix('\\') {
+            pending.push_str(head);
+            pending.push(' ');
+            continue;
+        }
+        pending.push_str(raw);
+        let line = std::mem::take(&mut pending);
+        let mut words = line.split_whitespace();
+        match words.next() {
+            Some("v") => {
+                let mut p = [0f32; 3];
+                for c in &mut p {
+                    let w = words
+                        .next()
+                        .ok_or_else(|| bad(line_no, "a vertex needs three coordinates".into()))?;
+                    *c = w
+                        .parse()
+                        .map_err(|_| bad(line_no, format!("{w:?} is not a number")))?;
+                }
+                vertices.push(p);
+            }
+            Some("f") => {
+                corners.clear();
+                for w in words {
+                    let first = w.split('/').next().unwrap_or("");
+                    let i: i64 = first
+                        .parse()
+                        .map_err(|_| bad(line_no, format!("{w:?} is not a face corner")))?;
+                    let n = vertices.len() as i64;
+                    // 1-based; negative: relative to the vertices read so far.
+                    let index = match i {
+                        i if i > 0 => i - 1,
+                        i if i < 0 => n + i,
+                        _ => -1,
+                    };
+                    let index = u32::try_from(index)
+                        .map_err(|_| bad(line_no, format!("face index {i} out of range")))?;
+                    corners.push(index);
+                }
+                if let [a, rest @ ..] = corners.as_slice() {
+                    for pair in rest.windows(2) {
+                        faces.push([*a, pair[0], pair[1]]);
+                    }
+                }
+                check_triangles(faces.len(), name, cfg)?;
+            }
+            _ => {}
+        }
+    }
+    // Positive indices may refer to vertices declared later in the file.
+    if let Some(&i) = faces
+        .iter()
+        .flatten()
+        .find(|&&i| i as usize >= vertices.len())
+    {
+        return Err(RobotError::MeshUnreadable {
+            path: name.to_string(),
+            message: format!("face index {} out of range", u64::from(i) + 1),
+        });
+    }
+    Ok((vertices, faces))
 }
 
 /// Builds an indexed mesh, giving bit-identical positions one index.
@@ -329,6 +509,118 @@ endsolid s
         assert_eq!(m.triangle_count(), 2);
         assert!(m.positions.contains(&Point3::new(2.0, 3.0, 0.0)));
         assert_eq!(m.triangles[0][0], m.triangles[1][0]);
+    }
+
+    /// A binary STL file: `header` padded to 80 bytes, then the triangles.
+    fn binary_stl(header: &[u8], triangles: &[[[f32; 3]; 3]]) -> Vec<u8> {
+        let mut b = header.to_vec();
+        b.resize(80, b' ');
+        b.extend((triangles.len() as u32).to_le_bytes());
+        for t in triangles {
+            b.extend([0f32, 0.0, 1.0].iter().flat_map(|v| v.to_le_bytes()));
+            for v in t {
+                b.extend(v.iter().flat_map(|c| c.to_le_bytes()));
+            }
+            b.extend(0u16.to_le_bytes());
+        }
+        b
+    }
+
+    #[test]
+    fn binary_stl_is_told_by_its_size_even_with_a_solid_header() {
+        let square = [
+            [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0]],
+            [[0.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0]],
+        ];
+        // Exporters (SolidWorks) write "solid <name>" into binary headers: solo12's feet.
+        for header in [
+            &b"solid foot\n"[..],
+            b"binary header",
+            b"  solid\tx\r\nfacet",
+        ] {
+            let stl = binary_stl(header, &square);
+            assert_eq!(binary_stl_triangle_count(&stl), Some(2));
+            for name in ["foot.stl", "FOOT.STL", "foot.Stl"] {
+                let m = mesh_from_bytes(
+                    &stl,
+                    Path::new(name),
+                    [2.0, 3.0, 1.0],
+                    &RobotConfig::default(),
+                )
+                .unwrap_or_else(|e| panic!("{name} {header:?}: {e}"));
+                assert_eq!((m.positions.len(), m.triangle_count()), (4, 2));
+                assert!(m.positions.contains(&Point3::new(2.0, 3.0, 0.0)));
+            }
+        }
+        // One byte more or less: not binary by size (and then not valid ASCII either).
+        let mut stl = binary_stl(b"solid foot\n", &square);
+        stl.push(0);
+        assert_eq!(binary_stl_triangle_count(&stl), None);
+        assert_eq!(binary_stl_triangle_count(&stl[..83]), None);
+        // The triangle cap holds before any triangle is read.
+        let cfg = RobotConfig {
+            max_mesh_triangles: 1,
+            ..RobotConfig::default()
+        };
+        let e = mesh_from_bytes(
+            &binary_stl(b"solid", &square),
+            Path::new("f.stl"),
+            [1.0; 3],
+            &cfg,
+        )
+        .unwrap_err();
+        assert!(
+            matches!(e, RobotError::TooManyTriangles { triangles: 2, .. }),
+            "{e}"
+        );
+        // A non-finite vertex is still an error.
+        let bad = binary_stl(
+            b"x",
+            &[[[f32::NAN, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]],
+        );
+        let e = mesh_from_bytes(&bad, Path::new("f.stl"), [1.0; 3], &RobotConfig::default())
+            .unwrap_err();
+        assert!(matches!(e, RobotError::MeshUnreadable { .. }), "{e}");
+    }
+
+    #[test]
+    fn obj_mixing_face_formats_loads() {
+        // pybullet_data's table_square/table.obj: `f v/vt/vn` faces, then `f v` faces.
+        let obj = b"# mixed\nmtllib table.mtl\no top\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\n\
+vt 0 0\nvt 1 0\nvt 1 1\nvn 0 0 1\nusemtl wood\nf 1/1/1 2/2/1 3/3/1\nf 1 3 4\n\
+v 0 0 1\nv 1 0 1\nv 1 1 1 1.0\nv 0 1 1 \\\n\nf -4//1 -3//1 -2//1 -1//1\nl 1 2\nf 5 6\n";
+        let m = mesh_from_bytes(
+            obj,
+            Path::new("table.OBJ"),
+            [1.0; 3],
+            &RobotConfig::default(),
+        )
+        .unwrap();
+        // Two triangles of the bottom square, the top quad fanned into two.
+        assert_eq!(m.triangle_count(), 4);
+        assert_eq!(m.positions.len(), 8);
+        assert!(m.positions.contains(&Point3::new(1.0, 1.0, 1.0)));
+        let (v, f) = obj_positions_and_faces(obj, "t.obj", &RobotConfig::default()).unwrap();
+        assert_eq!(v.len(), 8);
+        assert_eq!(f, vec![[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]]);
+        // Indices past the vertices, zero, and garbage are errors, never panics.
+        for bad in [
+            &b"v 0 0 0\nf 1 2 3\nf 1/1 1//1 1\n"[..],
+            b"v 0 0 0\nv 0 0 0\nv 0 0 0\nf 0 1 2\n",
+            b"v 0 0 0\nf -2 1 1\n",
+            b"v 0 0\n",
+            b"v 0 0 x\n",
+            b"v 0 0 0\nf a b c\n",
+        ] {
+            let e = obj_positions_and_faces(bad, "t.obj", &RobotConfig::default()).unwrap_err();
+            assert!(matches!(e, RobotError::MeshUnreadable { .. }), "{e}");
+        }
+        let cfg = RobotConfig {
+            max_mesh_triangles: 1,
+            ..RobotConfig::default()
+        };
+        let e = obj_positions_and_faces(b"v 0 0 0\nf 1 1 1 1 1\n", "t.obj", &cfg).unwrap_err();
+        assert!(matches!(e, RobotError::TooManyTriangles { .. }), "{e}");
     }
 
     #[test]

@@ -38,6 +38,7 @@ pub mod geometry;
 pub mod joints;
 pub mod kinematics;
 pub mod mesh;
+mod prepass;
 pub mod render;
 
 pub use body_motion::{BodyMotion, BodyMotionError, body_motion_error};
