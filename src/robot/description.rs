@@ -258,7 +258,7 @@ impl Robot {
             source_name: source_name.to_string(),
             message: e.to_string(),
         })?;
-        let kinematics = kinematics_from_urdf(&urdf)?;
+        let kinematics = kinematics_from_urdf(&urdf, &mut warnings)?;
         let resolver = Resolver {
             store,
             urdf_dir,
@@ -762,7 +762,12 @@ fn kind_of(t: &urdf_rs::JointType) -> JointKind {
     }
 }
 
-fn kinematics_from_urdf(urdf: &urdf_rs::Robot) -> Result<Kinematics, RobotError> {
+/// The joint tree of `urdf`. A mimic of a joint that does not exist (or does not move) is
+/// ignored with a warning, as urdfdom does: the joint then moves on its own.
+fn kinematics_from_urdf(
+    urdf: &urdf_rs::Robot,
+    warnings: &mut Vec<String>,
+) -> Result<Kinematics, RobotError> {
     let mut link_index = HashMap::new();
     for (i, l) in urdf.links.iter().enumerate() {
         if link_index.insert(l.name.as_str(), i).is_some() {
@@ -826,7 +831,7 @@ fn kinematics_from_urdf(urdf: &urdf_rs::Robot) -> Result<Kinematics, RobotError>
         });
     }
     // Mimic relations, chains composed down to a joint that is not itself a mimic.
-    for (i, j) in urdf.joints.iter().enumerate() {
+    'joints: for (i, j) in urdf.joints.iter().enumerate() {
         let Some(m) = &j.mimic else { continue };
         if !joints[i].kind.is_moving() {
             continue;
@@ -841,14 +846,18 @@ fn kinematics_from_urdf(urdf: &urdf_rs::Robot) -> Result<Kinematics, RobotError>
         let mut target_name = &m.joint;
         let mut hops = 0;
         let target = loop {
-            let t = joint_index
+            let Some(t) = joint_index
                 .get(target_name.as_str())
                 .copied()
                 .filter(|&t| joints[t].kind.is_moving())
-                .ok_or_else(|| RobotError::MimicUnknownJoint {
-                    joint: j.name.clone(),
-                    mimicked: target_name.clone(),
-                })?;
+            else {
+                warnings.push(format!(
+                    "joint {:?} mimics {target_name:?}, which is not a moving joint of the \
+                     robot: the mimic is ignored (the joint is set on its own)",
+                    j.name
+                ));
+                continue 'joints;
+            };
             match &urdf.joints[t].mimic {
                 None => break t,
                 Some(next) => {
@@ -1086,19 +1095,22 @@ mod tests {
                 link: "ghost".into()
             }
         );
-        let e = load(&urdf(
+        // A mimic of a joint that does not exist is ignored with a warning (urdfdom loads
+        // such robots, e.g. alex_psyonic_hands): j2 is then a joint of its own.
+        let r = load(&urdf(
             &(two.clone()
                 + &joint("j1", "revolute", "a", "b", "")
                 + &joint("j2", "revolute", "a", "c", "<mimic joint=\"nope\"/>")),
         ))
-        .unwrap_err();
-        assert_eq!(
-            e,
-            RobotError::MimicUnknownJoint {
-                joint: "j2".into(),
-                mimicked: "nope".into()
-            }
+        .unwrap();
+        assert!(
+            r.warnings()
+                .iter()
+                .any(|w| w.contains("\"j2\" mimics \"nope\"")),
+            "{:?}",
+            r.warnings()
         );
+        assert!(r.joints()[1].mimic.is_none());
         let e = load(&urdf(
             &(two.clone()
                 + &joint("j1", "revolute", "a", "b", "<mimic joint=\"j2\"/>")

@@ -72,14 +72,6 @@ pub enum RobotError {
         /// `axis` or `origin` or `mimic`.
         what: &'static str,
     },
-    /// A joint mimics a joint that does not exist (or is not a moving joint).
-    #[error("joint {joint:?} mimics unknown joint {mimicked:?}")]
-    MimicUnknownJoint {
-        /// The mimicking joint.
-        joint: String,
-        /// The name it mimics.
-        mimicked: String,
-    },
     /// Mimic relations form a cycle.
     #[error("mimic joints form a cycle through {joint:?}")]
     MimicCycle {

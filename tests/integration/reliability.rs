@@ -30,6 +30,14 @@ fn png(width: u32, height: u32) -> Vec<u8> {
     out
 }
 
+/// Asserts that one of `errors` holds every one of `needles`.
+fn assert_reported(errors: &[&str], needles: &[&str]) {
+    assert!(
+        errors.iter().any(|e| needles.iter().all(|n| e.contains(n))),
+        "no error with {needles:?}: {errors:?}"
+    );
+}
+
 fn message_errors(events: &[proto::SessionEvent]) -> Vec<&str> {
     events
         .iter()
@@ -70,24 +78,9 @@ async fn a_tiny_png_of_an_absurd_shape_is_refused_and_scoring_goes_on() {
     .await
     .unwrap();
     let errors = message_errors(&events);
-    assert!(
-        errors
-            .iter()
-            .any(|e| e.contains("1x6000000") && e.contains("side")),
-        "{errors:?}"
-    );
-    assert!(
-        errors
-            .iter()
-            .any(|e| e.contains("6000000x1") && e.contains("side")),
-        "{errors:?}"
-    );
-    assert!(
-        errors
-            .iter()
-            .any(|e| e.contains("4100x4100") && e.contains("exceeds")),
-        "{errors:?}"
-    );
+    assert_reported(&errors, &["1x6000000", "side"]);
+    assert_reported(&errors, &["6000000x1", "side"]);
+    assert_reported(&errors, &["4100x4100", "exceeds"]);
     // Every frame of the episode scored as offline.
     assert_same_scores(&scores, &offline(&f.setup, &path));
     let text = metrics_text(server.rest_addr).await;
@@ -249,16 +242,8 @@ async fn joint_states_without_images_stay_within_the_window_and_the_cap() {
     flood.extend((1..1400).map(|i| joint_state(i * 1_000_000, 100)));
     let (events, tx, _inbound) = send_and_sync(server2.grpc_addr, flood).await;
     let errors = message_errors(&events);
-    assert!(
-        errors
-            .iter()
-            .any(|e| e.contains("5000 joints") && e.contains("max_joints")),
-        "{errors:?}"
-    );
-    assert!(
-        errors.iter().any(|e| e.contains("max_joint_buffer_bytes")),
-        "{errors:?}"
-    );
+    assert_reported(&errors, &["5000 joints", "max_joints"]);
+    assert_reported(&errors, &["max_joint_buffer_bytes"]);
     let used = metric(
         &metrics_text(server2.rest_addr).await,
         "vamos_memory_budget_used_bytes",
@@ -560,14 +545,8 @@ async fn an_adversarial_barrage_leaves_a_live_server_small_and_scoring() {
     );
     let (_, events, _) = flood.await.unwrap();
     let errors = message_errors(&events);
-    assert!(
-        errors.iter().any(|e| e.contains("100000 joints")),
-        "{errors:?}"
-    );
-    assert!(
-        errors.iter().any(|e| e.contains("max_joint_buffer_bytes")),
-        "{errors:?}"
-    );
+    assert_reported(&errors, &["100000 joints"]);
+    assert_reported(&errors, &["max_joint_buffer_bytes"]);
     let (scores, events, end) = robot.await.unwrap();
     assert!(end.is_none(), "{end:?}");
     assert!(message_errors(&events).is_empty(), "{events:?}");

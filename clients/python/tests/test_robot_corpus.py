@@ -3,7 +3,7 @@ collections, example-robot-data (PyPI ``example-robot-data``, the ``test`` extra
 pybullet_data (shipped with ``pybullet``, the ``sim`` extra).
 
 Every URDF must load (exit status 0, one JSON object) except the few listed in
-``REFUSED``, each with the reason (urdfdom, the ROS parser, refuses all but one). What
+``REFUSED``, each with the reason (urdfdom, the ROS parser, refuses them too). What
 vamos drops while loading (an unreadable mesh, a tolerated construct) is a warning in the
 output, not a failure. A listed file that starts loading fails the test too, so the list
 stays true.
@@ -24,13 +24,10 @@ from pathlib import Path
 
 import pytest
 
-#: URDFs vamos refuses (path relative to the collection's root -> why). urdfdom refuses
-#: all of them but alex_psyonic_hands.urdf (urdfdom does not check mimic targets).
+#: URDFs vamos refuses (path relative to the collection's root -> why). (A mimic of a
+#: joint that does not exist, as in alex_psyonic_hands.urdf, loads with a warning.)
 REFUSED: dict[str, dict[str, str]] = {
     "example-robot-data": {
-        "robots/alex_description/urdf/alex_psyonic_hands.urdf":
-            'joint "Left_index_q2" mimics "index_q1", which does not exist (the names lack the '
-            '"Left_" prefix); urdfdom does not check mimic targets, vamos refuses them',
         "robots/ur_description/urdf/ur3.urdf": "an empty <robot> (no links; a xacro left-over)",
     },
     "pybullet_data": {
