@@ -88,10 +88,7 @@ fn scorer(setup: &RobotSetup, model: &Arc<FlowModel>, w: usize, h: usize, preset
         model: Some(model.clone()),
         samples: 0,
         seed: 1,
-        thresholds: Thresholds {
-            e_c: Some(1e9),
-            e_b: Some(1e9),
-        },
+        thresholds: Thresholds::paper(Some(1e9), Some(1e9)),
         alarm_threshold: f64::INFINITY,
         heatmaps: false,
     })

@@ -41,6 +41,7 @@ pub fn run(settings: &Settings, opts: CalibrateOptions) -> Result<()> {
         &holdout,
         opts.alpha,
         model_sha256,
+        &setup.config.clone(),
         |episodes, thresholds| {
             pass += 1;
             let what = if pass == 1 { "training" } else { "held-out" };

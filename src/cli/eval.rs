@@ -225,11 +225,8 @@ fn ablation(
         for level in FusionLevel::ALL {
             let th = match level {
                 FusionLevel::FlowOnly => Thresholds::default(),
-                FusionLevel::FlowBody => Thresholds {
-                    e_c: None,
-                    e_b: calibrated.e_b,
-                },
-                FusionLevel::FlowBodyCamera => calibrated,
+                FusionLevel::FlowBody => Thresholds::paper(None, calibrated.e_b),
+                FusionLevel::FlowBodyCamera => calibrated.clone(),
             };
             let scores: Vec<f64> = components
                 .iter()

@@ -73,7 +73,7 @@ impl ScoreAll for Setup {
                 let heatmaps = run.output.is_some_and(|o| o.mcap);
                 let mut scorer = self.scorer(
                     episode.name(),
-                    run.thresholds,
+                    run.thresholds.clone(),
                     run.alarm_threshold,
                     heatmaps,
                     run.config,

@@ -14,11 +14,20 @@
 //! Only the ordering matters to AUC and to thresholds on the fused score; values stay
 //! finite, so they survive JSON. Plots of scores want a log axis.
 //!
+//! `fusion = "calibrated"` ([`Fusion::Calibrated`], [`fuse_calibrated`]): every detector's
+//! value becomes its nominal-calibrated score `(e - median) / spread`
+//! ([`super::nominal::Scale`], fitted on training frames: 0 at the nominal median, 1 at
+//! the nominal 99th percentile) and the frame's score is the largest of them; the detector
+//! that set it is `triggered`. Every detector ranks frames on its own, also below any
+//! threshold, so a profile without a flow predictor still ranks every frame. Without
+//! fitted scales (before calibration) a detector's raw value stands in.
+//!
 //! Missing components (`None`) never trigger. A NaN e_c or e_b is a failed measurement
 //! and triggers with the capped ratio (a broken frame must not hide); a NaN e_o ranks at
 //! the top of the untriggered band. A NaN threshold never triggers; a threshold <= 0
 //! triggers with ratio 1.
 
+use super::nominal::{CellStats, NominalScales};
 use serde::{Deserialize, Serialize};
 
 /// Lower edge of the triggered band: every triggered score is at least this plus 1
@@ -39,17 +48,61 @@ pub enum Detector {
     Body,
     /// Flow-prediction error e_o (the score when no threshold was reached).
     Flow,
+    /// Scene-motion residual e_r (calibrated fusion only).
+    Scene,
 }
 
-/// Per-component thresholds (the paper: maxima over the training episodes); `None`
-/// disables that detector.
-#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+/// How the detectors' values become one score.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Fusion {
+    /// The paper: e_o, or the triggered band when e_c or e_b passes its training maximum.
+    #[default]
+    Paper,
+    /// The largest nominal-calibrated detector score (see the module doc).
+    Calibrated,
+}
+
+/// The detector values of one frame (`None`: not computed).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Components {
+    /// Camera-motion error.
+    pub e_c: Option<f64>,
+    /// Body-motion error.
+    pub e_b: Option<f64>,
+    /// Scene-motion residual.
+    pub e_r: Option<f64>,
+    /// Flow-prediction error.
+    pub e_o: Option<f64>,
+}
+
+/// What a scorer takes from the calibration: the paper's per-component thresholds
+/// (maxima over the training episodes; `None` disables that trigger), the detectors'
+/// nominal scales (calibrated fusion) and the scene residual's per-cell statistics.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Thresholds {
     /// Threshold on e_c (pixels at processing resolution, as e_c itself).
     pub e_c: Option<f64>,
     /// Threshold on e_b (pixels, as e_b itself).
     pub e_b: Option<f64>,
+    /// Nominal scale of each detector (calibrated fusion).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub scales: Option<NominalScales>,
+    /// Per-cell nominal statistics of the scene residual.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub scene: Option<CellStats>,
+}
+
+impl Thresholds {
+    /// The paper's two thresholds only.
+    pub fn paper(e_c: Option<f64>, e_b: Option<f64>) -> Thresholds {
+        Thresholds {
+            e_c,
+            e_b,
+            ..Thresholds::default()
+        }
+    }
 }
 
 /// A fused score and where it came from.
@@ -87,7 +140,54 @@ fn overshoot(value: Option<f64>, threshold: Option<f64>) -> Option<f64> {
     Some(ratio.min(RATIO_CAP))
 }
 
-/// Fuse the three errors of one frame into its anomaly score (see the module doc).
+/// The fused score of one frame under `fusion` (see the module doc).
+pub fn fuse_frame(c: &Components, thresholds: &Thresholds, fusion: Fusion) -> Fused {
+    match fusion {
+        Fusion::Paper => fuse(c.e_c, c.e_b, c.e_o, thresholds),
+        Fusion::Calibrated => fuse_calibrated(c, thresholds.scales.as_ref()),
+    }
+}
+
+/// The calibrated fusion: the largest nominal-calibrated detector score, clamped to
+/// `+-RATIO_CAP`; NaN values (failed measurements) score `RATIO_CAP`. Score 0 and no
+/// detector when no component is there.
+pub fn fuse_calibrated(c: &Components, scales: Option<&NominalScales>) -> Fused {
+    let s = scales.copied().unwrap_or_default();
+    let parts = [
+        (Detector::Camera, c.e_c, s.e_c),
+        (Detector::Body, c.e_b, s.e_b),
+        (Detector::Scene, c.e_r, s.e_r),
+        (Detector::Flow, c.e_o, s.e_o),
+    ];
+    let mut best: Option<(Detector, f64)> = None;
+    for (detector, value, scale) in parts {
+        let Some(v) = value else { continue };
+        let z = match scale {
+            Some(scale) => scale.score(v),
+            None => v,
+        };
+        let z = if z.is_nan() {
+            RATIO_CAP
+        } else {
+            z.clamp(-RATIO_CAP, RATIO_CAP)
+        };
+        if best.is_none_or(|(_, b)| z > b) {
+            best = Some((detector, z));
+        }
+    }
+    match best {
+        Some((detector, score)) => Fused {
+            score,
+            triggered: Some(detector),
+        },
+        None => Fused {
+            score: 0.0,
+            triggered: None,
+        },
+    }
+}
+
+/// The paper's fusion of three errors of one frame (see the module doc).
 pub fn fuse(
     e_c: Option<f64>,
     e_b: Option<f64>,
@@ -132,7 +232,59 @@ mod tests {
     const T: Thresholds = Thresholds {
         e_c: Some(2.0),
         e_b: Some(4.0),
+        scales: None,
+        scene: None,
     };
+
+    #[test]
+    fn calibrated_fusion_takes_the_largest_calibrated_score() {
+        use crate::eval::nominal::Scale;
+        let scales = NominalScales {
+            e_c: Some(Scale {
+                location: 1.0,
+                spread: 2.0,
+            }),
+            e_b: None,
+            e_r: Some(Scale {
+                location: 0.5,
+                spread: 0.5,
+            }),
+            e_o: None,
+        };
+        let c = Components {
+            e_c: Some(4.0),
+            e_b: Some(0.2),
+            e_r: Some(2.0),
+            e_o: None,
+        };
+        // e_c: 1.5; e_b: raw 0.2 (no scale); e_r: 3.0.
+        let f = fuse_calibrated(&c, Some(&scales));
+        assert_eq!((f.triggered, f.score), (Some(Detector::Scene), 3.0));
+        let th = Thresholds {
+            scales: Some(scales),
+            ..T
+        };
+        assert_eq!(fuse_frame(&c, &th, Fusion::Calibrated), f);
+        assert_eq!(
+            fuse_frame(&c, &th, Fusion::Paper),
+            fuse(c.e_c, c.e_b, c.e_o, &th)
+        );
+        let broken = Components {
+            e_c: Some(f64::NAN),
+            ..c
+        };
+        assert_eq!(fuse_calibrated(&broken, Some(&scales)).score, RATIO_CAP);
+        assert_eq!(
+            fuse_calibrated(&Components::default(), None).triggered,
+            None
+        );
+        // Below the median a score is negative and still ranks.
+        let low = Components {
+            e_r: Some(0.25),
+            ..Components::default()
+        };
+        assert_eq!(fuse_calibrated(&low, Some(&scales)).score, -0.5);
+    }
 
     #[test]
     fn hand_cases() {
@@ -179,15 +331,9 @@ mod tests {
             (f.triggered, f.score),
             (Some(Detector::Flow), UNTRIGGERED_MAX)
         );
-        let nan_threshold = Thresholds {
-            e_c: Some(f64::NAN),
-            e_b: None,
-        };
+        let nan_threshold = Thresholds::paper(Some(f64::NAN), None);
         assert!(!fuse(Some(9.0), None, Some(0.1), &nan_threshold).is_triggered());
-        let zero = Thresholds {
-            e_c: Some(0.0),
-            e_b: None,
-        };
+        let zero = Thresholds::paper(Some(0.0), None);
         assert_eq!(fuse(Some(0.0), None, None, &zero).score, TRIGGER_BASE + 1.0);
     }
 
@@ -205,7 +351,7 @@ mod tests {
 
     fn thresholds() -> impl Strategy<Value = Thresholds> {
         let one = prop_oneof![Just(None), (0.0..20.0f64).prop_map(Some)];
-        (one.clone(), one).prop_map(|(e_c, e_b)| Thresholds { e_c, e_b })
+        (one.clone(), one).prop_map(|(e_c, e_b)| Thresholds::paper(e_c, e_b))
     }
 
     proptest! {

@@ -16,6 +16,7 @@ mod calibrate;
 mod episodes;
 mod fuse;
 mod metrics;
+pub mod nominal;
 pub mod plot;
 
 pub use ablation::{AblationTable, AucPair, FusionLevel};
@@ -26,8 +27,12 @@ pub use episodes::{
     EpisodeOutcome, EvalReport, TypeReport, UNTYPED_ANOMALY, episode_false_alarm_rate,
     episode_outcomes, evaluate, pre_onset_false_alarm_rate,
 };
-pub use fuse::{Detector, Fused, RATIO_CAP, TRIGGER_BASE, Thresholds, UNTRIGGERED_MAX, fuse};
+pub use fuse::{
+    Components, Detector, Fused, Fusion, RATIO_CAP, TRIGGER_BASE, Thresholds, UNTRIGGERED_MAX,
+    fuse, fuse_calibrated, fuse_frame,
+};
 pub use metrics::{PrPoint, RocPoint, average_precision, pr_curve, roc_auc, roc_curve};
+pub use nominal::{CellStats, NominalScales, Pooling, Scale, pool_cells};
 
 use std::path::PathBuf;
 

@@ -205,6 +205,9 @@ pub struct ProcessedFrame {
     pub network_valid: Option<Vec<bool>>,
     /// Wall time of each stage of this push.
     pub timings: FrontEndTimings,
+    /// The previous frame as the flow saw it (processing resolution, equalised if
+    /// configured): the source grid of `flow`.
+    pub previous_image: GrayImage,
 }
 
 /// Wall time of the front end's stages for one frame, microseconds.
@@ -230,6 +233,8 @@ pub struct FrameProcessor {
     network: NetworkInputParams,
     flow: FlowEstimator,
     registrar: Registrar,
+    /// The last pushed frame, prepared.
+    last: Option<GrayImage>,
 }
 
 impl FrameProcessor {
@@ -246,6 +251,7 @@ impl FrameProcessor {
             network,
             flow: FlowEstimator::new(flow)?,
             registrar: Registrar::new(registration)?,
+            last: None,
         })
     }
 
@@ -258,6 +264,7 @@ impl FrameProcessor {
     pub fn reset(&mut self) {
         self.flow.reset();
         self.registrar.reset();
+        self.last = None;
     }
 
     /// The gray image at the processing resolution, equalised if configured.
@@ -313,11 +320,15 @@ impl FrameProcessor {
                 // Keep both streams in step: the registrar saw this frame, the flow did
                 // not, so start both afresh from this frame's successor.
                 self.registrar.reset();
+                self.last = None;
                 return Err(e.into());
             }
         };
         timings.flow_us = micros_since(start);
-        let (Some(flow), Some(registration)) = (flow, registration) else {
+        let previous_image = self.last.replace(frame);
+        let (Some(flow), Some(registration), Some(previous_image)) =
+            (flow, registration, previous_image)
+        else {
             return Ok(None);
         };
         let start = Instant::now();
@@ -339,6 +350,7 @@ impl FrameProcessor {
             network_input,
             network_valid,
             timings,
+            previous_image,
         }))
     }
 }

@@ -12,11 +12,13 @@
 //! - [`calibration`]: thresholds from nominal episodes (`vamos calibrate`, service jobs).
 //! - [`dataset`]: the training dataset (`docs/model-bundle.md`) written from processed frames.
 
+pub mod attach;
 pub mod calibration;
 pub mod dataset;
 pub mod frames;
 pub mod offline;
 pub mod profile;
+pub mod residual;
 pub mod scorer;
 
 pub use frames::{
@@ -28,6 +30,9 @@ pub use scorer::{
     FrameInput, FrameScore, JointInput, RobotSetup, Scorer, ScorerError, ScorerParts, StageTimings,
 };
 
+pub use residual::{BodyError, ResidualParams};
+
+use crate::eval::Fusion;
 use crate::robot::camera_motion::{CameraErrorWeights, CameraMotionParams};
 use serde::{Deserialize, Serialize};
 
@@ -45,6 +50,13 @@ pub struct PipelineConfig {
     pub camera_error: CameraErrorWeights,
     /// Which detectors contribute to the score (the paper's ablation columns).
     pub detectors: DetectorSwitches,
+    /// The scene and body residuals.
+    pub residual: ResidualParams,
+    /// Shapes attached to the robot's links (rendered and masked with the body).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub attach: Vec<attach::Attachment>,
+    /// How the detectors become one score (`paper` or `calibrated`).
+    pub fusion: Fusion,
     /// Smallest past offset A (processed frames); absent = the model bundle's.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub offset_a: Option<usize>,
@@ -68,6 +80,8 @@ pub struct DetectorSwitches {
     pub body: bool,
     /// Flow-prediction error `e_o`.
     pub flow: bool,
+    /// Scene-motion residual `e_r`.
+    pub scene: bool,
 }
 
 impl Default for DetectorSwitches {
@@ -76,6 +90,7 @@ impl Default for DetectorSwitches {
             camera: true,
             body: true,
             flow: true,
+            scene: true,
         }
     }
 }
@@ -89,6 +104,7 @@ impl PipelineConfig {
     /// uses it.
     pub fn check_limits(&self) -> Result<(), String> {
         self.frames.validate().map_err(|e| e.to_string())?;
+        self.residual.validate()?;
         let max = crate::model::predictor::MAX_PAST_OFFSET;
         for (name, value) in [("offset_a", self.offset_a), ("offset_b", self.offset_b)] {
             if let Some(v) = value
@@ -119,6 +135,9 @@ impl Default for PipelineConfig {
             camera_motion: CameraMotionParams::default(),
             camera_error: CameraErrorWeights::default(),
             detectors: DetectorSwitches::default(),
+            residual: ResidualParams::default(),
+            attach: Vec::new(),
+            fusion: Fusion::default(),
             offset_a: None,
             offset_b: None,
             samples: None,

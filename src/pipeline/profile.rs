@@ -129,10 +129,13 @@ impl ThresholdOverrides {
     /// The `e_c`/`e_b` thresholds in force: the calibration's (none without one), each
     /// replaced by its override when given.
     pub fn thresholds(&self, calibration: Option<&Calibration>) -> Thresholds {
-        let calibrated = calibration.map(|c| c.thresholds).unwrap_or_default();
+        let calibrated = calibration
+            .map(|c| c.thresholds.clone())
+            .unwrap_or_default();
         Thresholds {
             e_c: self.e_c.or(calibrated.e_c),
             e_b: self.e_b.or(calibrated.e_b),
+            ..calibrated
         }
     }
 
@@ -336,10 +339,7 @@ mod tests {
             training_episodes: vec!["a".into()],
             calibration_episodes: vec![],
             training_frames: 10,
-            thresholds: Thresholds {
-                e_c: Some(2.0),
-                e_b: None,
-            },
+            thresholds: Thresholds::paper(Some(2.0), None),
             score_max: 0.5,
             conformal: None,
         };
@@ -366,13 +366,7 @@ mod tests {
         .unwrap();
         let mut p = Profile::load(&path).unwrap();
         // Before calibration: only the overrides.
-        assert_eq!(
-            p.thresholds(),
-            Thresholds {
-                e_c: None,
-                e_b: Some(7.5)
-            }
-        );
+        assert_eq!(p.thresholds(), Thresholds::paper(None, Some(7.5)));
         assert_eq!(p.alarm_threshold(), 0.25);
         p.calibration = Some(Calibration {
             created_unix_s: 1,
@@ -380,19 +374,13 @@ mod tests {
             training_episodes: vec![],
             calibration_episodes: vec![],
             training_frames: 0,
-            thresholds: Thresholds {
-                e_c: Some(2.0),
-                e_b: Some(3.0),
-            },
+            thresholds: Thresholds::paper(Some(2.0), Some(3.0)),
             score_max: 0.5,
             conformal: None,
         });
         assert_eq!(
             p.thresholds(),
-            Thresholds {
-                e_c: Some(2.0),
-                e_b: Some(7.5)
-            },
+            Thresholds::paper(Some(2.0), Some(7.5)),
             "e_c calibrated, e_b overridden"
         );
         assert_eq!(p.alarm_threshold(), 0.25);

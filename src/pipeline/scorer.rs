@@ -11,8 +11,11 @@
 //! 4. the visual front end ([`FrameProcessor`]): TV-L1 flow, Fourier-Mellin registration
 //!    with the body masked out, the flow variant, the 64x64 network input;
 //! 5. `e_c` (expected camera motion from the two camera poses vs. the registration),
-//!    `e_b` (median body flow, expected vs. observed), `e_o` (the flow predictor);
-//! 6. the fused score ([`crate::eval::fuse`]) and the alarm flag.
+//!    `e_b` (body flow, expected vs. observed: the paper's medians or the per-pixel
+//!    quantile), `e_r` (the scene-motion residual outside the robot, [`super::residual`]),
+//!    `e_o` (the flow predictor);
+//! 6. the fused score ([`crate::eval::fuse_frame`], `paper` or `calibrated`) and the alarm
+//!    flag.
 //!
 //! A component that cannot be computed for a frame is `None`, never a made-up number:
 //! no joint states (no `e_c`, no `e_b`), robot not in view (no `e_b`), first processed
@@ -26,17 +29,20 @@
 //! goes on from the last good one.
 
 use super::frames::{FrameProcessor, FrontEndTimings, PipelineError, ProcessedFrame};
+use super::residual::{self, BodyError};
 use super::{DetectorSwitches, PipelineConfig};
-use crate::eval::{Detector, Thresholds, fuse};
+use crate::eval::{Components, Detector, Pooling, Thresholds, fuse_frame, pool_cells};
 use crate::model::predictor::{Prediction, Predictor, PredictorParams};
 use crate::model::{FlowModel, ModelError};
-use crate::robot::camera_motion::{Depth, camera_motion_error, expected_camera_motion};
+use crate::robot::camera_motion::{
+    Depth, camera_motion_error, expected_camera_motion, expected_image_flow, similarity_flow,
+};
 use crate::robot::render::{BodyRenderer, RenderConfig, RenderFrame, RenderOutput, RobotView};
 use crate::robot::{CameraMount, Intrinsics, JointMapper, Robot};
-use crate::vision::GrayImage;
 use crate::vision::flow::FlowParams;
 use crate::vision::preprocess::NetworkInputParams;
 use crate::vision::registration::RegistrationParams;
+use crate::vision::{FlowField, GrayImage};
 use nalgebra::Isometry3;
 use serde::Serialize;
 use std::sync::Arc;
@@ -118,6 +124,8 @@ pub struct StageTimings {
     pub camera_us: u64,
     /// `e_b`.
     pub body_us: u64,
+    /// `e_r` (expected image flow, residual cells, pooling).
+    pub scene_us: u64,
     /// The flow predictor (encoder + head).
     pub model_us: u64,
     /// The whole push.
@@ -141,6 +149,9 @@ pub struct FrameScore {
     pub e_b: Option<f64>,
     /// Flow-prediction error (mean squared error in network-input units).
     pub e_o: Option<f64>,
+    /// Scene-motion residual: the pooled, nominal-normalised residual of the static
+    /// scene (raw pixels before calibration).
+    pub e_r: Option<f64>,
     /// The alarm: `score` reached the alarm threshold.
     pub anomaly: bool,
     /// Which detector's threshold the frame crossed, if any.
@@ -158,6 +169,13 @@ pub struct FrameScore {
     /// `[S, S]` squared prediction error of the best prediction (when heatmaps are on).
     #[serde(skip)]
     pub heatmap: Option<Vec<f32>>,
+    /// The scene residual per cell, pixels, before normalisation (what calibration fits
+    /// its per-cell statistics on); row-major, `scene_grid` cells.
+    #[serde(skip)]
+    pub scene_cells: Option<Vec<f32>>,
+    /// `(columns, rows)` of `scene_cells`.
+    #[serde(skip)]
+    pub scene_grid: (usize, usize),
 }
 
 /// The state that moves the robot and renders it.
@@ -168,6 +186,8 @@ struct BodyState {
     out: RenderOutput,
     /// Previous processed frame: `base_from_link` and `camera_from_base`.
     previous: Option<(Vec<Isometry3<f64>>, Isometry3<f64>)>,
+    /// The previous processed frame's body mask (empty when it had none).
+    previous_mask: Vec<bool>,
 }
 
 /// The detector of one stream (a session or an episode); see the module docs.
@@ -183,6 +203,8 @@ pub struct Scorer {
     frames: u64,
     last_stamp_ns: Option<i64>,
     warned_no_joints: bool,
+    /// The expected image flow of the current frame (reused buffer).
+    expected_flow: FlowField,
 }
 
 /// What a [`Scorer`] is built from.
@@ -234,6 +256,7 @@ impl Scorer {
         if config.stride == 0 {
             return Err(ScorerError::Config("stride must be at least 1".into()));
         }
+        config.residual.validate().map_err(ScorerError::Config)?;
         if config.frames.variant.is_masked() && robot.is_none() {
             return Err(ScorerError::Config(format!(
                 "flow variant {} masks the robot body: the profile needs a robot",
@@ -266,8 +289,13 @@ impl Scorer {
             Some(setup) => {
                 let mut renderer = crate::robot::render::create_renderer(&render)
                     .map_err(|e| ScorerError::Robot(e.to_string()))?;
+                let meshes = if config.attach.is_empty() {
+                    setup.robot.link_meshes().to_vec()
+                } else {
+                    super::attach::meshes_with_attachments(&setup.robot, &config.attach).0
+                };
                 renderer
-                    .prepare(setup.robot.link_meshes())
+                    .prepare(&meshes)
                     .map_err(|e| ScorerError::Robot(e.to_string()))?;
                 Some(BodyState {
                     mapper: setup.robot.joint_mapper(),
@@ -275,6 +303,7 @@ impl Scorer {
                     renderer,
                     out: RenderOutput::default(),
                     previous: None,
+                    previous_mask: Vec::new(),
                 })
             }
             None => None,
@@ -292,6 +321,7 @@ impl Scorer {
             frames: 0,
             last_stamp_ns: None,
             warned_no_joints: false,
+            expected_flow: FlowField::zeros(0, 0),
         })
     }
 
@@ -307,6 +337,7 @@ impl Scorer {
             camera: self.config.detectors.camera && self.body.is_some(),
             body: self.config.detectors.body && self.body.is_some(),
             flow: self.predictor.is_some(),
+            scene: self.config.detectors.scene,
         }
     }
 
@@ -325,6 +356,7 @@ impl Scorer {
         self.processor.reset();
         if let Some(b) = &mut self.body {
             b.previous = None;
+            b.previous_mask.clear();
         }
         if let Some(p) = &mut self.predictor {
             p.reset();
@@ -434,13 +466,17 @@ impl Scorer {
         let processed = self.processor.push(input.image, mask)?;
         let frame = self.frames;
         self.frames += 1;
-        let previous_pose = match &mut self.body {
+        let (previous_pose, previous_mask) = match &mut self.body {
             Some(body) => {
                 let previous = body.previous.take();
                 body.previous = pose.clone();
-                previous
+                let previous_mask = std::mem::take(&mut body.previous_mask);
+                if intrinsics.is_some() {
+                    body.previous_mask.clone_from(&body.out.mask);
+                }
+                (previous, previous_mask)
             }
-            None => None,
+            None => (None, Vec::new()),
         };
         let Some(processed) = processed else {
             timings.total_us = micros(start);
@@ -452,6 +488,7 @@ impl Scorer {
                 e_c: None,
                 e_b: None,
                 e_o: None,
+                e_r: None,
                 anomaly: false,
                 triggered: None,
                 warming_up: true,
@@ -460,6 +497,8 @@ impl Scorer {
                 body_pixels,
                 timings,
                 heatmap: None,
+                scene_cells: None,
+                scene_grid: (0, 0),
             }));
         };
         timings.front_end = processed.timings;
@@ -489,23 +528,97 @@ impl Scorer {
         let t0 = Instant::now();
         let e_b = match (&self.body, &previous_pose, &intrinsics) {
             (Some(body), Some(_), Some(_)) if self.config.detectors.body => {
-                let m = crate::robot::body_motion::body_motion_error(
-                    &body.out.flow,
-                    &processed.flow,
-                    &body.out.mask,
-                )
-                .map_err(|e| ScorerError::Robot(e.to_string()))?;
-                m.body_visible.then_some(m.e_b_px)
+                match self.config.residual.body_error {
+                    BodyError::Median => {
+                        let m = crate::robot::body_motion::body_motion_error(
+                            &body.out.flow,
+                            &processed.flow,
+                            &body.out.mask,
+                        )
+                        .map_err(|e| ScorerError::Robot(e.to_string()))?;
+                        m.body_visible.then_some(m.e_b_px)
+                    }
+                    BodyError::Quantile => residual::body_residual(
+                        &body.out.flow,
+                        &body.out.mask,
+                        &processed.flow,
+                        self.config.residual.body_quantile,
+                        self.config.residual.moving_px,
+                    ),
+                }
             }
             _ => None,
         };
         timings.body_us = micros(t0);
 
         let t0 = Instant::now();
+        let (e_r, scene_cells, scene_grid) = if self.config.detectors.scene {
+            // The expected motion of the static scene: from the camera poses when both
+            // frames have one, else the registered similarity.
+            match (&pose, &previous_pose, &intrinsics) {
+                (Some((_, current)), Some((_, previous)), Some(k)) => expected_image_flow(
+                    previous,
+                    current,
+                    k,
+                    self.config.camera_motion.assumed_depth_m,
+                    &mut self.expected_flow,
+                )
+                .map_err(|e| ScorerError::Robot(e.to_string()))?,
+                _ => similarity_flow(
+                    &processed.registration.transform,
+                    w,
+                    h,
+                    &mut self.expected_flow,
+                ),
+            }
+            let (current_mask, motion_px) = match (&self.body, &intrinsics) {
+                (Some(body), Some(_)) => (
+                    body.out.mask.as_slice(),
+                    residual::body_motion_px(&body.out.flow, &body.out.mask),
+                ),
+                _ => (&[][..], 0.0),
+            };
+            let margin = self.config.residual.margin_px
+                + (self.config.residual.motion_margin * motion_px)
+                    .ceil()
+                    .min(64.0) as usize;
+            let exclude = residual::grow_union(current_mask, &previous_mask, w, h, margin);
+            let cells = residual::scene_cells(
+                &processed.flow,
+                &self.expected_flow,
+                &exclude,
+                self.config.residual.cell_px,
+                self.config
+                    .residual
+                    .normal_flow
+                    .then_some(&processed.previous_image),
+            );
+            let (columns, rows) = residual::cell_grid(w, h, self.config.residual.cell_px);
+            let e_r = pool_cells(
+                &cells,
+                columns,
+                rows,
+                self.thresholds.scene.as_ref(),
+                Pooling {
+                    top_fraction: self.config.residual.top_fraction,
+                },
+                None,
+            );
+            (e_r, Some(cells), (columns, rows))
+        } else {
+            (None, None, (0, 0))
+        };
+        timings.scene_us = micros(t0);
+
+        let t0 = Instant::now();
         let (e_o, best_offset, heatmap, warming_up) = self.predict(&processed)?;
         timings.model_us = micros(t0);
 
-        let fused = fuse(e_c, e_b, e_o, &self.thresholds);
+        let fused = fuse_frame(
+            &Components { e_c, e_b, e_r, e_o },
+            &self.thresholds,
+            self.config.fusion,
+        );
         timings.total_us = micros(start);
         Ok(Some(FrameScore {
             index,
@@ -515,6 +628,7 @@ impl Scorer {
             e_c,
             e_b,
             e_o,
+            e_r,
             anomaly: fused.score >= self.alarm_threshold,
             triggered: fused.triggered,
             warming_up,
@@ -523,6 +637,8 @@ impl Scorer {
             body_pixels,
             timings,
             heatmap,
+            scene_cells,
+            scene_grid,
         }))
     }
 

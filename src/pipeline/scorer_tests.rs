@@ -143,10 +143,7 @@ fn run(
 #[test]
 fn nominal_pan_gives_small_errors_and_no_trigger() {
     let setup = setup();
-    let thresholds = Thresholds {
-        e_c: Some(0.8),
-        e_b: None,
-    };
+    let thresholds = Thresholds::paper(Some(0.8), None);
     let mut s = scorer(Some(setup.clone()), thresholds, 1);
     let step = 0.01;
     let scores = run(&mut s, &setup, 5, step, |k| step * k as f64);
@@ -172,10 +169,7 @@ fn nominal_pan_gives_small_errors_and_no_trigger() {
 #[test]
 fn motion_the_joints_do_not_show_triggers_the_camera_detector() {
     let setup = setup();
-    let thresholds = Thresholds {
-        e_c: Some(0.8),
-        e_b: None,
-    };
+    let thresholds = Thresholds::paper(Some(0.8), None);
     let mut s = scorer(Some(setup.clone()), thresholds, 1);
     let step = 0.01;
     let (sx, sy) = expected_shift(&setup, 0.0, step);
@@ -273,4 +267,113 @@ fn masked_variant_needs_a_robot_and_bad_joints_are_errors() {
         })
         .unwrap_err();
     assert!(matches!(e, ScorerError::Robot(_)), "{e}");
+}
+
+#[test]
+fn a_small_object_falling_in_the_static_scene_shows_in_e_r() {
+    let setup = setup();
+    let mut s = scorer(Some(setup.clone()), Thresholds::paper(Some(0.8), None), 1);
+    let (texture, object) = (Texture::random(11), Texture::random(5));
+    let step = 0.01;
+    let names = names();
+    let mut scores = Vec::new();
+    for k in 0..8usize {
+        let (sx, sy) = expected_shift(&setup, 0.0, step * k as f64);
+        // A 24x24 px object right of the box (two cells by two: the scene residual needs a
+        // whole 2x2 block of cells to move), falling 3 px per frame from frame 5 on.
+        let drop = 3.0 * k.saturating_sub(4) as f64;
+        let image = GrayImage::from_fn(W, H, |x, y| {
+            let (u, v) = (x as f64 - sx, y as f64 - sy);
+            let (ou, ov) = (u - 110.0, v - 30.0 - drop);
+            if (0.0..24.0).contains(&ou) && (0.0..24.0).contains(&ov) {
+                (255.0 - object.eval(ou * 2.0, ov * 2.0)) as f32
+            } else {
+                texture.eval(u, v) as f32
+            }
+        });
+        let q = [step * k as f64];
+        let f = s
+            .push(&FrameInput {
+                stamp_ns: k as i64 * 100_000_000,
+                image: &image,
+                joints: Some(JointInput {
+                    names: &names,
+                    positions: &q,
+                }),
+                intrinsics: None,
+            })
+            .unwrap()
+            .unwrap();
+        scores.push(f);
+    }
+    let e_r = |k: usize| scores[k].e_r.expect("scene residual");
+    let nominal = (1..5).map(e_r).fold(0.0, f64::max);
+    let falling = (5..8).map(e_r).fold(f64::INFINITY, f64::min);
+    assert!(
+        falling > 2.0 * nominal,
+        "falling object e_r {falling} vs nominal max {nominal}"
+    );
+    // The cells keep where it happened: the block of 2x2 cells whose smallest value is the
+    // largest (what e_r pools) lies on the object.
+    let f = &scores[6];
+    let (columns, rows) = f.scene_grid;
+    let cells = f.scene_cells.as_ref().unwrap();
+    let mut best = (f32::MIN, 0, 0);
+    for r in 0..rows - 1 {
+        for c in 0..columns - 1 {
+            let block = [
+                cells[r * columns + c],
+                cells[r * columns + c + 1],
+                cells[(r + 1) * columns + c],
+                cells[(r + 1) * columns + c + 1],
+            ];
+            let m = block.iter().copied().fold(f32::INFINITY, f32::min);
+            if m.is_finite() && m > best.0 {
+                best = (m, c, r);
+            }
+        }
+    }
+    let (cx, cy) = (best.1 * 8 + 8, best.2 * 8 + 8);
+    assert!(
+        (100..148).contains(&cx) && (24..72).contains(&cy),
+        "worst block at ({cx}, {cy})"
+    );
+    // The paper's camera and body detectors do not see it.
+    assert!(scores[5..].iter().all(|f| f.e_c.unwrap() < 0.8));
+}
+
+#[test]
+fn the_expected_image_flow_of_a_pan_is_the_rotation_homography() {
+    let setup = setup();
+    let pose = |q: f64| {
+        let q = setup
+            .robot
+            .joint_mapper()
+            .map(&names(), &[q])
+            .unwrap()
+            .positions;
+        let links = setup.robot.forward(&q).unwrap();
+        setup.mount.camera_from_base(&links).unwrap()
+    };
+    let k = setup.intrinsics.unwrap();
+    let mut flow = FlowField::zeros(0, 0);
+    expected_image_flow(&pose(0.0), &pose(0.02), &k, 1.0, &mut flow).unwrap();
+    assert_eq!(flow.size(), (W, H));
+    // A pure rotation: the depth does not matter.
+    let mut far = FlowField::zeros(0, 0);
+    expected_image_flow(&pose(0.0), &pose(0.02), &k, 50.0, &mut far).unwrap();
+    for (a, b) in flow.u.iter().zip(&far.u) {
+        assert!((a - b).abs() < 1e-4);
+    }
+    // Near the centre the flow is the shift the similarity fit predicts; towards the edges
+    // a pan moves pixels further (f / cos^2).
+    let (sx, _) = expected_shift(&setup, 0.0, 0.02);
+    let centre = flow.get(W / 2, H / 2).0 as f64;
+    assert!((centre - sx).abs() < 0.1 * sx.abs(), "{centre} vs {sx}");
+    let edge = flow.get(0, H / 2).0 as f64;
+    assert!(edge.abs() > centre.abs() * 1.1, "{edge} vs {centre}");
+    assert!(
+        expected_image_flow(&pose(0.0), &pose(0.02), &k, 0.0, &mut flow).is_err(),
+        "depth 0"
+    );
 }

@@ -15,6 +15,7 @@
 //! registers it and checks the two agree.
 
 use super::camera::Intrinsics;
+use crate::vision::FlowField;
 use crate::vision::registration::Similarity;
 use nalgebra::{Isometry3, Point2, Point3};
 use serde::{Deserialize, Serialize};
@@ -102,6 +103,86 @@ pub struct ExpectedCameraMotion {
     pub residual_rms_px: f64,
     /// Grid points used in the fit.
     pub points: usize,
+}
+
+/// The expected flow `t-1 -> t` of every static pixel of frame `t-1` (the source grid,
+/// as TV-L1 indexes its output) from the two camera poses (`camera_from_base`, optical):
+/// the pixel's ray at `depth_m` along the optical axis carried into the current camera
+/// and projected. The rotation part is exact whatever the depth (`K R K^-1`); only the
+/// translation part depends on it. A point that ends behind the camera gets NaN. `out`
+/// is resized to the intrinsics' size.
+pub fn expected_image_flow(
+    previous_camera_from_base: &Isometry3<f64>,
+    current_camera_from_base: &Isometry3<f64>,
+    intrinsics: &Intrinsics,
+    depth_m: f64,
+    out: &mut FlowField,
+) -> Result<(), CameraMotionError> {
+    if !(depth_m.is_finite() && depth_m > 0.0) {
+        return Err(CameraMotionError::InvalidParams {
+            name: "assumed_depth_m",
+            value: depth_m,
+            reason: "must be a finite depth > 0",
+        });
+    }
+    for (which, pose) in [
+        ("previous", previous_camera_from_base),
+        ("current", current_camera_from_base),
+    ] {
+        if !is_finite(pose) {
+            return Err(CameraMotionError::NonFinitePose { which });
+        }
+    }
+    let (w, h) = (intrinsics.width as usize, intrinsics.height as usize);
+    if out.size() != (w, h) {
+        *out = FlowField::zeros(w, h);
+    }
+    let current_from_previous = current_camera_from_base * previous_camera_from_base.inverse();
+    let r = current_from_previous
+        .rotation
+        .to_rotation_matrix()
+        .into_inner();
+    let t = current_from_previous.translation.vector;
+    let k = intrinsics;
+    for y in 0..h {
+        let ry = (y as f64 - k.cy) / k.fy;
+        for x in 0..w {
+            let rx = (x as f64 - k.cx) / k.fx;
+            // P' = R (z r) + t, r = (rx, ry, 1).
+            let px = depth_m * (r[(0, 0)] * rx + r[(0, 1)] * ry + r[(0, 2)]) + t.x;
+            let py = depth_m * (r[(1, 0)] * rx + r[(1, 1)] * ry + r[(1, 2)]) + t.y;
+            let pz = depth_m * (r[(2, 0)] * rx + r[(2, 1)] * ry + r[(2, 2)]) + t.z;
+            let i = y * w + x;
+            if pz > 0.0 {
+                out.u[i] = (k.fx * px / pz + k.cx - x as f64) as f32;
+                out.v[i] = (k.fy * py / pz + k.cy - y as f64) as f32;
+            } else {
+                out.u[i] = f32::NAN;
+                out.v[i] = f32::NAN;
+            }
+        }
+    }
+    Ok(())
+}
+
+/// The flow `t-1 -> t` of every pixel under a registered similarity (the image motion
+/// the registration saw), on the source grid; `out` is resized to `width x height`.
+pub fn similarity_flow(transform: &Similarity, width: usize, height: usize, out: &mut FlowField) {
+    if out.size() != (width, height) {
+        *out = FlowField::zeros(width, height);
+    }
+    let centre = ((width as f64 - 1.0) / 2.0, (height as f64 - 1.0) / 2.0);
+    let (s, c) = transform.rotation_deg.to_radians().sin_cos();
+    let sc = transform.scale;
+    for y in 0..height {
+        let dy = y as f64 - centre.1;
+        for x in 0..width {
+            let dx = x as f64 - centre.0;
+            let i = y * width + x;
+            out.u[i] = (sc * (c * dx + s * dy) + transform.tx_px - dx) as f32;
+            out.v[i] = (sc * (-s * dx + c * dy) + transform.ty_px - dy) as f32;
+        }
+    }
 }
 
 /// Predicts the image motion from the camera poses of frames `t-1` (`previous`) and `t`

@@ -1447,6 +1447,7 @@ impl Hub {
             Some(Detector::Camera) => proto::Detector::Camera,
             Some(Detector::Body) => proto::Detector::Body,
             Some(Detector::Flow) => proto::Detector::Flow,
+            Some(Detector::Scene) => proto::Detector::Scene,
             None if score.anomaly => proto::Detector::Flow,
             None => proto::Detector::Unspecified,
         };
@@ -1455,6 +1456,7 @@ impl Hub {
             let label = match detector {
                 proto::Detector::Camera => "camera",
                 proto::Detector::Body => "body",
+                proto::Detector::Scene => "scene",
                 _ => "flow",
             };
             m.anomalies.with_label_values(&[profile, label]).inc();
@@ -1498,6 +1500,7 @@ impl Hub {
             e_c: score.e_c,
             e_b: score.e_b,
             e_o: score.e_o,
+            e_r: score.e_r,
             anomaly: score.anomaly,
             detector: detector as i32,
             warming_up: score.warming_up,

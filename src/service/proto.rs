@@ -13,6 +13,7 @@ pub fn detector_name(code: i32) -> Option<&'static str> {
         Ok(Detector::Camera) => Some("camera"),
         Ok(Detector::Body) => Some("body"),
         Ok(Detector::Flow) => Some("flow"),
+        Ok(Detector::Scene) => Some("scene"),
         _ => None,
     }
 }

@@ -1129,6 +1129,7 @@ fn run_calibration(
         &holdout,
         req.alpha,
         model_sha256,
+        &setup.config,
         |episodes, thresholds| {
             episodes
                 .iter()
@@ -1139,7 +1140,14 @@ fn run_calibration(
                     let what = |e: &dyn std::fmt::Display| format!("{}: {e}", path.display());
                     let episode = McapEpisode::open(path, &setup.episode).map_err(|e| what(&e))?;
                     let mut scorer = setup
-                        .scorer(episode.name(), thresholds, f64::INFINITY, false, None, None)
+                        .scorer(
+                            episode.name(),
+                            thresholds.clone(),
+                            f64::INFINITY,
+                            false,
+                            None,
+                            None,
+                        )
                         .map_err(|e| what(&e))?;
                     score_offline::<EpisodeError>(&mut scorer, &episode, |_, _| Ok(()))
                         .map_err(|e| what(&e))

@@ -63,10 +63,7 @@ fn calibration(model_sha256: Option<String>) -> Calibration {
         training_episodes: vec!["a".into(), "b".into()],
         calibration_episodes: vec!["c".into()],
         training_frames: 120,
-        thresholds: Thresholds {
-            e_c: Some(1.5),
-            e_b: Some(3.25),
-        },
+        thresholds: Thresholds::paper(Some(1.5), Some(3.25)),
         score_max: 0.5,
         conformal: Some(ConformalThreshold {
             threshold: 0.75,
@@ -654,13 +651,7 @@ fn resolved_profiles_load_with_setup_and_see_threshold_overrides() {
     let patch: ThresholdsPatch = serde_json::from_str(r#"{"e_c": 2.5, "alarm": 9.0}"#).unwrap();
     assert_eq!(patch.e_b, None);
     let info = store.patch_thresholds("shelf", patch).unwrap();
-    assert_eq!(
-        info.thresholds,
-        Thresholds {
-            e_c: Some(2.5),
-            e_b: Some(3.25)
-        }
-    );
+    assert_eq!(info.thresholds, Thresholds::paper(Some(2.5), Some(3.25)));
     assert_eq!(info.alarm_threshold, Some(9.0));
     let p = store.resolve_profile("shelf").unwrap().profile;
     assert_eq!(p.thresholds(), info.thresholds);

@@ -13,10 +13,12 @@ class Detector(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
     DETECTOR_CAMERA: _ClassVar[Detector]
     DETECTOR_BODY: _ClassVar[Detector]
     DETECTOR_FLOW: _ClassVar[Detector]
+    DETECTOR_SCENE: _ClassVar[Detector]
 DETECTOR_UNSPECIFIED: Detector
 DETECTOR_CAMERA: Detector
 DETECTOR_BODY: Detector
 DETECTOR_FLOW: Detector
+DETECTOR_SCENE: Detector
 
 class StreamRequest(_message.Message):
     __slots__ = ("open", "image", "joints", "phase")
@@ -109,7 +111,7 @@ class StreamResponse(_message.Message):
     def __init__(self, score: _Optional[_Union[FrameScore, _Mapping]] = ..., event: _Optional[_Union[SessionEvent, _Mapping]] = ...) -> None: ...
 
 class FrameScore(_message.Message):
-    __slots__ = ("stamp_ns", "index", "frame", "score", "e_c", "e_b", "e_o", "anomaly", "detector", "warming_up", "latency_s", "compute_s")
+    __slots__ = ("stamp_ns", "index", "frame", "score", "e_c", "e_b", "e_o", "anomaly", "detector", "warming_up", "latency_s", "compute_s", "e_r")
     STAMP_NS_FIELD_NUMBER: _ClassVar[int]
     INDEX_FIELD_NUMBER: _ClassVar[int]
     FRAME_FIELD_NUMBER: _ClassVar[int]
@@ -122,6 +124,7 @@ class FrameScore(_message.Message):
     WARMING_UP_FIELD_NUMBER: _ClassVar[int]
     LATENCY_S_FIELD_NUMBER: _ClassVar[int]
     COMPUTE_S_FIELD_NUMBER: _ClassVar[int]
+    E_R_FIELD_NUMBER: _ClassVar[int]
     stamp_ns: int
     index: int
     frame: int
@@ -134,7 +137,8 @@ class FrameScore(_message.Message):
     warming_up: bool
     latency_s: float
     compute_s: float
-    def __init__(self, stamp_ns: _Optional[int] = ..., index: _Optional[int] = ..., frame: _Optional[int] = ..., score: _Optional[float] = ..., e_c: _Optional[float] = ..., e_b: _Optional[float] = ..., e_o: _Optional[float] = ..., anomaly: _Optional[bool] = ..., detector: _Optional[_Union[Detector, str]] = ..., warming_up: _Optional[bool] = ..., latency_s: _Optional[float] = ..., compute_s: _Optional[float] = ...) -> None: ...
+    e_r: float
+    def __init__(self, stamp_ns: _Optional[int] = ..., index: _Optional[int] = ..., frame: _Optional[int] = ..., score: _Optional[float] = ..., e_c: _Optional[float] = ..., e_b: _Optional[float] = ..., e_o: _Optional[float] = ..., anomaly: _Optional[bool] = ..., detector: _Optional[_Union[Detector, str]] = ..., warming_up: _Optional[bool] = ..., latency_s: _Optional[float] = ..., compute_s: _Optional[float] = ..., e_r: _Optional[float] = ...) -> None: ...
 
 class SessionEvent(_message.Message):
     __slots__ = ("kind", "session_id", "detail", "stamp_ns", "count")

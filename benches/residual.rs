@@ -1,0 +1,80 @@
+//! The detectors beyond the paper, per frame at 320x240 (issue "detection beyond the
+//! paper"; budget: at most 5 ms per frame on one core): the scene residual `e_r` (expected
+//! image flow from two camera poses, the robot's masks grown, normal-flow residual cells,
+//! nominal normalisation and block pooling) and the per-pixel body residual.
+
+// criterion_group! generates undocumented items.
+#![allow(missing_docs)]
+
+use criterion::{Criterion, criterion_group, criterion_main};
+use nalgebra::{Isometry3, Translation3, UnitQuaternion};
+use std::hint::black_box;
+use vamos::eval::{CellStats, Pooling, pool_cells};
+use vamos::pipeline::residual::{body_residual, cell_grid, grow_union, scene_cells};
+use vamos::robot::Intrinsics;
+use vamos::robot::camera_motion::expected_image_flow;
+use vamos::vision::synthetic::Texture;
+use vamos::vision::{FlowField, GrayImage};
+
+const W: usize = 320;
+const H: usize = 240;
+
+fn bench_residual(c: &mut Criterion) {
+    let k = Intrinsics::from_fov(W as u32, H as u32, 60.0).unwrap();
+    let previous = Isometry3::identity();
+    let current = Isometry3::from_parts(
+        Translation3::new(0.004, -0.002, 0.001),
+        UnitQuaternion::from_euler_angles(0.002, 0.01, -0.003),
+    );
+    let texture = Texture::random(3);
+    let image = GrayImage::from_fn(W, H, |x, y| texture.eval(x as f64, y as f64) as f32);
+    // Observed: the expected motion plus a little noise and a moving patch.
+    let mut expected = FlowField::zeros(0, 0);
+    expected_image_flow(&previous, &current, &k, 1.0, &mut expected).unwrap();
+    let observed = FlowField::from_fn(W, H, |x, y| {
+        let (u, v) = expected.get(x, y);
+        let n = ((x * 7 + y * 13) % 11) as f32 * 0.02;
+        if (200..230).contains(&x) && (40..70).contains(&y) {
+            (u + n, v + 3.0)
+        } else {
+            (u + n, v - n)
+        }
+    });
+    // A robot over the lower left quarter, in both frames.
+    let mask: Vec<bool> = (0..W * H).map(|i| i % W < 140 && i / W > 100).collect();
+    let previous_mask: Vec<bool> = (0..W * H).map(|i| i % W < 136 && i / W > 104).collect();
+    let (columns, rows) = cell_grid(W, H, 8);
+    let nominal: Vec<Vec<f32>> = (0..50)
+        .map(|i| {
+            (0..columns * rows)
+                .map(|c| 0.1 + ((i * 31 + c * 7) % 17) as f32 * 0.01)
+                .collect()
+        })
+        .collect();
+    let refs: Vec<&[f32]> = nominal.iter().map(Vec::as_slice).collect();
+    let stats = CellStats::fit(columns, rows, &refs).unwrap();
+    let pooling = Pooling { top_fraction: 0.01 };
+
+    let mut flow = FlowField::zeros(0, 0);
+    c.bench_function("residual/scene_e_r_320x240", |b| {
+        b.iter(|| {
+            expected_image_flow(&previous, &current, &k, 1.0, &mut flow).unwrap();
+            let exclude = grow_union(&mask, &previous_mask, W, H, 3);
+            let cells = scene_cells(&observed, &flow, &exclude, 8, Some(&image));
+            black_box(pool_cells(&cells, columns, rows, Some(&stats), pooling, None))
+        })
+    });
+    let rendered = FlowField::from_fn(W, H, |x, y| {
+        if mask[y * W + x] {
+            (1.5, -0.5)
+        } else {
+            (f32::NAN, f32::NAN)
+        }
+    });
+    c.bench_function("residual/body_quantile_320x240", |b| {
+        b.iter(|| black_box(body_residual(&rendered, &mask, &observed, 0.9, 0.5)))
+    });
+}
+
+criterion_group!(benches, bench_residual);
+criterion_main!(benches);
