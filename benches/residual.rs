@@ -61,7 +61,14 @@ fn bench_residual(c: &mut Criterion) {
             expected_image_flow(&previous, &current, &k, 1.0, &mut flow).unwrap();
             let exclude = grow_union(&mask, &previous_mask, W, H, 3);
             let cells = scene_cells(&observed, &flow, &exclude, 8, Some(&image));
-            black_box(pool_cells(&cells, columns, rows, Some(&stats), pooling, None))
+            black_box(pool_cells(
+                &cells,
+                columns,
+                rows,
+                Some(&stats),
+                pooling,
+                None,
+            ))
         })
     });
     let rendered = FlowField::from_fn(W, H, |x, y| {

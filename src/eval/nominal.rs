@@ -101,12 +101,12 @@ pub struct CellStats {
     pub columns: usize,
     /// Cells down.
     pub rows: usize,
-    /// Per-cell median of the nominal values.
-    pub location: Vec<f32>,
+    /// Per-cell median of the nominal values (f64: the values survive a JSON round trip).
+    pub location: Vec<f64>,
     /// Per-cell spread ([`CELL_SPREAD_QUANTILE`] minus the median), floored at a quarter
     /// of the grid's median spread so that a cell that never moved in the nominal runs
     /// does not turn sensor noise into a huge score.
-    pub spread: Vec<f32>,
+    pub spread: Vec<f64>,
     /// Nominal maps the statistics come from.
     pub maps: usize,
 }
@@ -154,8 +154,8 @@ impl CellStats {
                 expected: cells,
             });
         }
-        let mut location = vec![f32::NAN; cells];
-        let mut spread = vec![f32::NAN; cells];
+        let mut location = vec![f64::NAN; cells];
+        let mut spread = vec![f64::NAN; cells];
         let mut column = Vec::with_capacity(maps.len());
         for c in 0..cells {
             column.clear();
@@ -169,17 +169,13 @@ impl CellStats {
             }
             column.sort_by(f64::total_cmp);
             let median = quantile_sorted(&column, 0.5);
-            location[c] = median as f32;
-            spread[c] = (quantile_sorted(&column, CELL_SPREAD_QUANTILE) - median) as f32;
+            location[c] = median;
+            spread[c] = quantile_sorted(&column, CELL_SPREAD_QUANTILE) - median;
         }
-        let grid_median = |v: &[f32]| {
-            let mut finite: Vec<f64> = v
-                .iter()
-                .filter(|x| x.is_finite())
-                .map(|&x| f64::from(x))
-                .collect();
+        let grid_median = |v: &[f64]| {
+            let mut finite: Vec<f64> = v.iter().copied().filter(|x| x.is_finite()).collect();
             finite.sort_by(f64::total_cmp);
-            (!finite.is_empty()).then(|| quantile_sorted(&finite, 0.5) as f32)
+            (!finite.is_empty()).then(|| quantile_sorted(&finite, 0.5))
         };
         let fallback_location = grid_median(&location).unwrap_or(0.0);
         let fallback_spread = grid_median(&spread).unwrap_or(1.0);
@@ -233,7 +229,7 @@ pub fn pool_cells(
         Some(s) => cells
             .iter()
             .zip(s.location.iter().zip(&s.spread))
-            .map(|(&v, (&l, &sp))| (v - l) / sp)
+            .map(|(&v, (&l, &sp))| ((f64::from(v) - l) / sp) as f32)
             .collect(),
         None => cells.to_vec(),
     };
