@@ -33,6 +33,7 @@
 //! - `fuzz` (hidden): one entry point per parser of outside bytes, for the `cargo fuzz`
 //!   targets in `fuzz/` and the corpus regression test; imports the modules it fuzzes.
 
+pub mod api;
 pub mod client;
 pub mod config;
 pub mod episode;
@@ -43,6 +44,7 @@ pub mod model;
 pub mod pipeline;
 pub mod robot;
 pub mod service;
+pub mod session;
 pub mod setup;
 pub mod store;
 pub mod telemetry;
