@@ -4,13 +4,13 @@
 //! ended ([`super::jobs`]).
 
 use super::jobs::{JobError, JobHandle, Jobs};
-use super::profiles::ProfileCatalog;
-use crate::episode::files::expand_episodes;
+use super::profiles::{ProfileCatalog, ProfileLookupError};
+use crate::episode::files::{ExpandError, expand_episodes};
 use crate::episode::{EpisodeError, McapEpisode};
 use crate::pipeline::Calibration;
 use crate::pipeline::calibration::calibrate;
 use crate::pipeline::offline::score_episode as score_offline;
-use crate::store::Store;
+use crate::store::{Store, StoreError};
 use std::path::PathBuf;
 use std::sync::Arc;
 
@@ -71,6 +71,35 @@ impl CalibrationRequest {
     }
 }
 
+/// Why a calibration job failed (the reason its record keeps).
+#[derive(Debug, thiserror::Error)]
+pub enum CalibrationFailed {
+    /// The profile does not resolve or load.
+    #[error(transparent)]
+    Profile(#[from] ProfileLookupError),
+    /// An episode file or folder named in the request.
+    #[error(transparent)]
+    Episodes(#[from] ExpandError),
+    /// No training episode after expansion.
+    #[error("no training episodes")]
+    NoTraining,
+    /// An episode that does not score.
+    #[error("{}: {source}", path.display())]
+    Scoring {
+        /// The episode.
+        path: PathBuf,
+        /// Why (opening the bag, building the scorer, scoring).
+        #[source]
+        source: Box<dyn std::error::Error + Send + Sync>,
+    },
+    /// Cancelled through the API.
+    #[error("cancelled")]
+    Cancelled,
+    /// The calibration could not be saved.
+    #[error(transparent)]
+    Store(#[from] StoreError),
+}
+
 /// Where calibration jobs run: the profiles, the data directory and the job records.
 #[derive(Clone)]
 pub struct Calibrator {
@@ -106,7 +135,7 @@ impl Calibrator {
                 }
                 Err(e) => tracing::warn!(job = id, profile = %name, "calibration job failed: {e}"),
             }
-            this.jobs.finish(&job, result);
+            this.jobs.finish(&job, result.map_err(|e| e.to_string()));
             // The uploaded episodes go with the job.
             drop(keep);
         });
@@ -120,13 +149,13 @@ impl Calibrator {
         name: &str,
         req: &CalibrationRequest,
         job: &JobHandle,
-    ) -> Result<(Calibration, Vec<String>), String> {
-        let profile = self.profiles.get(name).map_err(|e| e.to_string())?;
+    ) -> Result<(Calibration, Vec<String>), CalibrationFailed> {
+        let profile = self.profiles.get(name)?;
         let setup = &profile.setup;
-        let training = expand_episodes(&req.episodes).map_err(|e| e.to_string())?;
-        let holdout = expand_episodes(&req.holdout).map_err(|e| e.to_string())?;
+        let training = expand_episodes(&req.episodes)?;
+        let holdout = expand_episodes(&req.holdout)?;
         if training.is_empty() {
-            return Err("no training episodes".into());
+            return Err(CalibrationFailed::NoTraining);
         }
         let model_sha256 = setup.model.as_ref().map(|m| m.sha256().to_string());
         let outcome = calibrate(
@@ -139,26 +168,30 @@ impl Calibrator {
                     .iter()
                     .map(|path| {
                         if job.cancelled() {
-                            return Err("cancelled".to_string());
+                            return Err(CalibrationFailed::Cancelled);
                         }
-                        let what = |e: &dyn std::fmt::Display| format!("{}: {e}", path.display());
-                        let episode =
-                            McapEpisode::open(path, &setup.episode).map_err(|e| what(&e))?;
+                        let failed = |e: Box<dyn std::error::Error + Send + Sync>| {
+                            CalibrationFailed::Scoring {
+                                path: path.clone(),
+                                source: e,
+                            }
+                        };
+                        let episode = McapEpisode::open(path, &setup.episode)
+                            .map_err(|e| failed(e.into()))?;
                         let mut scorer = setup
                             .scorer(episode.name(), thresholds, f64::INFINITY, false, None, None)
-                            .map_err(|e| what(&e))?;
+                            .map_err(|e| failed(e.into()))?;
                         score_offline::<EpisodeError>(&mut scorer, &episode, |_, _| Ok(()))
-                            .map_err(|e| what(&e))
+                            .map_err(|e| failed(e.into()))
                     })
                     .collect()
             },
         )?;
         if job.cancelled() {
-            return Err("cancelled".into());
+            return Err(CalibrationFailed::Cancelled);
         }
         self.store
-            .save_calibration(name, outcome.calibration.clone())
-            .map_err(|e| e.to_string())?;
+            .save_calibration(name, outcome.calibration.clone())?;
         Ok((outcome.calibration, outcome.notes))
     }
 }

@@ -173,3 +173,47 @@ fn scored_bag(
     bag.finish().map_err(ApiError::internal)?;
     Ok(out)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::api::grpc::convert::frame_score;
+    use crate::api::proto;
+    use crate::eval::Detector;
+    use crate::pipeline::FrameScore;
+
+    /// REST prints what it printed when it scored through gRPC's messages: the same
+    /// fields as `proto::score_json` of the gRPC answer, `vamos stream`'s output.
+    #[test]
+    fn rest_scores_print_as_the_grpc_answer_does() {
+        for (triggered, anomaly) in [
+            (None, false),
+            (None, true),
+            (Some(Detector::Body), true),
+            (Some(Detector::Camera), false),
+        ] {
+            let f = ScoredFrame {
+                score: FrameScore {
+                    index: 7,
+                    frame: 3,
+                    stamp_ns: 1_500,
+                    score: 0.25,
+                    e_c: Some(1.0),
+                    e_b: None,
+                    e_o: Some(0.5),
+                    anomaly,
+                    triggered,
+                    warming_up: true,
+                    best_offset: None,
+                    registration_confidence: None,
+                    body_pixels: 0,
+                    timings: Default::default(),
+                    heatmap: None,
+                },
+                latency_s: 0.02,
+                compute_s: 0.01,
+            };
+            assert_eq!(score_json(&f), proto::score_json(&frame_score(&f)));
+        }
+    }
+}
