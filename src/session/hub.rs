@@ -1,6 +1,8 @@
-//! Sessions and the worker pool that scores them.
+//! The hub: the table of sessions and their lifecycle (open, resume, reload, close,
+//! sweep, shutdown) and the worker pool that scores them. What a live session receives
+//! is in [`super::input`], the workers' turn in [`super::worker`].
 //!
-//! A session owns a [`Scorer`], a buffer of joint states, the images waiting for a joint
+//! A session owns a [`Scorer`](crate::pipeline::Scorer), a buffer of joint states, the images waiting for a joint
 //! state at or after their stamp (so they can be interpolated as offline scoring does),
 //! and a bounded queue of frames ready to score. One pool of worker threads serves all
 //! sessions: a session with work waits in one FIFO of ready sessions, a worker takes one
@@ -8,8 +10,9 @@
 //! So sessions are served round-robin, one frame each, a busy robot cannot starve
 //! another, and the frames of one session are scored in order by one worker at a time.
 //!
-//! Scores go to the session's outbound channel without blocking: a client that does not
-//! read its scores loses them (counted as `undelivered`), it never stalls a worker.
+//! Output ([`Output`]: scores, events, the error that ends the stream) goes to the
+//! session's outbound channel without blocking: a client that does not read loses it
+//! (counted as `undelivered`), it never stalls a worker.
 
 use super::budget::ByteBudget;
 use super::error::SessionError;
