@@ -13,12 +13,12 @@ use anyhow::{Context, Result};
 use prost::Message;
 use std::io::Write;
 use std::path::PathBuf;
+use vamos::api::proto::{self, stream_request::Message as In};
 use vamos::episode::cdr::CdrWriter;
 use vamos::episode::ros::{
     CompressedImageMsg, Header, ImageMsg, JointStateMsg, encode_bool, encode_f64, encode_string,
 };
 use vamos::episode::synthetic::{SyntheticBag, write_bag};
-use vamos::service::proto::{self, stream_request::Message as In};
 
 fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
@@ -480,7 +480,7 @@ fn stream_requests() -> Result<()> {
 fn episode_requests(images: usize) -> Result<Vec<In>> {
     use vamos::vision::preprocess::{ResizeFilter, resize};
     let path = root().join("tests/fixtures/sim/test/test_0000.mcap");
-    let rec = vamos::service::replay::record(&path, &Default::default())?;
+    let rec = vamos::client::replay::record(&path, &Default::default())?;
     let episode = vamos::episode::McapEpisode::open(&path, &Default::default())?;
     let grays: std::collections::HashMap<i64, vamos::vision::GrayImage> = episode
         .frames()

@@ -9,6 +9,7 @@
 //!
 //! Not part of the stable API (hidden from the documentation).
 
+use crate::api::proto;
 use crate::episode::ros::{
     CameraInfoMsg, CompressedImageMsg, ImageMsg, JointStateMsg, decode_bool, decode_f64,
     decode_string,
@@ -16,7 +17,6 @@ use crate::episode::ros::{
 use crate::episode::{EpisodeConfig, McapEpisode};
 use crate::model::bundle::{Bundle, Manifest};
 use crate::robot::{Robot, RobotConfig, mesh::mesh_from_bytes};
-use crate::service::proto;
 use crate::store::{Store, StoreLimits, ThresholdsPatch};
 use crate::vision::GrayImage;
 use std::path::Path;
@@ -25,6 +25,15 @@ use std::sync::OnceLock;
 /// Pixel cap for decoded images in the targets: big enough for every real camera, small
 /// enough that one input cannot make the fuzzer spend seconds on one image.
 const FUZZ_MAX_PIXELS: usize = 1 << 22;
+
+/// A streamed image converted and decoded as the server does (no memory budget).
+fn decode_streamed(
+    image: &proto::Image,
+) -> Result<(GrayImage, Option<crate::session::budget::Charge>), crate::session::worker::ImageRefused>
+{
+    let live = crate::api::grpc::convert::live_image(image.clone());
+    crate::session::worker::decode_live_image(&live, FUZZ_MAX_PIXELS, None)
+}
 
 /// libfuzzer-sys's panic hook aborts on every panic, also on those the code catches on
 /// purpose (a third-party mesh parser's, see `robot::mesh`). The default hook is put back:
@@ -167,7 +176,7 @@ pub fn image_message(data: &[u8]) {
         big_endian: data[1] & 1 == 1,
         data: data[8..].to_vec(),
     };
-    if let Ok((img, _)) = crate::service::hub::decode_image(&image, FUZZ_MAX_PIXELS, None) {
+    if let Ok((img, _)) = decode_streamed(&image) {
         assert_finite(&img, "Image message");
         if !matches!(image.encoding.as_str(), "png" | "jpeg") {
             assert_eq!(
@@ -278,7 +287,7 @@ pub fn stream_requests(data: &[u8]) {
     use prost::Message;
     use proto::stream_request::Message as In;
     let mut buf = data;
-    let mut joints = crate::service::hub::JointBuffer::default();
+    let mut joints = crate::session::joints::JointBuffer::default();
     for _ in 0..64 {
         let Ok(req) = proto::StreamRequest::decode_length_delimited(&mut buf) else {
             return;
@@ -286,12 +295,12 @@ pub fn stream_requests(data: &[u8]) {
         match req.message {
             Some(In::Open(o)) => {
                 if let Some(c) = &o.camera_info {
-                    let _ = crate::service::grpc::intrinsics_of(c);
+                    let _ = crate::api::grpc::convert::intrinsics_of(c);
                 }
             }
             Some(In::Image(img)) => {
                 let stamp = img.stamp_ns;
-                if let Ok((g, _)) = crate::service::hub::decode_image(&img, FUZZ_MAX_PIXELS, None) {
+                if let Ok((g, _)) = decode_streamed(&img) {
                     assert_finite(&g, "streamed image");
                 }
                 if let Some((names, positions)) = joints.at(stamp) {
@@ -353,7 +362,7 @@ pub fn stream_session(data: &[u8]) {
         return;
     };
     let mut buf = data;
-    let mut joints = crate::service::hub::JointBuffer::default();
+    let mut joints = crate::session::joints::JointBuffer::default();
     let mut camera = None;
     let mut last_frame = None;
     for _ in 0..16 {
@@ -365,12 +374,11 @@ pub fn stream_session(data: &[u8]) {
                 camera = o
                     .camera_info
                     .as_ref()
-                    .and_then(|c| crate::service::grpc::intrinsics_of(c).ok());
+                    .and_then(|c| crate::api::grpc::convert::intrinsics_of(c).ok());
             }
             Some(In::Image(img)) => {
                 let stamp = img.stamp_ns;
-                let Ok((image, _)) = crate::service::hub::decode_image(&img, FUZZ_MAX_PIXELS, None)
-                else {
+                let Ok((image, _)) = decode_streamed(&img) else {
                     continue;
                 };
                 let at = joints.at(stamp);
@@ -449,10 +457,10 @@ pub fn rest_body(data: &[u8]) {
             }
         }
         2 => {
-            let _ = crate::service::rest::parse_active_request(body);
+            let _ = crate::api::rest::parse_active_request(body);
         }
         _ => {
-            let _ = crate::service::rest::parse_calibrate_request(body);
+            let _ = crate::api::rest::parse_calibrate_request(body);
         }
     }
 }

@@ -23,16 +23,22 @@
 //! - [`setup`]: a profile with its robot and model loaded, making scorers.
 //! - [`store`]: the service's data directory: versioned models, robots, profiles and
 //!   calibrations, written atomically with checksums, verified on open. Synchronous.
-//! - [`service`]: the server: gRPC sessions and episode scoring, REST, metrics, auth,
-//!   TLS (tokio, tonic, axum; the only async module).
+//! - [`session`]: the service's session layer: sessions and their lifecycle, the worker
+//!   pool, episode scoring, profiles, calibration jobs, budgets and metrics, in core
+//!   types (tokio, no transport crate); one error type, `SessionError`.
+//! - [`api`]: the transports: gRPC (`vamos.v1.Monitor`, tonic) and REST (axum), thin
+//!   handlers over the session layer and the store, one error mapping each; the
+//!   generated `vamos.v1` types and bearer tokens.
+//! - [`service`]: the server: start and shutdown, listeners, TLS, the fleet sync.
 //! - [`client`]: a typed gRPC client (sessions, recorded episodes replayed as live
 //!   robots, batch episode scoring), used by the demo, `vamos stream` and the load
 //!   generator.
-//! - [`config`]: service settings composed of each module's `*Config`.
+//! - [`config`]: settings composed of each module's `*Config` (the server's included).
 //! - [`telemetry`]: `tracing` set-up (human or JSON logs).
 //! - `fuzz` (hidden): one entry point per parser of outside bytes, for the `cargo fuzz`
 //!   targets in `fuzz/` and the corpus regression test; imports the modules it fuzzes.
 
+pub mod api;
 pub mod client;
 pub mod config;
 pub mod episode;
@@ -43,6 +49,7 @@ pub mod model;
 pub mod pipeline;
 pub mod robot;
 pub mod service;
+pub mod session;
 pub mod setup;
 pub mod store;
 pub mod telemetry;

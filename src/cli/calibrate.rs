@@ -10,23 +10,29 @@ use std::path::PathBuf;
 use vamos::config::Settings;
 use vamos::pipeline::calibration::calibrate;
 
-/// Options of `vamos calibrate`.
-pub struct CalibrateOptions {
-    /// The profile file.
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// The profile; the calibration is written beside it (`<stem>.calibration.json`).
+    #[arg(long)]
     pub profile: PathBuf,
-    /// Nominal training episodes (files or folders).
+    /// Nominal training episodes (.mcap files or folders).
+    #[arg(required = true)]
     pub episodes: Vec<PathBuf>,
     /// Held-out nominal episodes for the conformal threshold.
+    #[arg(long, num_args = 1..)]
     pub holdout: Vec<PathBuf>,
-    /// Per-episode false-alarm budget.
+    /// Per-episode false-alarm budget of the conformal threshold.
+    #[arg(long, default_value_t = 0.1)]
     pub alpha: f64,
-    /// Where progress goes.
-    pub progress: Progress,
+    /// No progress bars (they are drawn on stderr only when it is a terminal).
+    #[arg(long)]
+    pub no_progress: bool,
 }
 
 /// Runs the calibration ([`vamos::pipeline::calibration`]) and saves it; prints it as
 /// JSON on stdout.
-pub fn run(settings: &Settings, opts: CalibrateOptions) -> Result<()> {
+pub fn run(settings: &Settings, opts: Args) -> Result<()> {
+    let progress = Progress::new(opts.no_progress);
     let mut setup = Setup::load(settings, &opts.profile)?;
     let training = expand_episodes(&opts.episodes)?;
     let holdout = if opts.holdout.is_empty() {
@@ -48,7 +54,7 @@ pub fn run(settings: &Settings, opts: CalibrateOptions) -> Result<()> {
             eprintln!("scoring {} {what} episodes", episodes.len());
             setup.score_all(
                 episodes,
-                &ScoreRun::new(what, thresholds, f64::INFINITY, &opts.progress),
+                &ScoreRun::new(what, thresholds, f64::INFINITY, &progress),
             )
         },
     )?;

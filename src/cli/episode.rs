@@ -4,7 +4,40 @@
 use anyhow::Result;
 use serde_json::{Value, json};
 use std::path::Path;
+use std::path::PathBuf;
+use vamos::config::Settings;
 use vamos::episode::{EpisodeConfig, EpisodeError, ImageData, McapEpisode, ScoreBagWriter};
+
+#[derive(clap::Subcommand, Debug)]
+pub enum Command {
+    /// Print what a bag holds (topics, chosen topics, counts, labels, camera info) as one
+    /// JSON object.
+    Inspect {
+        /// The bag (.mcap).
+        bag: PathBuf,
+        /// Also read every frame: count frames, warnings and errors.
+        #[arg(long)]
+        frames: bool,
+    },
+    /// Copy a bag through vamos's reader and writer (images, camera info, joints, URDF,
+    /// plus per-frame diagnostics); recovers the valid part of a damaged bag.
+    Copy {
+        /// The input bag.
+        input: PathBuf,
+        /// The output bag (replaced).
+        output: PathBuf,
+    },
+}
+
+/// Runs `vamos episode ...`.
+pub fn run(settings: &Settings, command: Command) -> Result<()> {
+    let out = match command {
+        Command::Inspect { bag, frames } => inspect(&bag, &settings.episode, frames)?,
+        Command::Copy { input, output } => copy(&input, &output, &settings.episode)?,
+    };
+    println!("{out}");
+    Ok(())
+}
 
 /// Opens `bag` and returns one JSON object: `info` (topics, chosen topics, counts,
 /// duration, damage), `labels` (sidecar or label topic, or null), `camera_info` (first K,

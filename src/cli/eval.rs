@@ -18,22 +18,32 @@ use vamos::model::FlowModel;
 use vamos::pipeline::FlowVariant;
 use vamos::pipeline::offline::EpisodeScores;
 
-/// Options of `vamos eval`.
-pub struct EvalOptions {
-    /// The profile (calibrated for thresholds and the alarm threshold).
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// The profile (calibrated).
+    #[arg(long)]
     pub profile: PathBuf,
-    /// Labelled episodes (files or folders).
+    /// Labelled episodes (.mcap with `<stem>.labels.json` or a label topic), files or
+    /// folders.
+    #[arg(long, required = true, num_args = 1..)]
     pub episodes: Vec<PathBuf>,
-    /// Write the report as JSON here.
+    /// Also write the report here.
+    #[arg(long)]
     pub json: Option<PathBuf>,
-    /// Write plots (per-episode timelines, ROC, PR) into this folder.
+    /// Write plots here: a score timeline per episode, roc.png, pr.png.
+    #[arg(long)]
     pub plots: Option<PathBuf>,
-    /// Run the ablation table; markdown goes here.
+    /// Run the paper's ablation (4 flow variants x OF only / +body / +body+camera) and
+    /// write it as markdown here.
+    #[arg(long)]
     pub ablation: Option<PathBuf>,
-    /// Models per flow variant for the ablation (`variant=path`).
-    pub variant_models: Vec<String>,
-    /// Where progress goes.
-    pub progress: Progress,
+    /// A model per flow variant for the ablation, `VARIANT=PATH` (repeatable); the
+    /// profile's model serves its own variant.
+    #[arg(long)]
+    pub variant_model: Vec<String>,
+    /// No progress bars (they are drawn on stderr only when it is a terminal).
+    #[arg(long)]
+    pub no_progress: bool,
 }
 
 /// The frames of scored episodes with their labels.
@@ -61,7 +71,8 @@ pub fn labelled_frames(results: &[EpisodeScores]) -> Result<Vec<ScoredFrame>> {
 }
 
 /// Runs the evaluation; prints the report as JSON on stdout.
-pub fn run(settings: &Settings, opts: EvalOptions) -> Result<()> {
+pub fn run(settings: &Settings, opts: Args) -> Result<()> {
+    let progress = Progress::new(opts.no_progress);
     let setup = Setup::load(settings, &opts.profile)?;
     let episodes = expand_episodes(&opts.episodes)?;
     let thresholds = setup.profile.thresholds();
@@ -74,7 +85,7 @@ pub fn run(settings: &Settings, opts: EvalOptions) -> Result<()> {
     }
     let results = setup.score_all(
         &episodes,
-        &ScoreRun::new("eval", thresholds, alarm, &opts.progress),
+        &ScoreRun::new("eval", thresholds, alarm, &progress),
     )?;
     let frames = labelled_frames(&results)?;
     let report = evaluate(&frames, alarm);
@@ -89,7 +100,7 @@ pub fn run(settings: &Settings, opts: EvalOptions) -> Result<()> {
         eprintln!("plots in {}", dir.display());
     }
     if let Some(out) = &opts.ablation {
-        let table = ablation(&setup, &episodes, &opts.variant_models, &opts.progress)?;
+        let table = ablation(&setup, &episodes, &opts.variant_model, &progress)?;
         let md = table.to_markdown();
         std::fs::write(out, &md).with_context(|| format!("cannot write {}", out.display()))?;
         eprintln!("{md}\nablation table written to {}", out.display());

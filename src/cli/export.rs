@@ -2,10 +2,10 @@
 //! the detector runs (docs/model-bundle.md).
 
 use super::progress::{EpisodeProgress, Progress};
-use super::score::mcap_files_in;
 use anyhow::{Context, Result, bail};
 use std::path::{Path, PathBuf};
 use vamos::config::Settings;
+use vamos::episode::files::mcap_files_in;
 use vamos::episode::{EpisodeError, ImageSequence, JointTrack, McapEpisode};
 use vamos::pipeline::dataset::{DatasetWriter, FrameRecord, InputSpec, ProcessingSpec};
 use vamos::pipeline::{FlowVariant, FrameProcessor};
@@ -15,7 +15,7 @@ use vamos::vision::GrayImage;
 use vamos::vision::flow::FlowParams;
 
 /// Options of `vamos export-dataset` beyond the settings.
-pub struct ExportOptions {
+struct ExportOptions {
     /// Episode folders.
     pub episodes: Vec<PathBuf>,
     /// Output folder.
@@ -105,8 +105,102 @@ impl BodyMasker {
     }
 }
 
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// Episodes: ROS 2 bags (.mcap, or folders of them; topics from `[episode]`), or
+    /// image folders: images (.png/.jpg) in name order, or listed with stamps in
+    /// `frames.csv` (`file,stamp_ns`), joint states in `joints.csv`.
+    #[arg(required = true)]
+    pub episodes: Vec<PathBuf>,
+    /// Output folder.
+    #[arg(short, long)]
+    pub out: PathBuf,
+    /// Take the robot, camera, pipeline parameters, TV-L1 preset and topics from this
+    /// profile (the flags below still override).
+    #[arg(long)]
+    pub profile: Option<PathBuf>,
+    /// Flow variant: plain, registered, masked or masked_registered (default:
+    /// `pipeline.frames.variant`). Masked variants need --robot and --camera.
+    #[arg(long)]
+    pub variant: Option<vamos::pipeline::FlowVariant>,
+    /// Robot (URDF file, package folder or archive): with --camera, every frame's body
+    /// mask is rendered from the episode's joints.csv (`stamp_ns,JOINT,...`).
+    #[arg(long)]
+    pub robot: Option<PathBuf>,
+    /// Camera JSON (as `vamos render --camera`).
+    #[arg(long)]
+    pub camera: Option<PathBuf>,
+    /// Report image stamps further than this from a joint sample, milliseconds.
+    #[arg(long, default_value_t = 100.0)]
+    pub max_joint_gap_ms: f64,
+    /// Process every N-th image (default: `pipeline.stride`).
+    #[arg(long)]
+    pub stride: Option<usize>,
+    /// Frame rate of folders without frames.csv.
+    #[arg(long, default_value_t = 10.0)]
+    pub fps: f64,
+    /// TV-L1 preset (default: the settings' `[vision.flow]`).
+    #[arg(long)]
+    pub preset: Option<String>,
+    /// Worker threads (0 = one per core; default from the settings).
+    #[arg(long)]
+    pub threads: Option<usize>,
+    /// No progress bars (they are drawn on stderr only when it is a terminal).
+    #[arg(long)]
+    pub no_progress: bool,
+}
+
+/// Runs `vamos export-dataset`: a profile's robot, camera, pipeline, preset and topics
+/// first, the flags over them, on a pool of `--threads` workers.
+pub fn run(settings: &Settings, args: Args) -> Result<()> {
+    let Args {
+        episodes,
+        out,
+        profile,
+        variant,
+        mut robot,
+        mut camera,
+        max_joint_gap_ms,
+        stride,
+        fps,
+        preset,
+        threads,
+        no_progress,
+    } = args;
+    let threads = super::resolve_threads(threads.unwrap_or(settings.vision.threads));
+    let mut settings = settings.clone();
+    if let Some(path) = &profile {
+        let p = vamos::pipeline::Profile::load(path)?;
+        if let Some(pipeline) = p.file.pipeline {
+            settings.pipeline = pipeline;
+        }
+        if let Some(preset) = &p.file.flow_preset {
+            settings.vision.flow = vamos::vision::flow::FlowParams::preset(preset)?;
+        }
+        if let Some(topics) = p.file.topics {
+            settings.episode.topics = topics;
+        }
+        robot = robot.or(p.file.robot);
+        camera = camera.or(p.file.camera);
+    }
+    let opts = ExportOptions {
+        episodes,
+        out,
+        variant,
+        stride,
+        fps,
+        preset,
+        robot,
+        camera,
+        max_joint_gap_ms,
+        progress: Progress::new(no_progress),
+    };
+    super::pool(threads)?.install(|| export(&settings, opts))?;
+    Ok(())
+}
+
 /// Runs the export; returns the number of frames written.
-pub fn run(settings: &Settings, opts: ExportOptions) -> Result<usize> {
+fn export(settings: &Settings, opts: ExportOptions) -> Result<usize> {
     let mut frames_params = settings.pipeline.frames.clone();
     if let Some(v) = opts.variant {
         frames_params.variant = v;

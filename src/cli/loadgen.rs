@@ -10,9 +10,42 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 use tokio::sync::Mutex;
+use vamos::api::proto::{self, stream_request::Message as In};
+use vamos::client::replay::{Recording, record};
 use vamos::client::{Client, ClientOptions, Pace, Update};
-use vamos::service::proto::{self, stream_request::Message as In};
-use vamos::service::replay::{Recording, record};
+
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// Episodes (MCAP), replayed round-robin.
+    #[arg(required = true)]
+    pub episodes: Vec<PathBuf>,
+    /// gRPC URL of the server.
+    #[arg(long, default_value = "http://127.0.0.1:8081")]
+    pub server: String,
+    /// The server's /metrics URL (CPU and memory figures), e.g.
+    /// http://127.0.0.1:8080/metrics.
+    #[arg(long)]
+    pub metrics: Option<String>,
+    /// Profile the sessions use.
+    #[arg(long)]
+    pub profile: String,
+    /// Robots streaming at once.
+    #[arg(long, default_value_t = 1)]
+    pub robots: usize,
+    /// Replay speed (1.0: recorded timing, e.g. 10 Hz images).
+    #[arg(long, default_value_t = 1.0)]
+    pub speed: f64,
+    /// Run time, seconds.
+    #[arg(long, default_value_t = 30.0)]
+    pub duration: f64,
+    /// Bearer token (robot role).
+    #[arg(long, env = "VAMOS_LOADGEN_TOKEN", hide_env_values = true)]
+    pub token: Option<String>,
+    /// Seconds between the samples of the report's `timeline` (scores/s, server CPU
+    /// and RSS per interval; 0: none).
+    #[arg(long, default_value_t = 60.0)]
+    pub sample_every: f64,
+}
 
 /// Options of `vamos loadgen`.
 pub struct LoadOptions {
@@ -167,7 +200,23 @@ async fn http_get(url: &str) -> Result<String> {
 }
 
 /// Runs the load and prints one JSON report.
-pub async fn run(opts: LoadOptions) -> Result<()> {
+/// Runs the load and prints the report.
+pub fn run(args: Args) -> Result<()> {
+    let opts = LoadOptions {
+        server: args.server,
+        metrics: args.metrics,
+        profile: args.profile,
+        robots: args.robots,
+        speed: args.speed,
+        duration_s: args.duration,
+        token: args.token,
+        episodes: args.episodes,
+        sample_s: args.sample_every,
+    };
+    super::async_runtime()?.block_on(load(opts))
+}
+
+async fn load(opts: LoadOptions) -> Result<()> {
     if opts.robots == 0 || opts.episodes.is_empty() {
         bail!("give at least one robot and one episode");
     }

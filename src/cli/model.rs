@@ -1,12 +1,41 @@
 //! `vamos model ...`: inspect a bundle, locate (or provision) ONNX Runtime.
 
 use anyhow::Result;
+use anyhow::bail;
 use serde_json::json;
 use std::path::Path;
+use std::path::PathBuf;
 use std::time::Instant;
+use vamos::config::Settings;
 use vamos::model::bundle::Bundle;
 use vamos::model::runtime;
 use vamos::model::{FlowModel, ModelConfig};
+
+#[derive(clap::Subcommand, Debug)]
+pub enum Command {
+    /// Read and validate a model bundle (.vamos); print its summary as JSON (exit code 1
+    /// when invalid).
+    Inspect {
+        /// The bundle.
+        bundle: PathBuf,
+    },
+    /// Find (or download into the cache) and load ONNX Runtime; print where from as JSON.
+    Runtime,
+}
+
+/// Runs `vamos model ...`.
+pub fn run(settings: &Settings, command: Command) -> Result<()> {
+    match command {
+        Command::Inspect { bundle } => {
+            if inspect(&bundle, &settings.model)? {
+                Ok(())
+            } else {
+                bail!("{} is not a valid model bundle", bundle.display())
+            }
+        }
+        Command::Runtime => runtime(&settings.model),
+    }
+}
 
 /// Prints the manifest summary and the validation result of a bundle as one JSON object.
 /// Returns whether the bundle is valid (the caller maps `false` to a failing exit code).

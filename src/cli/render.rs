@@ -5,6 +5,7 @@
 use anyhow::{Context, Result, bail};
 use serde_json::{Map, Value, json};
 use std::path::{Path, PathBuf};
+use vamos::config::Settings;
 use vamos::robot::render::{
     RenderConfig, RenderFrame, RenderOutput, RobotView, create_renderer, tvl1_body_flow,
 };
@@ -14,34 +15,47 @@ use vamos::vision::flow::FlowParams;
 use vamos::vision::flowio::flow_to_rgb;
 use vamos::vision::preprocess::{ResizeFilter, resize};
 
-/// Options of `vamos render`.
-pub struct RenderOptions {
-    /// URDF file, package folder or archive.
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// URDF file, robot package folder, or .zip / .tar.gz package archive.
+    #[arg(long)]
     pub robot: PathBuf,
-    /// Joint positions at `t` (JSON object).
+    /// JSON object of joint name -> position at time t.
+    #[arg(long)]
     pub joints: PathBuf,
-    /// Joint positions at `t-1`; with them the expected body flow is drawn.
+    /// Joint positions at t-1: adds the expected body flow t-1 -> t.
+    #[arg(long)]
     pub previous_joints: Option<PathBuf>,
-    /// Camera description (JSON, [`CameraSpec`]).
+    /// Camera JSON: {"frame": LINK, "convention": "optical"|"body", "width": W,
+    /// "height": H, and "fx","fy","cx","cy" or "k" (CameraInfo) or "hfov_deg"}.
+    #[arg(long)]
     pub camera: PathBuf,
-    /// Output PNG: mask | depth | flow side by side.
+    /// Output PNG.
+    #[arg(short, long)]
     pub out: PathBuf,
-    /// A real camera image to draw the mask over (resized to the render).
+    /// A real camera image to draw the mask over.
+    #[arg(long)]
     pub background: Option<PathBuf>,
-    /// Render at this width instead of the camera's (intrinsics scaled).
+    /// Render width (intrinsics scaled; default: the camera's).
+    #[arg(long)]
     pub width: Option<u32>,
-    /// Render at this height instead of the camera's.
+    /// Render height (default: keeps the camera's aspect ratio).
+    #[arg(long)]
     pub height: Option<u32>,
-    /// Use the paper's expected flow (TV-L1 on two shaded renders) instead of the exact one.
+    /// The paper's expected flow (TV-L1 on two shaded renders) instead of the exact one.
+    #[arg(long)]
     pub tvl1: bool,
 }
 
+/// Renders, writes the image and prints the JSON summary.
+pub fn run(settings: &Settings, args: Args) -> Result<()> {
+    let summary = render(&args, &settings.robot, &settings.render)?;
+    println!("{summary}");
+    Ok(())
+}
+
 /// Renders and writes the image; returns the JSON summary to print.
-pub fn run(
-    opts: &RenderOptions,
-    robot_cfg: &RobotConfig,
-    render_cfg: &RenderConfig,
-) -> Result<Value> {
+pub fn render(opts: &Args, robot_cfg: &RobotConfig, render_cfg: &RenderConfig) -> Result<Value> {
     let robot = Robot::load(&opts.robot, robot_cfg)
         .with_context(|| format!("cannot load robot {}", opts.robot.display()))?;
     let spec: CameraSpec = read_json(&opts.camera, "a camera description")?;

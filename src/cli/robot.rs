@@ -4,7 +4,32 @@
 use anyhow::{Context, Result};
 use serde_json::{Map, Value, json};
 use std::path::Path;
+use std::path::PathBuf;
+use vamos::config::Settings;
 use vamos::robot::{Robot, RobotConfig};
+
+#[derive(clap::Subcommand, Debug)]
+pub enum Command {
+    /// Load a robot and print its joints, links, visuals, warnings (and link poses for
+    /// given joint positions) as one JSON object.
+    Inspect {
+        /// URDF file, robot package folder, or .zip / .tar.gz package archive.
+        #[arg(long)]
+        robot: PathBuf,
+        /// JSON object of joint name -> position (rad or m): adds `poses` and
+        /// `out_of_limits`.
+        #[arg(long)]
+        joints: Option<PathBuf>,
+    },
+}
+
+/// Runs `vamos robot ...`.
+pub fn run(settings: &Settings, command: Command) -> Result<()> {
+    let Command::Inspect { robot, joints } = command;
+    let out = inspect(&robot, joints.as_deref(), &settings.robot)?;
+    println!("{out}");
+    Ok(())
+}
 
 /// Loads `robot` (URDF file, package folder or archive); with `joints` (a JSON object of
 /// joint name -> position), adds `poses` of every link in the root frame and

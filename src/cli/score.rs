@@ -118,35 +118,14 @@ pub struct OutputOptions {
     pub mcap: bool,
 }
 
-/// Expands folders into the `.mcap` files they hold (sorted); files pass through.
+/// Expands folders into the `.mcap` files they hold (sorted); files pass through
+/// ([`vamos::episode::files::expand_episodes`]); nothing at all is an error.
 pub fn expand_episodes(paths: &[PathBuf]) -> Result<Vec<PathBuf>> {
-    let mut out = Vec::new();
-    for p in paths {
-        if p.is_dir() {
-            let found = mcap_files_in(p)?;
-            if found.is_empty() {
-                bail!("{} holds no .mcap episodes", p.display());
-            }
-            out.extend(found);
-        } else {
-            out.push(p.clone());
-        }
-    }
+    let out = vamos::episode::files::expand_episodes(paths)?;
     if out.is_empty() {
         bail!("no episodes given");
     }
     Ok(out)
-}
-
-/// The `.mcap` files directly inside `dir`, sorted.
-pub fn mcap_files_in(dir: &Path) -> Result<Vec<PathBuf>> {
-    let mut found: Vec<PathBuf> = std::fs::read_dir(dir)
-        .with_context(|| format!("cannot list {}", dir.display()))?
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|f| f.extension().is_some_and(|x| x == "mcap"))
-        .collect();
-    found.sort();
-    Ok(found)
 }
 
 /// Scores one episode writing `<name>.scores.jsonl` and, if asked, `<name>.scored.mcap`.
@@ -201,8 +180,39 @@ fn write_frame(bag: &mut ScoreBagWriter, frame: &EpisodeFrame, s: &FrameScore) -
     Ok(())
 }
 
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// The profile (TOML; see README "Profiles").
+    #[arg(long)]
+    pub profile: PathBuf,
+    /// Episodes: .mcap files or folders of them.
+    #[arg(required = true)]
+    pub episodes: Vec<PathBuf>,
+    /// Output folder for `<episode>.scores.jsonl` (and `.scored.mcap`).
+    #[arg(short, long)]
+    pub out: Option<PathBuf>,
+    /// Also write `<episode>.scored.mcap`: input images, /vamos/score, /vamos/anomaly,
+    /// /vamos/e_c, /vamos/e_b, /vamos/e_o, /vamos/heatmap.
+    #[arg(long)]
+    pub mcap: bool,
+    /// No progress bars (they are drawn on stderr only when it is a terminal).
+    #[arg(long)]
+    pub no_progress: bool,
+}
 /// `vamos score`: prints one JSON summary line per episode on stdout.
-pub fn run(
+pub fn run(settings: &Settings, args: Args) -> Result<()> {
+    score(
+        settings,
+        &args.profile,
+        &args.episodes,
+        args.out,
+        args.mcap,
+        &Progress::new(args.no_progress),
+    )
+}
+
+/// Scores `episodes` with `profile`, printing one JSON summary line per episode.
+pub fn score(
     settings: &Settings,
     profile: &Path,
     episodes: &[PathBuf],

@@ -5,21 +5,59 @@ use anyhow::{Context, Result};
 use serde_json::json;
 use std::io::Write;
 use std::path::PathBuf;
+use vamos::api::proto;
+use vamos::client::replay::record;
 use vamos::client::{Client, ClientOptions, Pace, Update};
+use vamos::config::Settings;
 use vamos::episode::EpisodeConfig;
-use vamos::service::proto;
-use vamos::service::replay::record;
 
 /// How the episode goes to the server.
-pub enum Mode {
+enum Mode {
     /// As a live session (`Monitor.Stream`) at this pace.
     Pace(Pace),
     /// As one upload (`Monitor.ScoreEpisode`).
     Batch,
 }
 
-/// Options of `vamos stream`.
-pub struct StreamOptions {
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// The episode.
+    pub episode: PathBuf,
+    /// gRPC URL of the server (`https://` needs --ca).
+    #[arg(long, default_value = "http://127.0.0.1:8081")]
+    pub server: String,
+    /// Profile the session uses.
+    #[arg(long)]
+    pub profile: String,
+    /// Replay at the recorded rate times this factor (1.0: real time).
+    #[arg(long, default_value_t = 1.0, conflicts_with = "fast")]
+    pub speed: f64,
+    /// As fast as the server scores instead, with at most --window images unanswered.
+    #[arg(long)]
+    pub fast: bool,
+    /// Images in flight with --fast; below the server's queue_depth (default 8) no
+    /// image is dropped.
+    #[arg(long, default_value_t = 4, requires = "fast")]
+    pub window: usize,
+    /// Upload the whole file for batch scoring (Monitor.ScoreEpisode) instead.
+    #[arg(long, conflicts_with_all = ["fast", "speed"])]
+    pub batch: bool,
+    /// Robot id reported to the server.
+    #[arg(long, default_value = "vamos-stream")]
+    pub robot_id: String,
+    /// Session id (for resumption and seeding; default: the episode's file stem).
+    #[arg(long)]
+    pub session_id: Option<String>,
+    /// Bearer token (default: $VAMOS_ROBOT_TOKEN).
+    #[arg(long, env = "VAMOS_ROBOT_TOKEN", hide_env_values = true)]
+    pub token: Option<String>,
+    /// CA certificate (PEM) of an https:// server.
+    #[arg(long)]
+    pub ca: Option<PathBuf>,
+}
+
+/// What `run` streams, resolved from the flags.
+struct StreamOptions {
     /// The episode (MCAP).
     pub episode: PathBuf,
     /// gRPC URL.
@@ -65,7 +103,30 @@ fn emit(value: &serde_json::Value) {
 }
 
 /// Runs it.
-pub async fn run(opts: StreamOptions) -> Result<()> {
+/// Streams (or uploads) the episode.
+pub fn run(settings: &Settings, args: Args) -> Result<()> {
+    let mode = if args.batch {
+        Mode::Batch
+    } else if args.fast {
+        Mode::Pace(Pace::Window(args.window))
+    } else {
+        Mode::Pace(Pace::Recorded { speed: args.speed })
+    };
+    let opts = StreamOptions {
+        episode: args.episode,
+        server: args.server,
+        profile: args.profile,
+        mode,
+        robot_id: args.robot_id,
+        session_id: args.session_id,
+        token: args.token,
+        ca: args.ca,
+        episode_config: settings.episode.clone(),
+    };
+    super::async_runtime()?.block_on(stream(opts))
+}
+
+async fn stream(opts: StreamOptions) -> Result<()> {
     let ca_pem = match &opts.ca {
         Some(p) => Some(std::fs::read(p).with_context(|| format!("cannot read {}", p.display()))?),
         None => None,

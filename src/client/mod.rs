@@ -6,10 +6,12 @@
 //! Used by `vamos demo`, `vamos stream` and `vamos loadgen`; the integration tests drive
 //! the server through it too.
 
-use crate::service::proto::monitor_client::MonitorClient;
-use crate::service::proto::{self, stream_request::Message as In, stream_response::Message as Out};
-use crate::service::replay::Recording;
+pub mod replay;
+
+use crate::api::proto::monitor_client::MonitorClient;
+use crate::api::proto::{self, stream_request::Message as In, stream_response::Message as Out};
 use futures_util::StreamExt;
+use replay::Recording;
 use std::collections::BTreeSet;
 use std::path::Path;
 use std::time::{Duration, Instant};

@@ -8,6 +8,8 @@
 //!   damaged files read up to where they break. Settings: [`EpisodeConfig`] (`[episode]`).
 //! - [`writer`]: [`ScoreBagWriter`], MCAP output with images and score topics.
 //! - [`cdr`], [`ros`]: the CDR encoding and the ROS 2 messages vamos reads and writes.
+//! - [`image`]: image decoding to gray, one encoding table, for live and recorded images.
+//! - [`files`]: episode files and folders named on a command line or in a request.
 //! - [`labels`]: evaluation labels (`<stem>.labels.json` or a label topic).
 //! - [`synthetic`]: synthetic bags (images, joint states, URDF) for tests and benches.
 //!
@@ -30,7 +32,9 @@
 
 pub mod bag;
 pub mod cdr;
+pub mod files;
 pub mod folder;
+pub mod image;
 pub mod joints;
 pub mod labels;
 pub mod ros;

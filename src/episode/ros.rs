@@ -1,12 +1,10 @@
 //! The ROS 2 messages vamos reads and writes, decoded from and encoded to CDR
 //! ([`super::cdr`]), the `ros2msg` schema texts written into MCAP files, and the
-//! conversion of image messages to [`GrayImage`].
-//!
-//! Gray conversion matches [`GrayImage::load`]: colour as ITU-R BT.601 luma
-//! (`0.299 R + 0.587 G + 0.114 B`) on 0..=255, 8-bit gray exact, 16-bit (`mono16`,
-//! `16UC1`) scaled by 255/65535, `32FC1` taken as is (NaN and infinities become 0).
+//! conversion of image messages to [`GrayImage`] (through [`super::image`], the one
+//! decoder of images, live or recorded).
 
 use super::cdr::{CdrError, CdrReader, CdrWriter};
+use super::image::EncodedImage;
 use crate::robot::{Intrinsics, IntrinsicsError};
 use crate::vision::GrayImage;
 
@@ -174,18 +172,6 @@ pub fn check_image_size(w: usize, h: usize, max_pixels: usize) -> Result<(), Mes
     Err(MessageError::BadSize { reason })
 }
 
-/// Bytes per pixel and channel count of a raw encoding vamos decodes.
-fn encoding_layout(encoding: &str) -> Option<(usize, usize)> {
-    Some(match encoding {
-        "rgb8" | "bgr8" => (3, 3),
-        "rgba8" | "bgra8" => (4, 4),
-        "mono8" | "8UC1" => (1, 1),
-        "mono16" | "16UC1" => (2, 1),
-        "32FC1" => (4, 1),
-        _ => return None,
-    })
-}
-
 impl<'a> ImageMsg<'a> {
     /// Decodes the payload.
     pub fn decode(payload: &'a [u8]) -> Result<Self, MessageError> {
@@ -214,86 +200,28 @@ impl<'a> ImageMsg<'a> {
         w.into_bytes()
     }
 
+    /// The message's pixels as an [`EncodedImage`].
+    pub fn encoded(&self) -> EncodedImage<'_> {
+        EncodedImage::raw(
+            &self.encoding,
+            self.width,
+            self.height,
+            self.step,
+            self.is_bigendian,
+            self.data,
+        )
+    }
+
     /// Checks encoding, sizes and `step` against the data (and `max_pixels`), without
     /// converting.
     pub fn validate(&self, max_pixels: usize) -> Result<(usize, usize), MessageError> {
-        let (bpp, _) =
-            encoding_layout(&self.encoding).ok_or_else(|| MessageError::UnknownEncoding {
-                encoding: self.encoding.clone(),
-            })?;
-        let (w, h, step) = (
-            self.width as usize,
-            self.height as usize,
-            self.step as usize,
-        );
-        check_image_size(w, h, max_pixels)?;
-        if step < w * bpp {
-            return Err(MessageError::BadSize {
-                reason: format!(
-                    "step {step} is less than width {w} x {bpp} bytes of {}",
-                    self.encoding
-                ),
-            });
-        }
-        // The last row needs only its pixels, not the full step.
-        let needed = step * (h - 1) + w * bpp;
-        if self.data.len() < needed {
-            return Err(MessageError::BadSize {
-                reason: format!(
-                    "{} data bytes, {w}x{h} {} with step {step} needs {needed}",
-                    self.data.len(),
-                    self.encoding
-                ),
-            });
-        }
-        Ok((w, h))
+        let size = self.encoded().check(max_pixels)?;
+        Ok((size.width, size.height))
     }
 
-    /// Converts to gray (see the module docs).
+    /// Converts to gray ([`super::image`]).
     pub fn to_gray(&self, max_pixels: usize) -> Result<GrayImage, MessageError> {
-        let (w, h) = self.validate(max_pixels)?;
-        let step = self.step as usize;
-        let be = self.is_bigendian;
-        let luma = |r: u8, g: u8, b: u8| {
-            0.299 * f32::from(r) + 0.587 * f32::from(g) + 0.114 * f32::from(b)
-        };
-        let mut out = Vec::with_capacity(w * h);
-        for y in 0..h {
-            let row = &self.data[y * step..];
-            match self.encoding.as_str() {
-                "rgb8" => out.extend(row[..3 * w].chunks_exact(3).map(|p| luma(p[0], p[1], p[2]))),
-                "bgr8" => out.extend(row[..3 * w].chunks_exact(3).map(|p| luma(p[2], p[1], p[0]))),
-                "rgba8" => out.extend(row[..4 * w].chunks_exact(4).map(|p| luma(p[0], p[1], p[2]))),
-                "bgra8" => out.extend(row[..4 * w].chunks_exact(4).map(|p| luma(p[2], p[1], p[0]))),
-                "mono8" | "8UC1" => out.extend(row[..w].iter().map(|&v| f32::from(v))),
-                "mono16" | "16UC1" => out.extend(row[..2 * w].chunks_exact(2).map(|p| {
-                    let v = if be {
-                        u16::from_be_bytes([p[0], p[1]])
-                    } else {
-                        u16::from_le_bytes([p[0], p[1]])
-                    };
-                    f32::from(v) * (255.0 / 65535.0)
-                })),
-                "32FC1" => out.extend(row[..4 * w].chunks_exact(4).map(|p| {
-                    let a = [p[0], p[1], p[2], p[3]];
-                    let v = if be {
-                        f32::from_be_bytes(a)
-                    } else {
-                        f32::from_le_bytes(a)
-                    };
-                    if v.is_finite() { v } else { 0.0 }
-                })),
-                // Invariant: validate() accepted only the encodings above.
-                other => {
-                    return Err(MessageError::UnknownEncoding {
-                        encoding: other.into(),
-                    });
-                }
-            }
-        }
-        GrayImage::new(w, h, out).map_err(|e| MessageError::BadSize {
-            reason: e.to_string(),
-        })
+        self.encoded().to_gray(max_pixels)
     }
 }
 
@@ -328,74 +256,21 @@ impl<'a> CompressedImageMsg<'a> {
         w.into_bytes()
     }
 
-    /// The format named by [`Self::format`] (`jpeg`/`jpg` or `png`, any case).
-    fn image_format(&self) -> Result<image::ImageFormat, MessageError> {
-        let lower = self.format.to_ascii_lowercase();
-        if lower.contains("jpeg") || lower.contains("jpg") {
-            Ok(image::ImageFormat::Jpeg)
-        } else if lower.contains("png") {
-            Ok(image::ImageFormat::Png)
-        } else {
-            Err(MessageError::UnknownEncoding {
-                encoding: self.format.clone(),
-            })
-        }
+    /// The file as an [`EncodedImage`] (its format named by [`Self::format`]: `jpeg`/`jpg`
+    /// or `png`, any case).
+    pub fn encoded(&self) -> EncodedImage<'_> {
+        EncodedImage::compressed(&self.format, self.data)
     }
 
     /// Width and height from the file's header, nothing decoded.
     pub fn dimensions(&self) -> Result<(usize, usize), MessageError> {
-        let fmt = self.image_format()?;
-        image::ImageReader::with_format(std::io::Cursor::new(self.data), fmt)
-            .into_dimensions()
-            .map(|(w, h)| (w as usize, h as usize))
-            .map_err(|e| MessageError::Decode {
-                format: self.format.clone(),
-                reason: e.to_string(),
-            })
+        self.encoded().dimensions()
     }
 
-    /// Decodes the image to gray (colour as BT.601 luma, 8-bit gray exact, 16-bit scaled).
-    /// The image's declared size is checked against `max_pixels` before decoding.
+    /// Decodes the image to gray ([`super::image`]). The image's declared size is checked
+    /// against `max_pixels` before decoding.
     pub fn to_gray(&self, max_pixels: usize) -> Result<GrayImage, MessageError> {
-        let fmt = self.image_format()?;
-        let err = |reason: String| MessageError::Decode {
-            format: self.format.clone(),
-            reason,
-        };
-        let (w, h) = self.dimensions()?;
-        check_image_size(w, h, max_pixels)?;
-        let mut reader = image::ImageReader::with_format(std::io::Cursor::new(self.data), fmt);
-        let mut limits = image::Limits::default();
-        // The header was checked; the limits hold the decoder to what it declared.
-        let side = u32::try_from(MAX_IMAGE_SIDE).unwrap_or(u32::MAX);
-        limits.max_image_width = Some(side);
-        limits.max_image_height = Some(side);
-        limits.max_alloc = Some((w * h) as u64 * 8 + (1 << 20));
-        reader.limits(limits);
-        let img = reader.decode().map_err(|e| err(e.to_string()))?;
-        let (w, h) = (img.width() as usize, img.height() as usize);
-        check_image_size(w, h, max_pixels)?;
-        let data: Vec<f32> = if img.color().has_color() {
-            match img.as_rgb8() {
-                Some(rgb) => rgb
-                    .pixels()
-                    .map(|p| {
-                        0.299 * f32::from(p[0]) + 0.587 * f32::from(p[1]) + 0.114 * f32::from(p[2])
-                    })
-                    .collect(),
-                None => img
-                    .to_rgb32f()
-                    .pixels()
-                    .map(|p| 255.0 * (0.299 * p[0] + 0.587 * p[1] + 0.114 * p[2]))
-                    .collect(),
-            }
-        } else {
-            match img.as_luma8() {
-                Some(l8) => l8.as_raw().iter().map(|&v| f32::from(v)).collect(),
-                None => img.to_luma32f().pixels().map(|p| 255.0 * p[0]).collect(),
-            }
-        };
-        GrayImage::new(w, h, data).map_err(|e| err(e.to_string()))
+        self.encoded().to_gray(max_pixels)
     }
 }
 

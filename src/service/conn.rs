@@ -11,7 +11,7 @@
 //! - TLS handshakes inside the connection's slot, with their own timeout;
 //! - graceful shutdown: no new connections, open ones finish their requests.
 
-use super::metrics::Metrics;
+use crate::session::metrics::Metrics;
 use hyper_util::rt::{TokioExecutor, TokioIo, TokioTimer};
 use hyper_util::server::conn::auto::Builder;
 use hyper_util::service::TowerToHyperService;

@@ -3,7 +3,7 @@
 //! the connection loop ([`super::conn`]), each within a connection's slot.
 
 use super::ServiceError;
-use super::config::TlsConfig;
+use crate::config::TlsConfig;
 use rustls_pki_types::pem::PemObject;
 use rustls_pki_types::{CertificateDer, PrivateKeyDer};
 use std::sync::Arc;

@@ -7,7 +7,7 @@ use super::service::{ADMIN, ROBOT, authed, fixture_setup, open_msg, start};
 use futures_util::StreamExt;
 use std::time::{Duration, Instant};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
-use vamos::service::proto::{self, monitor_client::MonitorClient};
+use vamos::api::proto::{self, monitor_client::MonitorClient};
 
 /// Sends only the head of a request declaring `content_length` bytes and returns the
 /// status line the server answers with, without a byte of the body sent.

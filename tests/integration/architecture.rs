@@ -113,3 +113,64 @@ fn the_scanner_sees_violations() {
     assert!(roots.contains(&"crate::api".to_string()));
     assert!(!roots.contains(&"axum".to_string()), "comments are skipped");
 }
+
+/// Modules of the service's edge, bottom up: the session layer speaks core types only
+/// (no transport crate), the transports (`api`) sit on it, the server on them.
+const EDGE: &[(&str, &[&str], &[&str])] = &[
+    (
+        "session",
+        &["tonic", "prost", "axum", "http", "hyper", "tower"],
+        &["api", "service", "client", "fuzz"],
+    ),
+    ("api", &[], &["service", "client", "fuzz"]),
+];
+
+#[test]
+fn the_session_layer_speaks_core_types_and_the_edge_points_down() {
+    let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
+    for (module, crates, above) in EDGE {
+        let mut files = Vec::new();
+        rust_files(&src.join(module), &mut files);
+        assert!(
+            files.len() >= 5,
+            "expected the {module} sources, found {files:?}"
+        );
+        for file in files {
+            let text = std::fs::read_to_string(&file).unwrap();
+            for root in referenced_roots(&text) {
+                assert!(
+                    !crates.contains(&root.as_str()),
+                    "{} (module `{module}`) uses `{root}`",
+                    file.display()
+                );
+                if let Some(m) = root.strip_prefix("crate::") {
+                    assert!(
+                        !above.contains(&m),
+                        "{} (module `{module}`) imports `crate::{m}`, which is above it",
+                        file.display()
+                    );
+                }
+            }
+        }
+    }
+}
+
+#[test]
+fn config_does_not_import_the_server() {
+    let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
+    let mut files = Vec::new();
+    rust_files(&src.join("config"), &mut files);
+    assert!(!files.is_empty(), "expected the config sources");
+    for file in files {
+        let text = std::fs::read_to_string(&file).unwrap();
+        for root in referenced_roots(&text) {
+            if let Some(m) = root.strip_prefix("crate::") {
+                assert!(
+                    !["service", "session", "api", "client"].contains(&m),
+                    "{} imports `crate::{m}`: settings sit below the server",
+                    file.display()
+                );
+            }
+        }
+    }
+}

@@ -3,9 +3,9 @@
 //! the errors a caller sees.
 
 use super::service::{ROBOT, assert_same_scores, episode, fixture_setup, offline, start};
+use vamos::api::proto;
+use vamos::client::replay::record;
 use vamos::client::{Client, ClientError, ClientOptions, Pace, Update};
-use vamos::service::proto;
-use vamos::service::replay::record;
 
 fn open(session_id: &str, camera: Option<proto::CameraInfo>) -> proto::OpenSession {
     proto::OpenSession {
@@ -272,7 +272,7 @@ async fn idle_and_overlong_sessions_end_with_deadline_exceeded_and_others_go_on(
         .nth(10)
         .unwrap()
         .0;
-    let short = vamos::service::replay::Recording {
+    let short = vamos::client::replay::Recording {
         messages: rec.messages[..tenth].to_vec(),
         camera: rec.camera,
     };

@@ -7,11 +7,11 @@
 use super::service::{episode, fixture, fixture_setup};
 use std::collections::BTreeSet;
 use std::path::PathBuf;
+use vamos::api::proto;
+use vamos::api::rest::{Access, ROUTES};
+use vamos::client::replay::record;
 use vamos::client::{Client, ClientOptions, Pace};
 use vamos::config::Settings;
-use vamos::service::proto;
-use vamos::service::replay::record;
-use vamos::service::rest::{Access, ROUTES};
 use vamos::setup::Setup;
 
 fn deploy(rel: &str) -> String {
@@ -72,8 +72,7 @@ async fn dashboards_and_alerts_query_metrics_the_server_exposes() {
     .unwrap();
     let setup = Setup::load(&f.settings, &profile).unwrap();
     f.settings.service.queue_depth = 2;
-    let catalog =
-        vamos::service::profiles::ProfileCatalog::from_setups(vec![f.setup.clone(), setup]);
+    let catalog = vamos::session::ProfileCatalog::from_setups(vec![f.setup.clone(), setup]);
     let server = vamos::service::Server::start(f.settings.clone(), catalog)
         .await
         .unwrap();

@@ -116,7 +116,7 @@ async fn a_model_swap_while_four_robots_stream_loses_no_frame() {
         sender.await.unwrap();
         let (scores, events, err) = task.await.unwrap();
         assert!(err.is_none(), "{id}: {err:?}");
-        use vamos::service::proto::session_event::Kind;
+        use vamos::api::proto::session_event::Kind;
         let dropped: Vec<_> = events
             .iter()
             .filter(|e| e.kind == Kind::FramesDropped as i32 || e.kind == Kind::MessageError as i32)

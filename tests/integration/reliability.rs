@@ -9,7 +9,7 @@ use super::service::{
 use futures_util::StreamExt;
 use tokio::sync::mpsc;
 use tokio_stream::wrappers::ReceiverStream;
-use vamos::service::proto::{self, monitor_client::MonitorClient, stream_request::Message as In};
+use vamos::api::proto::{self, monitor_client::MonitorClient, stream_request::Message as In};
 
 /// The value of an unlabelled (or fully labelled) series in a Prometheus text.
 fn metric(text: &str, series: &str) -> f64 {

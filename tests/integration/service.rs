@@ -9,13 +9,14 @@ use tokio::sync::mpsc;
 use tokio_stream::wrappers::ReceiverStream;
 use tonic::Request;
 use tonic::metadata::MetadataValue;
+use vamos::api::proto::monitor_client::MonitorClient;
+use vamos::api::proto::{self, stream_request::Message as In};
 use vamos::config::Settings;
 use vamos::episode::McapEpisode;
 use vamos::pipeline::FrameScore;
 use vamos::pipeline::offline::score_episode;
-use vamos::service::proto::monitor_client::MonitorClient;
-use vamos::service::proto::{self, stream_request::Message as In};
-use vamos::service::{RunningServer, Server, profiles::ProfileCatalog};
+use vamos::service::{RunningServer, Server};
+use vamos::session::ProfileCatalog;
 use vamos::setup::Setup;
 
 pub(crate) const PROFILE: &str = r#"name = "sim-arm"
@@ -48,7 +49,7 @@ pub(crate) fn fixture() -> PathBuf {
 }
 
 pub(crate) fn hex_sha256(s: &str) -> String {
-    vamos::service::auth::digest(s)
+    vamos::api::auth::digest(s)
         .iter()
         .map(|b| format!("{b:02x}"))
         .collect()
@@ -105,7 +106,7 @@ pub(crate) async fn start(f: &Fixture) -> RunningServer {
 /// The messages of a bag as a robot would stream them (log-time order): images, joint
 /// states; and its first camera info.
 pub(crate) fn episode_messages(path: &std::path::Path) -> (Vec<In>, Option<proto::CameraInfo>) {
-    let rec = vamos::service::replay::record(path, &Default::default()).unwrap();
+    let rec = vamos::client::replay::record(path, &Default::default()).unwrap();
     (
         rec.messages.into_iter().map(|(_, m)| m).collect(),
         rec.camera,

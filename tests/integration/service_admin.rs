@@ -13,11 +13,12 @@ use std::path::PathBuf;
 use std::time::Duration;
 use tokio::sync::mpsc;
 use tokio_stream::wrappers::ReceiverStream;
+use vamos::api::proto::monitor_client::MonitorClient;
+use vamos::api::proto::{self, stream_request::Message as In};
+use vamos::api::rest::{Access, ROUTES};
 use vamos::config::Settings;
-use vamos::service::proto::monitor_client::MonitorClient;
-use vamos::service::proto::{self, stream_request::Message as In};
-use vamos::service::rest::{Access, ROUTES};
-use vamos::service::{RunningServer, Server, profiles::ProfileCatalog};
+use vamos::service::{RunningServer, Server};
+use vamos::session::ProfileCatalog;
 
 pub(crate) fn settings(dir: &std::path::Path) -> Settings {
     let mut s = Settings::default();

@@ -5,30 +5,87 @@
 //! episode to it over gRPC as concurrent robots, shows their progress live, and writes a
 //! report (markdown + PNG plots + JSON).
 
-use super::eval::{Timeline, write_plots};
+mod report;
+
 use super::score::expand_episodes;
 use anyhow::{Context, Result, bail};
-use serde_json::json;
+use report::write_report;
 use std::collections::BTreeMap;
 use std::io::{IsTerminal, Write};
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
+use vamos::api::proto::{self, stream_request::Message as In};
+use vamos::client::replay::{Recording, record};
 use vamos::client::{Client, ClientOptions, Pace, SessionSummary, Update};
 use vamos::config::Settings;
 use vamos::episode::Labels;
-use vamos::eval::{EvalReport, ScoredFrame, evaluate};
-use vamos::service::profiles::ProfileCatalog;
-use vamos::service::proto::{self, stream_request::Message as In};
-use vamos::service::replay::{Recording, record};
 use vamos::service::{RunningServer, Server};
+use vamos::session::ProfileCatalog;
 use vamos::setup::Setup;
 
 /// The embedded assets: `(path relative to assets/demo, bytes)`, listed by build.rs.
 const ASSETS: &[(&str, &[u8])] = include!(concat!(env!("OUT_DIR"), "/demo_assets.rs"));
 
-/// Options of `vamos demo`.
-pub struct DemoOptions {
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// Output folder (report.md, report.json, plots/, the unpacked assets/).
+    #[arg(short, long, default_value = "vamos-demo")]
+    pub out: PathBuf,
+    /// Use this profile instead of the embedded one (needs --episodes).
+    #[arg(long)]
+    pub profile: Option<PathBuf>,
+    /// Labelled episodes (.mcap files or folders) instead of the embedded ones.
+    #[arg(long, num_args = 1..)]
+    pub episodes: Vec<PathBuf>,
+    /// Robots streaming at once (0: one per episode, all at once).
+    #[arg(long, default_value_t = 0)]
+    pub robots: usize,
+    /// Replay at the recorded rate times this factor (1.0: real time) instead of as
+    /// fast as the server scores.
+    #[arg(long)]
+    pub speed: Option<f64>,
+    /// No live progress table: one line per finished episode.
+    #[arg(long)]
+    pub quiet: bool,
+    /// Run the vision-core demo instead (TV-L1 and registration on synthetic pairs).
+    #[arg(long)]
+    pub vision: bool,
+    /// Vision demo: image width in pixels.
+    #[arg(long, default_value_t = 320, requires = "vision")]
+    pub width: usize,
+    /// Vision demo: image height in pixels.
+    #[arg(long, default_value_t = 240, requires = "vision")]
+    pub height: usize,
+    /// Vision demo: worker threads (0 = one per core; default from the settings).
+    #[arg(long, requires = "vision")]
+    pub threads: Option<usize>,
+}
+
+/// `vamos demo`: the service demo, or with `--vision` the vision-core demo.
+pub fn run(settings: &Settings, args: Args) -> Result<()> {
+    if args.vision {
+        return super::vision_demo::run(
+            &args.out,
+            args.width,
+            args.height,
+            super::resolve_threads(args.threads.unwrap_or(settings.vision.threads)),
+            &settings.vision.registration,
+        );
+    }
+    let opts = DemoOptions {
+        out: args.out,
+        profile: args.profile,
+        episodes: args.episodes,
+        robots: args.robots,
+        speed: args.speed,
+        quiet: args.quiet,
+    };
+    super::async_runtime()?.block_on(demo(settings, opts))
+}
+
+/// Options of the service demo.
+struct DemoOptions {
     /// Output folder (assets unpacked under `assets/`, report and plots beside).
     pub out: PathBuf,
     /// A profile of your own instead of the embedded one.
@@ -93,7 +150,7 @@ fn unpack(dir: &Path) -> Result<PathBuf> {
 }
 
 /// Runs the demo.
-pub async fn run(settings: &Settings, opts: DemoOptions) -> Result<()> {
+async fn demo(settings: &Settings, opts: DemoOptions) -> Result<()> {
     let started = Instant::now();
     std::fs::create_dir_all(&opts.out)
         .with_context(|| format!("cannot create {}", opts.out.display()))?;
@@ -422,232 +479,4 @@ fn draw_table(all: &[Progress], drawn: usize) -> Result<usize> {
     }
     out.flush()?;
     Ok(all.len())
-}
-
-fn percentile(sorted: &[f64], q: f64) -> Option<f64> {
-    if sorted.is_empty() {
-        return None;
-    }
-    let i = ((sorted.len() - 1) as f64 * q).round() as usize;
-    sorted.get(i).copied()
-}
-
-fn opt(v: Option<f64>, digits: usize) -> String {
-    v.map_or("-".into(), |v| format!("{v:.digits$}"))
-}
-
-/// Writes `report.md`, `report.json` and the plots; returns the report's path.
-#[allow(clippy::too_many_arguments)]
-fn write_report(
-    out: &Path,
-    profile_path: &Path,
-    profile_name: &str,
-    model: Option<&str>,
-    alarm: f64,
-    thresholds: vamos::eval::Thresholds,
-    streamed: &[Streamed],
-    elapsed: Duration,
-) -> Result<PathBuf> {
-    let mut frames = Vec::new();
-    for s in streamed {
-        for f in &s.summary.scores {
-            frames.push(ScoredFrame {
-                episode: s.name.clone(),
-                stamp_ns: f.stamp_ns,
-                score: f.score,
-                anomalous: s
-                    .labels
-                    .as_ref()
-                    .is_some_and(|l| l.is_anomalous(f.stamp_ns)),
-                anomaly_type: s.labels.as_ref().and_then(|l| l.anomaly_type.clone()),
-                warming_up: f.warming_up,
-            });
-        }
-    }
-    let report: EvalReport = evaluate(&frames, alarm);
-    let outcomes = vamos::eval::episode_outcomes(&frames, alarm);
-    let plots_dir = out.join("plots");
-    let timelines: Vec<Timeline<'_>> = streamed
-        .iter()
-        .map(|s| Timeline {
-            name: &s.name,
-            points: s
-                .summary
-                .scores
-                .iter()
-                .map(|f| (f.stamp_ns, f.score))
-                .collect(),
-            labels: s.labels.as_ref(),
-        })
-        .collect();
-    write_plots(&plots_dir, &timelines, &frames, alarm)?;
-
-    let mut latencies: Vec<f64> = streamed
-        .iter()
-        .flat_map(|s| s.latencies_s.iter().copied())
-        .collect();
-    latencies.sort_by(f64::total_cmp);
-    let mut compute: Vec<f64> = streamed
-        .iter()
-        .flat_map(|s| s.summary.scores.iter().map(|f| f.compute_s))
-        .collect();
-    compute.sort_by(f64::total_cmp);
-    let scored: usize = streamed.iter().map(|s| s.summary.scores.len()).sum();
-    let sent: u64 = streamed.iter().map(|s| s.summary.images_sent).sum();
-    let dropped: u64 = streamed.iter().map(|s| s.summary.dropped).sum();
-    let errors: usize = streamed
-        .iter()
-        .map(|s| s.summary.message_errors.len())
-        .sum();
-    let ms = |v: Option<f64>| v.map(|s| s * 1e3);
-
-    let mut md = String::new();
-    md.push_str("# vamos demo report\n\n");
-    md.push_str(&format!(
-        "vamos {} · profile `{profile_name}` ({}) · model {} · {} episode(s) streamed over \
-         gRPC to an in-process server as concurrent robots · {:.1} s in all\n\n",
-        env!("CARGO_PKG_VERSION"),
-        profile_path.display(),
-        model.unwrap_or("none (no flow predictor)"),
-        streamed.len(),
-        elapsed.as_secs_f64()
-    ));
-    md.push_str(&format!(
-        "Thresholds: e_c {}, e_b {}; alarm when the fused score reaches {}.\n\n",
-        opt(thresholds.e_c, 3),
-        opt(thresholds.e_b, 3),
-        fmt_threshold(alarm)
-    ));
-    md.push_str("## Summary\n\n| figure | value |\n|---|---|\n");
-    for (k, v) in [
-        ("frames scored / images sent", format!("{scored} / {sent}")),
-        ("frames dropped / refused", format!("{dropped} / {errors}")),
-        ("frame-level AUC-ROC", opt(report.auc_roc, 3)),
-        ("frame-level AUC-PR", opt(report.auc_pr, 3)),
-        (
-            "anomalous episodes detected",
-            opt(report.detection_rate.map(|r| r * 100.0), 0) + " %",
-        ),
-        (
-            "median detection delay",
-            opt(report.median_detection_delay_s, 2) + " s",
-        ),
-        (
-            "nominal episodes with a false alarm",
-            opt(report.episode_false_alarm_rate.map(|r| r * 100.0), 0) + " %",
-        ),
-        (
-            "score latency p50 / p99 (image sent -> score received; includes queueing)",
-            format!(
-                "{} / {} ms",
-                opt(ms(percentile(&latencies, 0.5)), 1),
-                opt(ms(percentile(&latencies, 0.99)), 1)
-            ),
-        ),
-        (
-            "server compute per frame p50 / p99",
-            format!(
-                "{} / {} ms",
-                opt(ms(percentile(&compute, 0.5)), 1),
-                opt(ms(percentile(&compute, 0.99)), 1)
-            ),
-        ),
-    ] {
-        md.push_str(&format!("| {k} | {v} |\n"));
-    }
-    md.push_str(
-        "\n## Episodes\n\n| episode | anomaly | frames | max score | onset | first alarm | \
-         delay | outcome |\n|---|---|---:|---:|---:|---:|---:|---|\n",
-    );
-    for o in &outcomes {
-        let t0 = frames
-            .iter()
-            .filter(|f| f.episode == o.episode)
-            .map(|f| f.stamp_ns)
-            .min()
-            .unwrap_or(0);
-        let rel = |ns: Option<i64>| ns.map(|n| (n - t0) as f64 / 1e9);
-        let outcome = match (o.anomalous, o.detection_delay_s, o.false_alarm) {
-            (false, _, false) => "ok (no alarm)",
-            (false, _, true) => "FALSE ALARM",
-            (true, Some(_), false) => "detected",
-            (true, Some(_), true) => "detected (alarm before onset too)",
-            (true, None, _) => "MISSED",
-        };
-        md.push_str(&format!(
-            "| {} | {} | {} | {} | {} | {} | {} | {} |\n",
-            o.episode,
-            o.anomaly_type.as_deref().unwrap_or("-"),
-            o.frames,
-            fmt_score(o.max_score),
-            opt(rel(o.onset_ns), 1) + if o.onset_ns.is_some() { " s" } else { "" },
-            opt(rel(o.first_alarm_ns), 1) + if o.first_alarm_ns.is_some() { " s" } else { "" },
-            opt(o.detection_delay_s, 1)
-                + if o.detection_delay_s.is_some() {
-                    " s"
-                } else {
-                    ""
-                },
-            outcome
-        ));
-    }
-    if !report.per_type.is_empty() {
-        md.push_str(
-            "\n## Per anomaly type (each type's episodes pooled with the nominal ones)\n\n\
-             | type | episodes | AUC-ROC | AUC-PR | detected | median delay |\n\
-             |---|---:|---:|---:|---:|---:|\n",
-        );
-        for (t, r) in &report.per_type {
-            md.push_str(&format!(
-                "| {t} | {} | {} | {} | {} % | {} |\n",
-                r.episodes,
-                opt(r.auc_roc, 3),
-                opt(r.auc_pr, 3),
-                opt(r.detection_rate.map(|v| v * 100.0), 0),
-                opt(r.median_detection_delay_s, 2)
-                    + if r.median_detection_delay_s.is_some() {
-                        " s"
-                    } else {
-                        ""
-                    }
-            ));
-        }
-    }
-    md.push_str("\n## Plots\n\n");
-    if plots_dir.join("roc.png").is_file() {
-        md.push_str("![ROC](plots/roc.png) ![PR](plots/pr.png)\n\n");
-    }
-    md.push_str(
-        "Score timelines (log scale; anomalous intervals shaded, the alarm threshold \
-         dashed):\n\n",
-    );
-    for s in streamed {
-        md.push_str(&format!("![{0}](plots/{0}.png)\n", s.name));
-    }
-    let path = out.join("report.md");
-    std::fs::write(&path, md).with_context(|| format!("cannot write {}", path.display()))?;
-    let json_path = out.join("report.json");
-    let value = json!({
-        "profile": profile_name,
-        "model": model,
-        "alarm_threshold": alarm.is_finite().then_some(alarm),
-        "evaluation": report,
-        "episodes": outcomes,
-        "frames_scored": scored,
-        "images_sent": sent,
-        "frames_dropped": dropped,
-        "message_errors": errors,
-        "latency_ms": {
-            "p50": ms(percentile(&latencies, 0.5)),
-            "p99": ms(percentile(&latencies, 0.99)),
-        },
-        "compute_ms": {
-            "p50": ms(percentile(&compute, 0.5)),
-            "p99": ms(percentile(&compute, 0.99)),
-        },
-        "elapsed_s": elapsed.as_secs_f64(),
-    });
-    std::fs::write(&json_path, serde_json::to_string_pretty(&value)? + "\n")
-        .with_context(|| format!("cannot write {}", json_path.display()))?;
-    Ok(path)
 }

@@ -2,7 +2,7 @@
 //! `vamos.v1` stream messages in log-time order, with their offsets, and its first camera
 //! info (for the open message). Used by `vamos loadgen` and the service tests.
 
-use super::proto::{self, stream_request::Message};
+use crate::api::proto::{self, stream_request::Message};
 use crate::episode::ros::{CameraInfoMsg, ImageMsg, JointStateMsg};
 use crate::episode::{EpisodeConfig, EpisodeError, McapEpisode};
 use std::path::Path;

@@ -12,7 +12,8 @@ use crate::model::ModelConfig;
 use crate::pipeline::PipelineConfig;
 use crate::robot::RobotConfig;
 use crate::robot::render::RenderConfig;
-use crate::service::ServiceConfig;
+pub mod service;
+
 use crate::telemetry::LogConfig;
 use crate::vision::flow::FlowParams;
 use crate::vision::preprocess::NetworkInputParams;
@@ -20,6 +21,7 @@ use crate::vision::registration::RegistrationParams;
 use figment::Figment;
 use figment::providers::{Format, Serialized, Toml};
 use serde::{Deserialize, Serialize};
+pub use service::{FleetRole, QueuePolicy, ServiceConfig, SharedStoreConfig, TlsConfig};
 use std::path::Path;
 
 /// The environment variable that names the settings file.

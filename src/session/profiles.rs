@@ -213,7 +213,7 @@ impl ProfileCatalog {
     }
 
     /// This catalog, also serving the profiles of `store` (loaded with `settings`).
-    /// [`super::Server::start`] attaches the data directory it opened.
+    /// `crate::service::Server::start` attaches the data directory it opened.
     pub fn with_store(mut self, store: Store, settings: Settings) -> Self {
         self.stored = Some(Arc::new(StoredProfiles {
             store,

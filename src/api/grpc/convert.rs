@@ -1,0 +1,113 @@
+//! `vamos.v1` messages to the session layer's types and back.
+
+use crate::api::proto;
+use crate::episode::image::Encoding;
+use crate::eval::Detector;
+use crate::robot::Intrinsics;
+use crate::session::{Event, EventKind, LiveImage, LiveJoints, Output, ScoredFrame, SessionError};
+use tonic::Status;
+
+/// The camera of an open message.
+pub fn intrinsics_of(c: &proto::CameraInfo) -> Result<Intrinsics, SessionError> {
+    Intrinsics::new(c.width, c.height, c.fx, c.fy, c.cx, c.cy)
+        .map_err(|source| SessionError::BadCamera { source })
+}
+
+/// A streamed image; a zero `step` means packed rows.
+pub fn live_image(image: proto::Image) -> LiveImage {
+    let step = if image.step == 0 {
+        let bpp = Encoding::from_name(&image.encoding)
+            .and_then(Encoding::bytes_per_pixel)
+            .unwrap_or(0);
+        image.width.saturating_mul(bpp as u32)
+    } else {
+        image.step
+    };
+    LiveImage {
+        stamp_ns: image.stamp_ns,
+        encoding: image.encoding,
+        width: image.width,
+        height: image.height,
+        step,
+        big_endian: image.big_endian,
+        data: image.data,
+    }
+}
+
+/// A streamed joint state (velocities and efforts are not used).
+pub fn live_joints(j: proto::JointState) -> LiveJoints {
+    LiveJoints {
+        stamp_ns: j.stamp_ns,
+        names: j.names,
+        positions: j.positions,
+    }
+}
+
+/// A detector as its `vamos.v1` code.
+pub fn detector_code(d: Option<Detector>) -> proto::Detector {
+    match d {
+        Some(Detector::Camera) => proto::Detector::Camera,
+        Some(Detector::Body) => proto::Detector::Body,
+        Some(Detector::Flow) => proto::Detector::Flow,
+        Some(Detector::Scene) => proto::Detector::Scene,
+        None => proto::Detector::Unspecified,
+    }
+}
+
+/// A scored frame as `vamos.v1.FrameScore`.
+pub fn frame_score(f: &ScoredFrame) -> proto::FrameScore {
+    let s = &f.score;
+    proto::FrameScore {
+        stamp_ns: s.stamp_ns,
+        index: s.index,
+        frame: s.frame,
+        score: s.score,
+        e_c: s.e_c,
+        e_b: s.e_b,
+        e_o: s.e_o,
+        e_r: s.e_r,
+        anomaly: s.anomaly,
+        detector: detector_code(f.detector()) as i32,
+        warming_up: s.warming_up,
+        latency_s: f.latency_s,
+        compute_s: f.compute_s,
+    }
+}
+
+/// An event kind as its `vamos.v1` code.
+pub fn event_kind(k: EventKind) -> proto::session_event::Kind {
+    use proto::session_event::Kind;
+    match k {
+        EventKind::Opened => Kind::Opened,
+        EventKind::Resumed => Kind::Resumed,
+        EventKind::WarmingUp => Kind::WarmingUp,
+        EventKind::FramesDropped => Kind::FramesDropped,
+        EventKind::MessageError => Kind::MessageError,
+        EventKind::Phase => Kind::Phase,
+        EventKind::Reloaded => Kind::Reloaded,
+    }
+}
+
+/// An event as `vamos.v1.SessionEvent`.
+pub fn session_event(e: Event) -> proto::SessionEvent {
+    proto::SessionEvent {
+        kind: event_kind(e.kind) as i32,
+        session_id: e.session_id,
+        detail: e.detail,
+        stamp_ns: e.stamp_ns,
+        count: e.count,
+    }
+}
+
+/// A session's output as a `Monitor.Stream` response (or the status that ends it).
+pub fn stream_response(o: Output) -> Result<proto::StreamResponse, Status> {
+    use proto::stream_response::Message;
+    let message = match o {
+        Output::Score(f) => Message::Score(frame_score(&f)),
+        Output::Event(e) => Message::Event(session_event(e)),
+        Output::Closed(e) => return Err(e.into()),
+    };
+    Ok(proto::StreamResponse {
+        message: Some(message),
+    })
+}

@@ -1,0 +1,301 @@
+//! The worker pool: threads that take one frame of the session at the head of the ready
+//! queue, decode it, score it and deliver the score, then put the session back at the
+//! tail if more frames wait. A panic while scoring fails that frame only (the session's
+//! scorer is rebuilt); a panic outside a frame restarts the worker.
+
+use super::budget::{BudgetSpent, ByteBudget, Charge};
+use super::event::{EventKind, LiveImage, Output, ScoredFrame, detector_name};
+use super::hub::{Hub, event};
+use super::state::{ImagePayload, LatestScore, ReadyFrame, Session, lock};
+use crate::episode::ros::MessageError;
+use crate::pipeline::{FrameInput, FrameScore, JointInput};
+use crate::vision::GrayImage;
+use std::panic::{AssertUnwindSafe, catch_unwind};
+use std::sync::Arc;
+use std::sync::atomic::Ordering;
+use std::time::{Duration, Instant};
+
+/// Why a live image was not decoded.
+#[derive(Debug, thiserror::Error)]
+pub enum ImageRefused {
+    /// The image itself (encoding, sizes, a broken file).
+    #[error(transparent)]
+    Message(#[from] MessageError),
+    /// The memory budget cannot hold its decoding.
+    #[error("{width}x{height} image not decoded: {source}")]
+    Budget {
+        /// Columns.
+        width: usize,
+        /// Rows.
+        height: usize,
+        /// The budget's refusal.
+        #[source]
+        source: BudgetSpent,
+    },
+}
+
+/// A streamed image decoded to gray (raw encodings and PNG / JPEG files, at most
+/// `max_pixels`) by the one decoder of [`crate::episode::image`]. With a `budget`, the
+/// decoding's memory (estimated from the declared size, before anything is decoded) is
+/// charged to it for as long as the returned charge lives, or the image is refused.
+pub fn decode_live_image(
+    image: &LiveImage,
+    max_pixels: usize,
+    budget: Option<&Arc<ByteBudget>>,
+) -> Result<(GrayImage, Option<Charge>), ImageRefused> {
+    let encoded = image.encoded();
+    let size = encoded.check(max_pixels)?;
+    let mut held = match budget {
+        Some(b) => Some(
+            b.charge(size.peak_bytes)
+                .map_err(|source| ImageRefused::Budget {
+                    width: size.width,
+                    height: size.height,
+                    source,
+                })?,
+        ),
+        None => None,
+    };
+    let gray = encoded.to_gray(max_pixels)?;
+    // Decoded: only the gray image stays.
+    if let Some(c) = held.as_mut() {
+        let _ = c.resize(4 * gray.data().len() as u64);
+    }
+    Ok((gray, held))
+}
+
+impl Hub {
+    /// A worker thread: [`Self::worker`] restarted after any panic that escapes a frame,
+    /// until the hub stops.
+    pub(super) fn supervised_worker(self: &Arc<Self>, i: usize) {
+        loop {
+            match catch_unwind(AssertUnwindSafe(|| self.worker())) {
+                Ok(()) => break,
+                Err(panic) => {
+                    self.metrics.worker_restarts.inc();
+                    tracing::error!(
+                        worker = i,
+                        "scoring worker panicked ({}); restarted",
+                        panic_message(panic.as_ref())
+                    );
+                }
+            }
+        }
+        self.live_workers.fetch_sub(1, Ordering::SeqCst);
+        self.metrics.workers_alive.dec();
+    }
+
+    fn worker(&self) {
+        loop {
+            if Self::take_injected(&self.injected_worker_panics) {
+                panic!("injected worker panic");
+            }
+            let session = {
+                let mut ready = lock(&self.ready);
+                loop {
+                    if let Some(s) = ready.pop_front() {
+                        break s;
+                    }
+                    if self.stopping.load(Ordering::SeqCst) && self.session_count() == 0 {
+                        return;
+                    }
+                    ready = self
+                        .work
+                        .wait_timeout(ready, Duration::from_millis(200))
+                        .map_or_else(|e| e.into_inner().0, |r| r.0);
+                    if self.stopping.load(Ordering::SeqCst) && ready.is_empty() {
+                        return;
+                    }
+                }
+            };
+            let frame = {
+                let mut st = lock(&session.state);
+                let f = st.queue.pop_front();
+                if f.is_some() {
+                    self.metrics.queue_depth.dec();
+                }
+                f
+            };
+            session.space.notify_all();
+            if let Some(frame) = frame {
+                let stamp = frame.stamp_ns;
+                if let Err(panic) = catch_unwind(AssertUnwindSafe(|| self.score(&session, frame))) {
+                    self.recover(&session, stamp, panic_message(panic.as_ref()));
+                }
+            }
+            let mut st = lock(&session.state);
+            if !st.queue.is_empty() && !st.closed {
+                drop(st);
+                lock(&self.ready).push_back(session);
+                self.work.notify_one();
+            } else {
+                st.scheduled = false;
+                let done = st.finishing && st.pending.is_empty() && !st.closed;
+                drop(st);
+                if done {
+                    self.close(&session, None);
+                }
+            }
+        }
+    }
+
+    /// After a panic while scoring frame `stamp` of `s`: the frame is reported failed,
+    /// the session's scorer (whose state the panic may have left half-updated) is
+    /// rebuilt from its profile, continuing its indices, and the session goes on.
+    fn recover(&self, s: &Arc<Session>, stamp: i64, what: String) {
+        self.metrics
+            .scoring_panics
+            .with_label_values(&[&s.profile_name])
+            .inc();
+        tracing::error!(session = %s.id, stamp_ns = stamp, "scoring panicked: {what}");
+        let profile = s.profile();
+        let rebuilt = match profile.setup.calibrated_scorer(&s.seed_key, false) {
+            Ok(mut fresh) => {
+                let mut current = lock(&s.scorer);
+                fresh.continue_after(&current);
+                *current = fresh;
+                "its scorer was rebuilt (the flow predictor warms up again)".to_string()
+            }
+            Err(e) => format!("its scorer could not be rebuilt ({e}) and goes on as it was"),
+        };
+        lock(&s.state).warm_reported = false;
+        self.refuse(
+            s,
+            "internal",
+            format!("frame failed: internal error while scoring it ({what}); {rebuilt}"),
+            stamp,
+        );
+    }
+
+    fn score(&self, s: &Arc<Session>, frame: ReadyFrame) {
+        let stamp = frame.stamp_ns;
+        let started = Instant::now();
+        // Held until the frame is scored: the buffered bytes, then the decoding's.
+        let _buffered = frame.charge;
+        let (image, frame_camera, _decoding) = match frame.image {
+            ImagePayload::Decoded(img, k) => (img, k, None),
+            ImagePayload::Live(msg) => {
+                match decode_live_image(&msg, self.config.max_image_pixels, Some(&self.budget)) {
+                    Ok((img, charge)) => (img, None, charge),
+                    Err(e) => {
+                        self.refuse(s, "image", format!("image refused: {e}"), stamp);
+                        return;
+                    }
+                }
+            }
+        };
+        if Self::take_injected(&self.injected_frame_panics) {
+            panic!("injected scoring panic");
+        }
+        let decode_s = started.elapsed().as_secs_f64();
+        let intrinsics = frame_camera.or_else(|| {
+            s.camera.and_then(|k| {
+                // The open message's camera at the image's resolution.
+                (k.width as usize == image.width() && k.height as usize == image.height())
+                    .then_some(k)
+            })
+        });
+        let joints = frame.joints.as_ref().map(|(n, p)| JointInput {
+            names: n,
+            positions: p,
+        });
+        let result = lock(&s.scorer).push(&FrameInput {
+            stamp_ns: stamp,
+            image: &image,
+            joints,
+            intrinsics: intrinsics.as_ref(),
+        });
+        match result {
+            Ok(Some(score)) => self.deliver(s, score, frame.arrived, started, decode_s),
+            Ok(None) => {}
+            Err(e) => self.refuse(s, "frame", format!("frame refused: {e}"), stamp),
+        }
+    }
+
+    fn deliver(
+        &self,
+        s: &Arc<Session>,
+        score: FrameScore,
+        arrived: Instant,
+        started: Instant,
+        decode_s: f64,
+    ) {
+        let m = &self.metrics;
+        let profile = s.profile_name.as_str();
+        m.frames.with_label_values(&[profile]).inc();
+        s.frames_scored.fetch_add(1, Ordering::Relaxed);
+        let t = &score.timings;
+        let us = |v: u64| v as f64 * 1e-6;
+        for (stage, v) in [
+            ("decode", decode_s),
+            ("kinematics", us(t.kinematics_us)),
+            ("render", us(t.render_us)),
+            ("flow", us(t.front_end.flow_us)),
+            ("registration", us(t.front_end.registration_us)),
+            ("camera", us(t.camera_us)),
+            ("body", us(t.body_us)),
+            ("model", us(t.model_us)),
+            ("total", us(t.total_us)),
+        ] {
+            m.stage_seconds.with_label_values(&[stage]).observe(v);
+        }
+        let current = s.profile();
+        if current.setup.model.is_some() {
+            m.inference_seconds
+                .with_label_values(&[&current.model_label])
+                .observe(us(t.model_us));
+        }
+        let detector = super::event::detector_of(&score);
+        if score.anomaly {
+            s.anomalies.fetch_add(1, Ordering::Relaxed);
+            let label = detector.map_or("flow", detector_name);
+            m.anomalies.with_label_values(&[profile, label]).inc();
+        }
+        let warm_event = {
+            let mut st = lock(&s.state);
+            st.latest = Some(LatestScore {
+                stamp_ns: score.stamp_ns,
+                score: score.score,
+                anomaly: score.anomaly,
+            });
+            let first = score.warming_up && !st.warm_reported;
+            if first {
+                st.warm_reported = true;
+            }
+            first
+        };
+        if warm_event {
+            self.send(
+                s,
+                event(
+                    &s.id,
+                    EventKind::WarmingUp,
+                    "the flow predictor is collecting its history: scores use e_c and e_b only",
+                    score.stamp_ns,
+                    0,
+                ),
+            );
+        }
+        // One clock reading for both, so compute time never exceeds latency.
+        let now = Instant::now();
+        let latency = now.saturating_duration_since(arrived).as_secs_f64();
+        m.latency_seconds
+            .with_label_values(&[profile])
+            .observe(latency);
+        let scored = ScoredFrame {
+            score,
+            latency_s: latency,
+            compute_s: now.saturating_duration_since(started).as_secs_f64(),
+        };
+        self.send(s, Output::Score(scored));
+    }
+}
+
+/// The text of a caught panic's payload.
+fn panic_message(panic: &(dyn std::any::Any + Send)) -> String {
+    panic
+        .downcast_ref::<&str>()
+        .map(|s| s.to_string())
+        .or_else(|| panic.downcast_ref::<String>().cloned())
+        .unwrap_or_else(|| "a panic without a message".into())
+}
