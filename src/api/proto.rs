@@ -28,6 +28,7 @@ pub fn score_json(s: &FrameScore) -> serde_json::Value {
         "e_c": s.e_c,
         "e_b": s.e_b,
         "e_o": s.e_o,
+        "e_r": s.e_r,
         "anomaly": s.anomaly,
         "detector": detector_name(s.detector),
         "warming_up": s.warming_up,

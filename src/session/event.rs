@@ -127,6 +127,8 @@ pub struct Event {
 
 /// What a session sends its client.
 #[derive(Debug)]
+// Scores are nearly every message: they stay inline rather than boxed once per frame.
+#[allow(clippy::large_enum_variant)]
 pub enum Output {
     /// A frame's score.
     Score(ScoredFrame),

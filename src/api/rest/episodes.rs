@@ -41,6 +41,7 @@ pub fn score_json(f: &ScoredFrame) -> serde_json::Value {
         "e_c": s.e_c,
         "e_b": s.e_b,
         "e_o": s.e_o,
+        "e_r": s.e_r,
         "anomaly": s.anomaly,
         "detector": f.detector().map(detector_name),
         "warming_up": s.warming_up,
@@ -191,6 +192,7 @@ mod tests {
             (None, true),
             (Some(Detector::Body), true),
             (Some(Detector::Camera), false),
+            (Some(Detector::Scene), true),
         ] {
             let f = ScoredFrame {
                 score: FrameScore {
@@ -201,6 +203,7 @@ mod tests {
                     e_c: Some(1.0),
                     e_b: None,
                     e_o: Some(0.5),
+                    e_r: Some(0.75),
                     anomaly,
                     triggered,
                     warming_up: true,
@@ -209,6 +212,8 @@ mod tests {
                     body_pixels: 0,
                     timings: Default::default(),
                     heatmap: None,
+                    scene_cells: None,
+                    scene_grid: (0, 0),
                 },
                 latency_s: 0.02,
                 compute_s: 0.01,
