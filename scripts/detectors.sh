@@ -1,0 +1,61 @@
+#!/bin/sh
+# The detectors beyond the paper, without a flow predictor (README "Beyond the paper"):
+# calibrate and evaluate one profile per row of the table on a simulated dataset made by
+# scripts/benchmark.sh (or `vamos-sim generate --seed 7 --width 320 --height 240`).
+#
+#   scripts/detectors.sh SIM_DIR OUT_DIR [ROW...]
+#
+# Rows: paper, all, all_quantile, scene_camera, scene (default: all five). Each row leaves
+# OUT_DIR/ROW/{profile.toml, profile.calibration.json, eval.json} and prints one line.
+# Needs the release binary (cargo build --release); about 90 s per row on 2 cores.
+set -eu
+sim=$(cd "${1:?usage: scripts/detectors.sh SIM_DIR OUT_DIR [ROW...]}" && pwd)
+out=${2:?usage: scripts/detectors.sh SIM_DIR OUT_DIR [ROW...]}
+shift 2
+root=$(cd "$(dirname "$0")/.." && pwd)
+vamos=${VAMOS:-"$root/target/release/vamos"}
+rows=${*:-paper all all_quantile scene_camera scene}
+for row in $rows; do
+    case $row in
+        paper) extra='fusion = "paper"' ;;
+        all) extra='fusion = "calibrated"' ;;
+        all_quantile) extra='fusion = "calibrated"
+[pipeline.residual]
+body_error = "quantile"' ;;
+        scene_camera) extra='fusion = "calibrated"
+[pipeline.detectors]
+body = false' ;;
+        scene) extra='fusion = "calibrated"
+[pipeline.detectors]
+camera = false
+body = false' ;;
+        *) echo "unknown row $row" >&2; exit 2 ;;
+    esac
+    d="$out/$row"
+    mkdir -p "$d"
+    cat > "$d/profile.toml" <<TOML
+name = "detectors-$row"
+robot = "$sim/robot/vamos_arm.urdf"
+camera = "$sim/camera.json"
+flow_preset = "realtime"
+alarm = "conformal"
+[pipeline]
+stride = 1
+$extra
+[pipeline.frames]
+width = 320
+height = 240
+variant = "masked"
+TOML
+    "$vamos" calibrate --profile "$d/profile.toml" "$sim/train" --holdout "$sim/val" \
+        --alpha 0.2 --no-progress > "$d/calibration.out" 2> "$d/calibrate.log"
+    "$vamos" eval --profile "$d/profile.toml" --episodes "$sim/test" --json "$d/eval.json" \
+        --no-progress > /dev/null 2> "$d/eval.log"
+    python3 - "$row" "$d/eval.json" <<'PY'
+import json, sys
+r = json.load(open(sys.argv[2]))
+types = " ".join(f"{k}={v['auc_roc']:.2f}" for k, v in sorted(r["per_type"].items()))
+print(f"{sys.argv[1]}: AUC-ROC {r['auc_roc']:.3f} AUC-PR {r['auc_pr']:.3f} "
+      f"false-alarm episodes {r['episode_false_alarm_rate']:.2f} detected {r['detection_rate']:.2f} | {types}")
+PY
+done
