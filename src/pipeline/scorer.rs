@@ -289,13 +289,17 @@ impl Scorer {
             Some(setup) => {
                 let mut renderer = crate::robot::render::create_renderer(&render)
                     .map_err(|e| ScorerError::Robot(e.to_string()))?;
+                // The robot's own meshes are used in place; a copy only with attachments.
+                let with_attachments;
                 let meshes = if config.attach.is_empty() {
-                    setup.robot.link_meshes().to_vec()
+                    setup.robot.link_meshes()
                 } else {
-                    super::attach::meshes_with_attachments(&setup.robot, &config.attach).0
+                    with_attachments =
+                        super::attach::meshes_with_attachments(&setup.robot, &config.attach).0;
+                    with_attachments.as_slice()
                 };
                 renderer
-                    .prepare(&meshes)
+                    .prepare(meshes)
                     .map_err(|e| ScorerError::Robot(e.to_string()))?;
                 Some(BodyState {
                     mapper: setup.robot.joint_mapper(),
