@@ -67,7 +67,7 @@ fn bench_residual(c: &mut Criterion) {
                 &cells,
                 columns,
                 rows,
-                Some(&stats),
+                Some(stats.at(None)),
                 pooling,
                 None,
             ))

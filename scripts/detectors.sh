@@ -5,7 +5,8 @@
 #
 #   scripts/detectors.sh SIM_DIR OUT_DIR [ROW...]
 #
-# Rows: paper, all, all_quantile, scene_camera, scene (default: all five). Each row leaves
+# Rows: paper, all, all_quantile, scene_camera, scene, scene_phase, all_phase,
+# scene_phase_w3, default (a profile that sets nothing: what a user gets; default: all). Each row leaves
 # OUT_DIR/ROW/{profile.toml, profile.calibration.json, eval.json} and prints one line.
 # Needs the release binary (cargo build --release); about 90 s per row on 2 cores.
 set -eu
@@ -14,7 +15,9 @@ out=${2:?usage: scripts/detectors.sh SIM_DIR OUT_DIR [ROW...]}
 shift 2
 root=$(cd "$(dirname "$0")/.." && pwd)
 vamos=${VAMOS:-"$root/target/release/vamos"}
-rows=${*:-paper all all_quantile scene_camera scene}
+rows=${*:-paper all all_quantile scene_camera scene scene_phase all_phase scene_phase_w3 default}
+# The dataset's robot (vamos-sim writes one URDF into SIM_DIR/robot).
+urdf=$(ls "$sim"/robot/*.urdf | head -n 1)
 for row in $rows; do
     case $row in
         paper) extra='fusion = "paper"' ;;
@@ -29,13 +32,30 @@ body = false' ;;
 [pipeline.detectors]
 camera = false
 body = false' ;;
+        scene_phase) extra='fusion = "calibrated"
+[pipeline.detectors]
+camera = false
+body = false
+[pipeline.residual]
+phase_window_s = 1.0' ;;
+        all_phase) extra='fusion = "calibrated"
+[pipeline.residual]
+phase_window_s = 1.0' ;;
+        scene_phase_w3) extra='fusion = "calibrated"
+temporal_window = 3
+[pipeline.detectors]
+camera = false
+body = false
+[pipeline.residual]
+phase_window_s = 1.0' ;;
+        default) extra='' ;;
         *) echo "unknown row $row" >&2; exit 2 ;;
     esac
     d="$out/$row"
     mkdir -p "$d"
     cat > "$d/profile.toml" <<TOML
 name = "detectors-$row"
-robot = "$sim/robot/vamos_arm.urdf"
+robot = "$urdf"
 camera = "$sim/camera.json"
 flow_preset = "realtime"
 alarm = "conformal"

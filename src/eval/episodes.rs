@@ -11,6 +11,9 @@
 //!   onset minus the onset, in seconds; missed when there is none. (An alarm after the
 //!   anomalous interval has ended still counts: the episode was flagged.)
 //! - Detection rate: detected / anomalous episodes; median delay over detected episodes.
+//! - Timely detection: an alarm at or after the onset and no later than the last
+//!   anomalous frame plus [`ALARM_TOLERANCE_S`]; a detected episode without one was found
+//!   late (an alarm 6 s after a 0.3 s fall is not what an operator needs).
 //!
 //! Frames that are warming up are evaluated like any other: they carry a score (from e_c
 //! and e_b only), and the detector's behaviour during warm-up is part of what is measured.
@@ -24,6 +27,10 @@ use super::metrics::{average_precision, roc_auc};
 
 /// `per_type` key for anomalous episodes whose labels name no type.
 pub const UNTYPED_ANOMALY: &str = "unspecified";
+
+/// How long after the last anomalous frame an alarm still counts as timely, seconds: a
+/// few frames at the usual 10-30 Hz, for the flow of the last anomalous frame to arrive.
+pub const ALARM_TOLERANCE_S: f64 = 0.5;
 
 /// What happened in one episode at a threshold.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -50,6 +57,13 @@ pub struct EpisodeOutcome {
     /// Anomalous episode: seconds from onset to the first alarm at or after it; `None`
     /// when missed or nominal.
     pub detection_delay_s: Option<f64>,
+    /// Stamp of the last anomalous frame.
+    #[serde(default)]
+    pub end_ns: Option<i64>,
+    /// Anomalous episode: an alarm between the onset and the last anomalous frame plus
+    /// [`ALARM_TOLERANCE_S`].
+    #[serde(default)]
+    pub timely: bool,
 }
 
 fn alarms(score: f64, threshold: f64) -> bool {
@@ -89,6 +103,20 @@ fn outcome(name: &str, frames: &[&ScoredFrame], threshold: f64) -> EpisodeOutcom
         })
         .fold(f64::NEG_INFINITY, f64::max);
     let anomalous_frames = frames.iter().filter(|f| f.anomalous).count();
+    let end_ns = frames
+        .iter()
+        .rev()
+        .find(|f| f.anomalous)
+        .map(|f| f.stamp_ns);
+    let timely = match (onset_ns, end_ns) {
+        (Some(onset), Some(end)) => {
+            let until = end.saturating_add((ALARM_TOLERANCE_S * 1e9) as i64);
+            frames
+                .iter()
+                .any(|f| (onset..=until).contains(&f.stamp_ns) && alarms(f.score, threshold))
+        }
+        _ => false,
+    };
     let (false_alarm, detection_delay_s, anomaly_type) = match onset_ns {
         None => (first_alarm_ns.is_some(), None, None),
         Some(onset) => {
@@ -117,6 +145,8 @@ fn outcome(name: &str, frames: &[&ScoredFrame], threshold: f64) -> EpisodeOutcom
         first_alarm_ns,
         false_alarm,
         detection_delay_s,
+        end_ns,
+        timely,
     }
 }
 
@@ -163,19 +193,29 @@ pub fn pre_onset_false_alarm_rate(frames: &[ScoredFrame], threshold: f64) -> Opt
     )
 }
 
-/// Detection rate and median delay over anomalous episodes.
-fn detection<'a>(
-    anomalous: impl Iterator<Item = &'a EpisodeOutcome>,
-) -> (Option<f64>, Option<f64>) {
+/// Detection over anomalous episodes: rate, median delay and timely rate.
+struct Detection {
+    rate: Option<f64>,
+    median_delay_s: Option<f64>,
+    timely_rate: Option<f64>,
+}
+
+fn detection<'a>(anomalous: impl Iterator<Item = &'a EpisodeOutcome>) -> Detection {
     let mut total = 0;
+    let mut timely = 0;
     let mut delays = Vec::new();
     for o in anomalous {
         total += 1;
+        timely += usize::from(o.timely);
         if let Some(d) = o.detection_delay_s {
             delays.push(d);
         }
     }
-    (share(delays.len(), total), median(delays))
+    Detection {
+        rate: share(delays.len(), total),
+        median_delay_s: median(delays),
+        timely_rate: share(timely, total),
+    }
 }
 
 /// Figures for one anomaly type.
@@ -195,6 +235,9 @@ pub struct TypeReport {
     pub detection_rate: Option<f64>,
     /// Median detection delay over this type's detected episodes, seconds.
     pub median_detection_delay_s: Option<f64>,
+    /// Episodes of this type with a timely alarm / episodes.
+    #[serde(default)]
+    pub timely_detection_rate: Option<f64>,
 }
 
 /// The evaluation figures at one threshold (JSON field names are part of the CLI's
@@ -223,6 +266,13 @@ pub struct EvalReport {
     pub detection_rate: Option<f64>,
     /// Median seconds from onset to first alarm over detected episodes.
     pub median_detection_delay_s: Option<f64>,
+    /// Anomalous episodes with an alarm between onset and the last anomalous frame plus
+    /// `alarm_tolerance_s` / anomalous episodes (the rest of the detected ones were late).
+    #[serde(default)]
+    pub timely_detection_rate: Option<f64>,
+    /// The tolerance after the last anomalous frame, seconds ([`ALARM_TOLERANCE_S`]).
+    #[serde(default)]
+    pub alarm_tolerance_s: f64,
     /// The same per anomaly type: each type's episodes pooled with all nominal
     /// episodes (untyped anomalies under [`UNTYPED_ANOMALY`]).
     pub per_type: BTreeMap<String, TypeReport>,
@@ -235,7 +285,7 @@ pub fn evaluate(frames: &[ScoredFrame], threshold: f64) -> EvalReport {
     let scores: Vec<f64> = frames.iter().map(|f| f.score).collect();
     let labels: Vec<bool> = frames.iter().map(|f| f.anomalous).collect();
     let anomalous: Vec<&EpisodeOutcome> = outcomes.iter().filter(|o| o.anomalous).collect();
-    let (detection_rate, median_detection_delay_s) = detection(anomalous.iter().copied());
+    let overall = detection(anomalous.iter().copied());
 
     // Episode name -> its type (anomalous) or None (nominal).
     let kind_of: BTreeMap<&str, Option<&str>> = outcomes
@@ -263,7 +313,7 @@ pub fn evaluate(frames: &[ScoredFrame], threshold: f64) -> EvalReport {
                 .copied()
                 .filter(move |o| o.anomaly_type.as_deref() == Some(kind))
         };
-        let (rate, delay) = detection(of_kind());
+        let found = detection(of_kind());
         per_type.insert(
             kind.to_string(),
             TypeReport {
@@ -272,8 +322,9 @@ pub fn evaluate(frames: &[ScoredFrame], threshold: f64) -> EvalReport {
                 frames: type_scores.len(),
                 anomalous_frames: type_labels.iter().filter(|&&l| l).count(),
                 episodes: of_kind().count(),
-                detection_rate: rate,
-                median_detection_delay_s: delay,
+                detection_rate: found.rate,
+                median_detection_delay_s: found.median_delay_s,
+                timely_detection_rate: found.timely_rate,
             },
         );
     }
@@ -291,8 +342,10 @@ pub fn evaluate(frames: &[ScoredFrame], threshold: f64) -> EvalReport {
             anomalous.iter().filter(|o| o.false_alarm).count(),
             anomalous.len(),
         ),
-        detection_rate,
-        median_detection_delay_s,
+        detection_rate: overall.rate,
+        median_detection_delay_s: overall.median_delay_s,
+        timely_detection_rate: overall.timely_rate,
+        alarm_tolerance_s: ALARM_TOLERANCE_S,
         per_type,
     }
 }
@@ -386,6 +439,13 @@ mod tests {
         assert_eq!(r.detection_rate, Some(0.75));
         // Delays {2, 0.5, 0}: median 0.5.
         assert_eq!(r.median_detection_delay_s, Some(0.5));
+        // d's alarm (4 s) comes 1 s after its last anomalous frame (3 s): late. e and g
+        // alarm inside their intervals; f is missed.
+        let timely: Vec<bool> = outcomes.iter().map(|o| o.timely).collect();
+        assert_eq!(timely, [false, false, false, false, true, false, true]);
+        assert_eq!(outcomes[3].end_ns, Some(3 * S));
+        assert_eq!(r.timely_detection_rate, Some(0.5));
+        assert_eq!(r.alarm_tolerance_s, ALARM_TOLERANCE_S);
         assert_eq!(r.threshold, 0.5);
 
         let keys: Vec<&str> = r.per_type.keys().map(String::as_str).collect();
@@ -402,6 +462,7 @@ mod tests {
         );
         assert_eq!(collision.detection_rate, Some(1.0));
         assert_eq!(collision.median_detection_delay_s, Some(1.25));
+        assert_eq!(collision.timely_detection_rate, Some(0.5));
         let slip = &r.per_type["slip"];
         assert_eq!(
             (slip.frames, slip.episodes, slip.detection_rate),
@@ -472,6 +533,7 @@ mod tests {
         assert_eq!(
             keys,
             [
+                "alarm_tolerance_s",
                 "anomalous_episodes",
                 "anomalous_frames",
                 "auc_pr",
@@ -484,6 +546,7 @@ mod tests {
                 "per_type",
                 "pre_onset_false_alarm_rate",
                 "threshold",
+                "timely_detection_rate",
             ]
         );
         let mut type_keys: Vec<&str> = value["per_type"]["slip"]
@@ -503,6 +566,7 @@ mod tests {
                 "episodes",
                 "frames",
                 "median_detection_delay_s",
+                "timely_detection_rate",
             ]
         );
         let back: EvalReport = serde_json::from_value(value).unwrap();

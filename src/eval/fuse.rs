@@ -56,11 +56,26 @@ pub enum Detector {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Fusion {
-    /// The paper: e_o, or the triggered band when e_c or e_b passes its training maximum.
+    /// `Calibrated` for a profile without a flow predictor, `Paper` with one
+    /// ([`Fusion::resolve`]): without `e_o` the paper's rule ranks every untriggered frame
+    /// the same, so day one (no trained model yet) gets the fusion that ranks.
     #[default]
+    Auto,
+    /// The paper: e_o, or the triggered band when e_c or e_b passes its training maximum.
     Paper,
     /// The largest nominal-calibrated detector score (see the module doc).
     Calibrated,
+}
+
+impl Fusion {
+    /// The fusion a profile scores with, `flow_model`: whether it has a flow predictor.
+    pub fn resolve(self, flow_model: bool) -> Fusion {
+        match self {
+            Fusion::Auto if flow_model => Fusion::Paper,
+            Fusion::Auto => Fusion::Calibrated,
+            other => other,
+        }
+    }
 }
 
 /// The detector values of one frame (`None`: not computed).
@@ -124,6 +139,50 @@ impl Fused {
     }
 }
 
+/// The largest fused score of the last `n` frames (a causal windowed maximum; the
+/// detector that set it comes along).
+#[derive(Debug, Clone)]
+pub struct Window {
+    n: usize,
+    recent: std::collections::VecDeque<Fused>,
+}
+
+impl Window {
+    /// A window of `n` frames (at least 1).
+    pub fn new(n: usize) -> Window {
+        let n = n.max(1);
+        Window {
+            n,
+            recent: std::collections::VecDeque::with_capacity(n),
+        }
+    }
+
+    /// Adds a frame's fused score; returns the largest of the window (NaN is largest).
+    pub fn push(&mut self, fused: Fused) -> Fused {
+        if self.recent.len() == self.n {
+            self.recent.pop_front();
+        }
+        self.recent.push_back(fused);
+        let key = |f: &Fused| {
+            if f.score.is_nan() {
+                f64::INFINITY
+            } else {
+                f.score
+            }
+        };
+        self.recent
+            .iter()
+            .copied()
+            .reduce(|best, f| if key(&f) >= key(&best) { f } else { best })
+            .unwrap_or(fused)
+    }
+
+    /// Forgets every frame.
+    pub fn clear(&mut self) {
+        self.recent.clear();
+    }
+}
+
 /// Overshoot ratio of a component against its threshold, `None` when it does not fire.
 fn overshoot(value: Option<f64>, threshold: Option<f64>) -> Option<f64> {
     let (v, t) = (value?, threshold?);
@@ -140,10 +199,12 @@ fn overshoot(value: Option<f64>, threshold: Option<f64>) -> Option<f64> {
     Some(ratio.min(RATIO_CAP))
 }
 
-/// The fused score of one frame under `fusion` (see the module doc).
+/// The fused score of one frame under `fusion` (see the module doc; an unresolved
+/// [`Fusion::Auto`] resolves on whether the frame has `e_o`: callers resolve it once per
+/// profile with [`Fusion::resolve`] so that warm-up frames fuse like the rest).
 pub fn fuse_frame(c: &Components, thresholds: &Thresholds, fusion: Fusion) -> Fused {
-    match fusion {
-        Fusion::Paper => fuse(c.e_c, c.e_b, c.e_o, thresholds),
+    match fusion.resolve(c.e_o.is_some()) {
+        Fusion::Paper | Fusion::Auto => fuse(c.e_c, c.e_b, c.e_o, thresholds),
         Fusion::Calibrated => fuse_calibrated(c, thresholds.scales.as_ref()),
     }
 }
@@ -235,6 +296,54 @@ mod tests {
         scales: None,
         scene: None,
     };
+
+    #[test]
+    fn window_keeps_the_largest_recent_score() {
+        let f = |score: f64, d: Detector| Fused {
+            score,
+            triggered: Some(d),
+        };
+        let mut w = Window::new(3);
+        assert_eq!(w.push(f(1.0, Detector::Scene)).score, 1.0);
+        assert_eq!(w.push(f(5.0, Detector::Camera)), f(5.0, Detector::Camera));
+        assert_eq!(w.push(f(2.0, Detector::Scene)).score, 5.0);
+        assert_eq!(w.push(f(0.5, Detector::Scene)).score, 5.0);
+        // 5.0 has left the window of three.
+        assert_eq!(w.push(f(0.1, Detector::Body)), f(2.0, Detector::Scene));
+        assert!(w.push(f(f64::NAN, Detector::Body)).score.is_nan());
+        w.clear();
+        assert_eq!(w.push(f(0.3, Detector::Body)).score, 0.3);
+        let mut one = Window::new(0);
+        one.push(f(9.0, Detector::Body));
+        assert_eq!(one.push(f(1.0, Detector::Body)).score, 1.0);
+    }
+
+    #[test]
+    fn auto_fusion_is_calibrated_without_a_flow_model() {
+        assert_eq!(Fusion::default(), Fusion::Auto);
+        assert_eq!(Fusion::Auto.resolve(false), Fusion::Calibrated);
+        assert_eq!(Fusion::Auto.resolve(true), Fusion::Paper);
+        assert_eq!(Fusion::Paper.resolve(false), Fusion::Paper);
+        assert_eq!(Fusion::Calibrated.resolve(true), Fusion::Calibrated);
+        // Unresolved, a frame without e_o fuses like the calibrated rule: it ranks
+        // below any threshold (the paper's rule would give 0 to both).
+        let th = Thresholds::paper(Some(10.0), Some(10.0));
+        let low = Components {
+            e_c: Some(1.0),
+            ..Components::default()
+        };
+        let high = Components {
+            e_c: Some(2.0),
+            ..Components::default()
+        };
+        assert!(
+            fuse_frame(&high, &th, Fusion::Auto).score > fuse_frame(&low, &th, Fusion::Auto).score
+        );
+        assert_eq!(
+            fuse(low.e_c, None, None, &th).score,
+            fuse(high.e_c, None, None, &th).score
+        );
+    }
 
     #[test]
     fn calibrated_fusion_takes_the_largest_calibrated_score() {

@@ -29,10 +29,10 @@ pub use episodes::{
 };
 pub use fuse::{
     Components, Detector, Fused, Fusion, RATIO_CAP, TRIGGER_BASE, Thresholds, UNTRIGGERED_MAX,
-    fuse, fuse_calibrated, fuse_frame,
+    Window, fuse, fuse_calibrated, fuse_frame,
 };
 pub use metrics::{PrPoint, RocPoint, average_precision, pr_curve, roc_auc, roc_curve};
-pub use nominal::{CellStats, NominalScales, Pooling, Scale, pool_cells};
+pub use nominal::{CellNorm, CellStats, NominalScales, PhaseCells, Pooling, Scale, pool_cells};
 
 use std::path::PathBuf;
 

@@ -13,6 +13,10 @@
 //!   of cells reduced to its smallest value (an object must move in a whole block, so a
 //!   one-cell glitch of the flow does not count), the mean of the largest few blocks (a
 //!   small object counts).
+//! - [`PhaseCells`]: optionally, the same statistics per phase of the task (seconds since
+//!   the episode's first frame, in overlapping windows): a repeated task moves the same
+//!   things at the same time in every nominal run, so what is normal at second 3 (the
+//!   arm sweeping past a shelf) can be abnormal at second 8.
 //!
 //! Pure maths on slices: no image or robot types (this module is a leaf, like the rest
 //! of `eval`).
@@ -109,6 +113,38 @@ pub struct CellStats {
     pub spread: Vec<f64>,
     /// Nominal maps the statistics come from.
     pub maps: usize,
+    /// Per-phase statistics (absent: the same statistics at every phase).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub phases: Option<PhaseCells>,
+}
+
+/// Per-cell statistics per phase window: window `i` is centred on `i * step_s` seconds
+/// since the episode's first frame and spans `window_s`, `step_s = window_s / 2`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PhaseCells {
+    /// Width of a window, seconds.
+    pub window_s: f64,
+    /// Distance between window centres, seconds.
+    pub step_s: f64,
+    /// Per window, per cell median (a cell with too few values in a window keeps the
+    /// phase-free value).
+    pub location: Vec<Vec<f64>>,
+    /// Per window, per cell spread (floored as the phase-free spread).
+    pub spread: Vec<Vec<f64>>,
+}
+
+/// The statistics one frame is normalised with (borrowed from a [`CellStats`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CellNorm<'a> {
+    /// Cells across.
+    pub columns: usize,
+    /// Cells down.
+    pub rows: usize,
+    /// Per-cell location.
+    pub location: &'a [f64],
+    /// Per-cell spread.
+    pub spread: &'a [f64],
 }
 
 /// Why cell statistics cannot be fitted or used.
@@ -154,24 +190,7 @@ impl CellStats {
                 expected: cells,
             });
         }
-        let mut location = vec![f64::NAN; cells];
-        let mut spread = vec![f64::NAN; cells];
-        let mut column = Vec::with_capacity(maps.len());
-        for c in 0..cells {
-            column.clear();
-            column.extend(
-                maps.iter()
-                    .map(|m| f64::from(m[c]))
-                    .filter(|v| v.is_finite()),
-            );
-            if column.len() < MIN_CELL_SAMPLES {
-                continue;
-            }
-            column.sort_by(f64::total_cmp);
-            let median = quantile_sorted(&column, 0.5);
-            location[c] = median;
-            spread[c] = quantile_sorted(&column, CELL_SPREAD_QUANTILE) - median;
-        }
+        let (mut location, mut spread) = cell_quantiles(cells, maps.iter().copied());
         let grid_median = |v: &[f64]| {
             let mut finite: Vec<f64> = v.iter().copied().filter(|x| x.is_finite()).collect();
             finite.sort_by(f64::total_cmp);
@@ -193,8 +212,128 @@ impl CellStats {
             location,
             spread,
             maps: maps.len(),
+            phases: None,
         })
     }
+
+    /// [`CellStats::fit`], plus statistics per phase window of `window_s` seconds
+    /// (`phases_s[i]`: seconds since its episode's first frame of `maps[i]`). A cell with
+    /// fewer than [`MIN_CELL_SAMPLES`] values in a window keeps its phase-free statistics;
+    /// every spread is floored as the phase-free ones. `window_s <= 0` (or not finite):
+    /// no phases.
+    pub fn fit_phased(
+        columns: usize,
+        rows: usize,
+        maps: &[&[f32]],
+        phases_s: &[f64],
+        window_s: f64,
+    ) -> Result<CellStats, CellStatsError> {
+        let mut stats = CellStats::fit(columns, rows, maps)?;
+        if !(window_s > 0.0 && window_s.is_finite()) || phases_s.len() != maps.len() {
+            return Ok(stats);
+        }
+        let last = phases_s
+            .iter()
+            .copied()
+            .filter(|t| t.is_finite())
+            .fold(0.0f64, f64::max);
+        let step_s = window_s / 2.0;
+        // Bounded: a window per half window of the longest nominal episode.
+        let windows = ((last / step_s).ceil() as usize + 1).min(MAX_PHASE_WINDOWS);
+        let floor = stats.spread.iter().copied().fold(f64::INFINITY, f64::min);
+        let cells = columns * rows;
+        let (mut locations, mut spreads) =
+            (Vec::with_capacity(windows), Vec::with_capacity(windows));
+        for w in 0..windows {
+            let centre = w as f64 * step_s;
+            let in_window = maps
+                .iter()
+                .zip(phases_s)
+                .filter(|(_, t)| (**t - centre).abs() <= step_s)
+                .map(|(m, _)| *m);
+            let (mut location, mut spread) = cell_quantiles(cells, in_window);
+            for c in 0..cells {
+                if location[c].is_finite() {
+                    spread[c] = spread[c].max(floor);
+                } else {
+                    location[c] = stats.location[c];
+                    spread[c] = stats.spread[c];
+                }
+            }
+            locations.push(location);
+            spreads.push(spread);
+        }
+        stats.phases = Some(PhaseCells {
+            window_s,
+            step_s,
+            location: locations,
+            spread: spreads,
+        });
+        Ok(stats)
+    }
+
+    /// The statistics for a frame `phase_s` seconds into its episode: the nearest phase
+    /// window's, or the phase-free ones (no phases, no phase given, or a phase more than
+    /// half a window past the last window: nominal runs never got there).
+    pub fn at(&self, phase_s: Option<f64>) -> CellNorm<'_> {
+        let phase_free = CellNorm {
+            columns: self.columns,
+            rows: self.rows,
+            location: &self.location,
+            spread: &self.spread,
+        };
+        let (Some(p), Some(t)) = (&self.phases, phase_s) else {
+            return phase_free;
+        };
+        if !(t.is_finite() && t >= 0.0 && p.step_s > 0.0) {
+            return phase_free;
+        }
+        let w = (t / p.step_s).round() as usize;
+        match (p.location.get(w), p.spread.get(w)) {
+            (Some(location), Some(spread))
+                if location.len() == self.location.len() && spread.len() == self.spread.len() =>
+            {
+                CellNorm {
+                    columns: self.columns,
+                    rows: self.rows,
+                    location,
+                    spread,
+                }
+            }
+            _ => phase_free,
+        }
+    }
+}
+
+/// Most phase windows fitted (a 1 s window over a 10-minute task is 1,200).
+pub const MAX_PHASE_WINDOWS: usize = 4096;
+
+/// Per-cell median and spread ([`CELL_SPREAD_QUANTILE`] minus the median) of the finite
+/// values of `maps`; NaN for a cell with fewer than [`MIN_CELL_SAMPLES`] values.
+fn cell_quantiles<'a>(
+    cells: usize,
+    maps: impl Iterator<Item = &'a [f32]> + Clone,
+) -> (Vec<f64>, Vec<f64>) {
+    let mut location = vec![f64::NAN; cells];
+    let mut spread = vec![f64::NAN; cells];
+    let mut column = Vec::new();
+    for c in 0..cells {
+        column.clear();
+        column.extend(
+            maps.clone()
+                .filter_map(|m| m.get(c))
+                .map(|&v| f64::from(v))
+                .filter(|v| v.is_finite()),
+        );
+        if column.len() < MIN_CELL_SAMPLES {
+            continue;
+        }
+        column.sort_by(f64::total_cmp);
+        let median = quantile_sorted(&column, 0.5);
+        location[c] = median;
+        spread[c] = quantile_sorted(&column, CELL_SPREAD_QUANTILE) - median;
+    }
+    (location, spread)
 }
 
 /// How a cell map becomes one number.
@@ -213,7 +352,7 @@ pub fn pool_cells(
     cells: &[f32],
     columns: usize,
     rows: usize,
-    stats: Option<&CellStats>,
+    stats: Option<CellNorm<'_>>,
     pooling: Pooling,
     normalised: Option<&mut Vec<f32>>,
 ) -> Option<f64> {
@@ -221,14 +360,17 @@ pub fn pool_cells(
         return None;
     }
     if let Some(s) = stats
-        && (s.columns != columns || s.rows != rows)
+        && (s.columns != columns
+            || s.rows != rows
+            || s.location.len() != cells.len()
+            || s.spread.len() != cells.len())
     {
         return None;
     }
     let z: Vec<f32> = match stats {
         Some(s) => cells
             .iter()
-            .zip(s.location.iter().zip(&s.spread))
+            .zip(s.location.iter().zip(s.spread))
             .map(|(&v, (&l, &sp))| ((f64::from(v) - l) / sp) as f32)
             .collect(),
         None => cells.to_vec(),
@@ -343,8 +485,8 @@ mod tests {
         for c in [2, 3, 6, 7] {
             quiet[c] = 12.0;
         }
-        let b = pool_cells(&busy, 4, 3, Some(&stats), pooling, None).unwrap();
-        let q = pool_cells(&quiet, 4, 3, Some(&stats), pooling, None).unwrap();
+        let b = pool_cells(&busy, 4, 3, Some(stats.at(None)), pooling, None).unwrap();
+        let q = pool_cells(&quiet, 4, 3, Some(stats.at(None)), pooling, None).unwrap();
         assert!(q > 10.0 * b.max(1.0), "quiet {q} vs busy {b}");
         // Without statistics: raw values, and one hot cell alone is a glitch, not motion.
         let rb = pool_cells(&busy, 4, 3, None, pooling, None).unwrap();
@@ -371,7 +513,7 @@ mod tests {
         let refs: Vec<&[f32]> = maps.iter().map(Vec::as_slice).collect();
         let stats = CellStats::fit(4, 3, &refs).unwrap();
         assert_eq!(
-            pool_cells(&cells[..6], 3, 2, Some(&stats), pooling, None),
+            pool_cells(&cells[..6], 3, 2, Some(stats.at(None)), pooling, None),
             None
         );
     }

@@ -15,10 +15,10 @@
 use super::PipelineConfig;
 use super::offline::EpisodeScores;
 use super::profile::Calibration;
-use super::scorer::FrameScore;
+use super::scorer::{FrameScore, phase_s};
 use crate::eval::{
-    CellStats, Components, NominalScales, Pooling, Thresholds, conformal_threshold, fuse_frame,
-    max_threshold, pool_cells,
+    CellStats, Components, NominalScales, Pooling, Thresholds, Window, conformal_threshold,
+    fuse_frame, max_threshold, pool_cells,
 };
 use std::path::{Path, PathBuf};
 use std::time::{SystemTime, UNIX_EPOCH};
@@ -54,25 +54,40 @@ pub fn calibrate<E>(
     pipeline: &PipelineConfig,
     mut score: impl FnMut(&[PathBuf], Thresholds) -> Result<Vec<EpisodeScores>, E>,
 ) -> Result<CalibrationOutcome, E> {
+    let fusion = pipeline.fusion.resolve(model_sha256.is_some());
     let train = score(training, Thresholds::default())?;
     let mut notes = Vec::new();
     let frames: Vec<&FrameScore> = train.iter().flat_map(|e| &e.frames).collect();
+    // Each frame's phase: seconds since its episode's first frame.
+    let phases: Vec<f64> = train
+        .iter()
+        .flat_map(|e| {
+            let first = e.frames.first().map_or(0, |f| f.stamp_ns);
+            e.frames.iter().map(move |f| phase_s(first, f.stamp_ns))
+        })
+        .collect();
     let component = |f: fn(&FrameScore) -> Option<f64>| -> Vec<f64> {
         frames.iter().filter_map(|x| f(x)).collect()
     };
-    let scene = fit_scene(&frames, &mut notes);
+    let scene = fit_scene(
+        &frames,
+        &phases,
+        pipeline.residual.phase_window_s,
+        &mut notes,
+    );
     let pooling = Pooling {
         top_fraction: pipeline.residual.top_fraction,
     };
     // e_r of the training frames, pooled again with the fitted statistics.
     let e_r: Vec<Option<f64>> = frames
         .iter()
-        .map(|f| match (&f.scene_cells, &scene) {
+        .zip(&phases)
+        .map(|(f, &phase)| match (&f.scene_cells, &scene) {
             (Some(cells), Some(stats)) => pool_cells(
                 cells,
                 f.scene_grid.0,
                 f.scene_grid.1,
-                Some(stats),
+                Some(stats.at(Some(phase))),
                 pooling,
                 None,
             ),
@@ -92,19 +107,22 @@ pub fn calibrate<E>(
         scales: Some(scales),
         scene,
     };
-    let score_max = frames
-        .iter()
-        .zip(&e_r)
-        .map(|(f, &e_r)| {
+    // The training frames' fused scores as the scorer gives them (windowed per episode).
+    let mut window = Window::new(pipeline.temporal_window);
+    let mut e_r_of = e_r.iter();
+    let mut score_max = f64::NEG_INFINITY;
+    for episode in &train {
+        window.clear();
+        for (f, &e_r) in episode.frames.iter().zip(&mut e_r_of) {
             let c = Components {
                 e_c: f.e_c,
                 e_b: f.e_b,
                 e_r,
                 e_o: f.e_o,
             };
-            fuse_frame(&c, &thresholds, pipeline.fusion).score
-        })
-        .fold(f64::NEG_INFINITY, f64::max);
+            score_max = score_max.max(window.push(fuse_frame(&c, &thresholds, fusion)).score);
+        }
+    }
     let score_max = if score_max.is_finite() {
         score_max
     } else {
@@ -118,7 +136,19 @@ pub fn calibrate<E>(
         let held = score(holdout, thresholds.clone())?;
         let maxima: Vec<f64> = held.iter().map(episode_max).collect();
         match conformal_threshold(&maxima, alpha) {
-            Ok(c) => Some(c),
+            Ok(c) => {
+                if c.rank_k == c.n {
+                    notes.push(format!(
+                        "the conformal threshold is the largest of the {} held-out episodes' \
+                         maxima (alpha {}): one unusual nominal run sets it; {} or more \
+                         held-out episodes leave the largest out",
+                        c.n,
+                        alpha,
+                        episodes_beyond_max(alpha)
+                    ));
+                }
+                Some(c)
+            }
             Err(e) => {
                 notes.push(format!("no conformal threshold: {e}"));
                 None
@@ -142,20 +172,22 @@ pub fn calibrate<E>(
 
 /// Per-cell statistics of the scene residual from the training frames' cell maps (all of
 /// one grid); `None`, with a note, when there are none or too few.
-fn fit_scene(frames: &[&FrameScore], notes: &mut Vec<String>) -> Option<CellStats> {
-    let with_cells: Vec<&FrameScore> = frames
+/// With `phase_window_s > 0`, per phase window as well (`phases`: each frame's seconds
+/// into its episode).
+fn fit_scene(
+    frames: &[&FrameScore],
+    phases: &[f64],
+    phase_window_s: f64,
+    notes: &mut Vec<String>,
+) -> Option<CellStats> {
+    let (columns, rows) = frames.iter().find(|f| f.scene_cells.is_some())?.scene_grid;
+    let (maps, map_phases): (Vec<&[f32]>, Vec<f64>) = frames
         .iter()
-        .copied()
-        .filter(|f| f.scene_cells.is_some())
-        .collect();
-    let first = with_cells.first()?;
-    let (columns, rows) = first.scene_grid;
-    let maps: Vec<&[f32]> = with_cells
-        .iter()
-        .filter(|f| f.scene_grid == (columns, rows))
-        .filter_map(|f| f.scene_cells.as_deref())
-        .collect();
-    match CellStats::fit(columns, rows, &maps) {
+        .zip(phases)
+        .filter(|(f, _)| f.scene_grid == (columns, rows))
+        .filter_map(|(f, &t)| Some((f.scene_cells.as_deref()?, t)))
+        .unzip();
+    match CellStats::fit_phased(columns, rows, &maps, &map_phases, phase_window_s) {
         Ok(stats) => Some(stats),
         Err(e) => {
             notes.push(format!(
@@ -166,9 +198,34 @@ fn fit_scene(frames: &[&FrameScore], notes: &mut Vec<String>) -> Option<CellStat
     }
 }
 
+/// The fewest held-out episodes whose split-conformal rank `ceil((n + 1)(1 - alpha))` is
+/// below `n` (the threshold is then not simply their maximum): `n >= (2 - alpha) / alpha`.
+fn episodes_beyond_max(alpha: f64) -> usize {
+    ((2.0 - alpha) / alpha).ceil().clamp(1.0, 1e9) as usize
+}
+
 fn stem(p: &Path) -> String {
     p.file_stem().map_or_else(
         || p.display().to_string(),
         |s| s.to_string_lossy().into_owned(),
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn held_out_episodes_beyond_the_maximum() {
+        for alpha in [0.05, 0.1, 0.2, 0.3] {
+            let n = episodes_beyond_max(alpha);
+            let scores = |n: usize| (0..n).map(|i| i as f64).collect::<Vec<_>>();
+            let at = conformal_threshold(&scores(n), alpha).unwrap();
+            assert!(at.rank_k < at.n, "alpha {alpha}: {n} episodes");
+            if let Ok(below) = conformal_threshold(&scores(n - 1), alpha) {
+                assert_eq!(below.rank_k, below.n, "alpha {alpha}: {} episodes", n - 1);
+            }
+        }
+        assert_eq!(episodes_beyond_max(0.2), 9);
+    }
 }

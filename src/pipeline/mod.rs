@@ -55,8 +55,12 @@ pub struct PipelineConfig {
     /// Shapes attached to the robot's links (rendered and masked with the body).
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub attach: Vec<attach::Attachment>,
-    /// How the detectors become one score (`paper` or `calibrated`).
+    /// How the detectors become one score (`auto`, `paper` or `calibrated`).
     pub fusion: Fusion,
+    /// A frame's score is the largest fused score of the last this many processed frames
+    /// (itself included; 1: its own): evidence a few frames long counts, an alarm starts as
+    /// early and lasts `temporal_window - 1` frames longer.
+    pub temporal_window: usize,
     /// Smallest past offset A (processed frames); absent = the model bundle's.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub offset_a: Option<usize>,
@@ -95,6 +99,9 @@ impl Default for DetectorSwitches {
     }
 }
 
+/// Largest `temporal_window`, frames.
+pub const MAX_TEMPORAL_WINDOW: usize = 64;
+
 impl PipelineConfig {
     /// Refuses sizes no scorer is built with: a processing resolution out of range
     /// ([`FrameProcessorParams::validate`]) or a past offset override beyond
@@ -105,6 +112,12 @@ impl PipelineConfig {
     pub fn check_limits(&self) -> Result<(), String> {
         self.frames.validate().map_err(|e| e.to_string())?;
         self.residual.validate()?;
+        if !(1..=MAX_TEMPORAL_WINDOW).contains(&self.temporal_window) {
+            return Err(format!(
+                "pipeline parameter temporal_window = {} must lie in 1..={MAX_TEMPORAL_WINDOW} frames",
+                self.temporal_window
+            ));
+        }
         let max = crate::model::predictor::MAX_PAST_OFFSET;
         for (name, value) in [("offset_a", self.offset_a), ("offset_b", self.offset_b)] {
             if let Some(v) = value
@@ -138,6 +151,7 @@ impl Default for PipelineConfig {
             residual: ResidualParams::default(),
             attach: Vec::new(),
             fusion: Fusion::default(),
+            temporal_window: 1,
             offset_a: None,
             offset_b: None,
             samples: None,

@@ -54,6 +54,10 @@ pub struct ResidualParams {
     /// A body pixel counts as moving when its expected or observed flow is at least this
     /// long, pixels.
     pub moving_px: f64,
+    /// Per-cell statistics per phase of the task, in windows this many seconds wide
+    /// (a frame's phase: seconds since the stream's or episode's first image); 0: the
+    /// same statistics at every phase.
+    pub phase_window_s: f64,
 }
 
 impl Default for ResidualParams {
@@ -67,6 +71,7 @@ impl Default for ResidualParams {
             body_error: BodyError::Median,
             body_quantile: 0.9,
             moving_px: 0.5,
+            phase_window_s: 0.0,
         }
     }
 }
@@ -104,6 +109,12 @@ impl ResidualParams {
             return Err(format!(
                 "residual.moving_px = {} must be a finite number >= 0",
                 self.moving_px
+            ));
+        }
+        if !(self.phase_window_s.is_finite() && (0.0..=600.0).contains(&self.phase_window_s)) {
+            return Err(format!(
+                "residual.phase_window_s = {} must lie in [0, 600]",
+                self.phase_window_s
             ));
         }
         Ok(())

@@ -31,7 +31,7 @@
 use super::frames::{FrameProcessor, FrontEndTimings, PipelineError, ProcessedFrame};
 use super::residual::{self, BodyError};
 use super::{DetectorSwitches, PipelineConfig};
-use crate::eval::{Components, Detector, Pooling, Thresholds, fuse_frame, pool_cells};
+use crate::eval::{Components, Detector, Pooling, Thresholds, Window, fuse_frame, pool_cells};
 use crate::model::predictor::{Prediction, Predictor, PredictorParams};
 use crate::model::{FlowModel, ModelError};
 use crate::robot::camera_motion::{
@@ -202,9 +202,18 @@ pub struct Scorer {
     images: u64,
     frames: u64,
     last_stamp_ns: Option<i64>,
+    /// The stream's first image stamp: a frame's phase is its time since then.
+    first_stamp_ns: Option<i64>,
     warned_no_joints: bool,
     /// The expected image flow of the current frame (reused buffer).
     expected_flow: FlowField,
+    /// The last `temporal_window` fused scores.
+    window: Window,
+}
+
+/// Seconds from `first_ns` to `stamp_ns` (a frame's phase in its episode).
+pub fn phase_s(first_ns: i64, stamp_ns: i64) -> f64 {
+    (stamp_ns.saturating_sub(first_ns)) as f64 * 1e-9
 }
 
 /// What a [`Scorer`] is built from.
@@ -313,6 +322,7 @@ impl Scorer {
             None => None,
         };
         let processor = FrameProcessor::new(config.frames.clone(), flow, registration, network)?;
+        let window = Window::new(config.temporal_window);
         Ok(Self {
             config,
             thresholds,
@@ -324,8 +334,10 @@ impl Scorer {
             images: 0,
             frames: 0,
             last_stamp_ns: None,
+            first_stamp_ns: None,
             warned_no_joints: false,
             expected_flow: FlowField::zeros(0, 0),
+            window,
         })
     }
 
@@ -368,6 +380,8 @@ impl Scorer {
         self.images = 0;
         self.frames = 0;
         self.last_stamp_ns = None;
+        self.first_stamp_ns = None;
+        self.window.clear();
     }
 
     /// Takes over the stream position of `previous` (the image and frame counters and
@@ -378,6 +392,7 @@ impl Scorer {
         self.images = previous.images;
         self.frames = previous.frames;
         self.last_stamp_ns = previous.last_stamp_ns;
+        self.first_stamp_ns = previous.first_stamp_ns;
     }
 
     /// Pushes the next image. `Ok(None)` for images the stride skips.
@@ -395,6 +410,7 @@ impl Scorer {
             });
         }
         self.last_stamp_ns = Some(input.stamp_ns);
+        let first_ns = *self.first_stamp_ns.get_or_insert(input.stamp_ns);
         if !index.is_multiple_of(self.config.stride as u64) {
             return Ok(None);
         }
@@ -602,7 +618,10 @@ impl Scorer {
                 &cells,
                 columns,
                 rows,
-                self.thresholds.scene.as_ref(),
+                self.thresholds
+                    .scene
+                    .as_ref()
+                    .map(|s| s.at(Some(phase_s(first_ns, input.stamp_ns)))),
                 Pooling {
                     top_fraction: self.config.residual.top_fraction,
                 },
@@ -618,11 +637,11 @@ impl Scorer {
         let (e_o, best_offset, heatmap, warming_up) = self.predict(&processed)?;
         timings.model_us = micros(t0);
 
-        let fused = fuse_frame(
+        let fused = self.window.push(fuse_frame(
             &Components { e_c, e_b, e_r, e_o },
             &self.thresholds,
-            self.config.fusion,
-        );
+            self.config.fusion.resolve(self.predictor.is_some()),
+        ));
         timings.total_us = micros(start);
         Ok(Some(FrameScore {
             index,

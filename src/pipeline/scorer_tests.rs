@@ -47,6 +47,8 @@ fn setup() -> RobotSetup {
 fn scorer(robot: Option<RobotSetup>, thresholds: Thresholds, stride: usize) -> Scorer {
     let mut config = PipelineConfig {
         stride,
+        // The paper's bands (the tests below read `triggered` as the paper's trigger).
+        fusion: crate::eval::Fusion::Paper,
         ..PipelineConfig::default()
     };
     config.frames.width = W;

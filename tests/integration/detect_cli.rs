@@ -15,6 +15,9 @@ flow_preset = "realtime"
 alarm = "max"
 [pipeline]
 stride = 1
+# These tests pin the paper's fusion (its triggered band); the no-model default is
+# the calibrated fusion.
+fusion = "paper"
 [pipeline.frames]
 width = 160
 height = 120
@@ -213,6 +216,7 @@ fn score_calibrate_eval_on_simulated_episodes() {
         "anomalous_frames",
         "episode_false_alarm_rate",
         "median_detection_delay_s",
+        "timely_detection_rate",
         "per_type",
     ] {
         assert!(report.get(key).is_some(), "report lacks {key}");

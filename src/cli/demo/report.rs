@@ -103,6 +103,10 @@ pub(super) fn write_report(
         fmt_threshold(alarm)
     ));
     md.push_str("## Summary\n\n| figure | value |\n|---|---|\n");
+    let timely_label = format!(
+        "anomalous episodes found within the anomaly (+{} s)",
+        report.alarm_tolerance_s
+    );
     for (k, v) in [
         ("frames scored / images sent", format!("{scored} / {sent}")),
         ("frames dropped / refused", format!("{dropped} / {errors}")),
@@ -111,6 +115,10 @@ pub(super) fn write_report(
         (
             "anomalous episodes detected",
             opt(report.detection_rate.map(|r| r * 100.0), 0) + " %",
+        ),
+        (
+            timely_label.as_str(),
+            opt(report.timely_detection_rate.map(|r| r * 100.0), 0) + " %",
         ),
         (
             "median detection delay",
