@@ -53,8 +53,8 @@ def read_episode(path: "str | Path", image_topic: Optional[str] = None,
     """Reads an MCAP episode into a :class:`Recording`. Topics are found by message type
     when there is one of a kind (joint states: every JointState topic), else name them."""
     try:
-        from mcap.reader import make_reader  # type: ignore[import-untyped]
-        from mcap_ros2.decoder import DecoderFactory  # type: ignore[import-untyped]
+        from mcap.reader import make_reader
+        from mcap_ros2.decoder import DecoderFactory
     except ImportError as e:  # pragma: no cover - depends on the environment
         raise VamosError("reading MCAP episodes needs `pip install 'vamos-client[client]'` "
                          f"(mcap, mcap-ros2-support): {e}") from e
