@@ -70,7 +70,7 @@ def test_only_the_core_dependencies_are_installed(fresh: Env) -> None:
                                       "pybullet": False}
 
 
-@pytest.mark.parametrize("command", ["vamos-client", "vamos-sim", "vamos-train"])
+@pytest.mark.parametrize("command", ["vamos-client", "vamos-sim", "vamos-train", "vamos-ros-bridge"])
 def test_every_command_answers_version(fresh: Env, command: str) -> None:
     run = fresh.run(str(fresh.bin / command), "--version")
     assert (run.returncode, run.stderr) == (0, "")

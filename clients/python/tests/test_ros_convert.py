@@ -35,6 +35,8 @@ def test_without_the_ros_package_the_shim_says_where_it_went() -> None:
     assert node.returncode == 2 and node.stdout == ""
     assert node.stderr.startswith("vamos-ros-bridge: the ROS 2 bridge is the ROS package vamos_bridge")
     assert "ros2 run vamos_bridge bridge" in node.stderr and node.stderr.count("\n") == 1
+    version = _run("from vamos.ros.node import main; raise SystemExit(main(['--version']))")
+    assert (version.returncode, version.stdout) == (0, f"vamos-ros-bridge {__import__('vamos').__version__}\n")
 
 
 def test_with_the_ros_package_but_no_ros_the_node_says_what_it_needs() -> None:

@@ -146,13 +146,16 @@ def test_the_session_opens_at_the_first_image_and_reconnects_under_its_id() -> N
 
     params = Params.from_values({"profile": "p", "task": "shelf"}, "/robot1", "vamos_bridge", suffix="abc")
     client, out = FakeClient(refuse_first=True), Recorder()
-    bridge = Bridge(params, client, out)
+    bridge = Bridge(params, client, out, reopen_after_s=0.2)
     bridge.on_camera_info(NS(width=0, height=0, k=[0.0] * 9))  # uncalibrated: ignored, logged
     bridge.on_camera_info(NS(width=160, height=120, k=[100.0, 0, 80, 0, 100, 60, 0, 0, 1]))
     bridge.on_joint_state(joints(1))
     bridge.on_joint_state(joints(2))
     bridge.on_image(image(3))  # the server refuses the first open: nothing sent, ERROR
     assert bridge.diagnostic(now=0.0)[0] == ERROR and client.sessions == []
+    bridge.on_image(image(4))  # within reopen_after_s of the refusal: dropped, no new try
+    assert len(client.opens) == 1 and bridge.state.images_sent == 0
+    time.sleep(0.25)
     bridge.on_image(image(10**9 + 5, "cam_left"))
     (s,) = client.sessions
     assert client.opens[-1] == {"profile": "p", "robot_id": "robot1", "session_id": "robot1-abc", "task": "shelf",

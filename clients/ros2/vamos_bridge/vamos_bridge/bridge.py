@@ -110,7 +110,8 @@ class Bridge:
     """One robot's session. ``client`` is a :class:`vamos.client.MonitorClient` (or
     anything with its ``open_session``)."""
 
-    def __init__(self, params: Params, client: Any, outputs: Outputs, early_joints: int = 200) -> None:
+    def __init__(self, params: Params, client: Any, outputs: Outputs, early_joints: int = 200,
+                 reopen_after_s: float = 1.0) -> None:
         self.params = params
         self.client = client
         self.out = outputs
@@ -121,11 +122,17 @@ class Bridge:
         self._early: "collections.deque[Any]" = collections.deque(maxlen=early_joints)
         self._lock = threading.Lock()
         self._readers: list[threading.Thread] = []
+        # After a refused open, images are dropped for this long before the next try
+        # (a camera at 30 Hz would otherwise try, and log, 30 times a second).
+        self._reopen_after_s = reopen_after_s
+        self._next_open = 0.0
 
     def _ensure_session(self) -> Any:
         with self._lock:
             if self._session is not None:
                 return self._session
+            if time.monotonic() < self._next_open:
+                return None
             p = self.params
             try:
                 s = self.client.open_session(p.profile, robot_id=p.robot_id, session_id=p.session_id, task=p.task,
@@ -133,7 +140,8 @@ class Bridge:
             except SessionError as e:
                 self.state.connected = False
                 self.state.last_error = str(e)
-                self.out.log("warning", f"cannot open the session: {e}")
+                self._next_open = time.monotonic() + self._reopen_after_s
+                self.out.log("warning", f"cannot open the session: {e}; next try in {self._reopen_after_s:g} s")
                 return None
             self.state.on_update(s.opened)
             while self._early:

@@ -48,9 +48,9 @@ def main(args: Optional[list[str]] = None) -> int:
         def __init__(self) -> None:
             super().__init__("vamos_bridge")
             values = {name: self.declare_parameter(name, default).value for name, (default, _) in PARAMETERS.items()}
-            self.params = Params.from_values(values, self.get_namespace(), self.get_name(),
+            self.vamos_params = Params.from_values(values, self.get_namespace(), self.get_name(),
                                              env_token=os.environ.get("VAMOS_TOKEN"), suffix=uuid.uuid4().hex[:8])
-            p = self.params
+            p = self.vamos_params
             root = open(p.ca_file, "rb").read() if p.ca_file else None
             self.client = MonitorClient(p.server, token=p.token, root_certificates=root)
             self.frame_score_pub = self.create_publisher(FrameScore, p.frame_score_topic, 10)
@@ -86,7 +86,7 @@ def main(args: Optional[list[str]] = None) -> int:
         def publish_diagnostics(self) -> None:
             level, message, values = self.bridge.diagnostic()
             status = DiagnosticStatus(level=bytes([level]), name=f"vamos: {self.get_fully_qualified_name()}",
-                                      message=message, hardware_id=self.params.robot_id,
+                                      message=message, hardware_id=self.vamos_params.robot_id,
                                       values=[KeyValue(key=k, value=v) for k, v in values])
             array = DiagnosticArray(status=[status])
             array.header.stamp = self.get_clock().now().to_msg()

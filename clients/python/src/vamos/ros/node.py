@@ -8,6 +8,12 @@ from typing import Optional
 
 
 def main(argv: Optional[list[str]] = None) -> int:
+    args = list(sys.argv[1:] if argv is None else argv)
+    if args == ["--version"]:
+        from vamos import __version__
+
+        print(f"vamos-ros-bridge {__version__}")
+        return 0
     try:
         from vamos_bridge.node import main as bridge_main
     except ImportError:
@@ -15,7 +21,7 @@ def main(argv: Optional[list[str]] = None) -> int:
               "repository); build it with colcon in a sourced ROS 2 workspace and run `ros2 run vamos_bridge "
               "bridge` or `ros2 launch vamos_bridge bridge.launch.py`", file=sys.stderr)
         return 2
-    return int(bridge_main(argv))
+    return int(bridge_main(argv))  # rclpy reads its --ros-args from sys.argv when argv is None
 
 
 if __name__ == "__main__":
