@@ -15,7 +15,7 @@ from typing import Any, Iterator
 import pytest
 
 from vamos.client import FrameScore, SessionError, SessionEvent
-from vamos_bridge.bridge import ERROR, OK, STALE, WARN, Bridge, BridgeState
+from vamos_bridge.bridge import ERROR, OK, STALE, WARN, Bridge, BridgeState, CallbackOutputs
 from vamos_bridge.convert import Stamp
 from vamos_bridge.params import Params
 
@@ -146,7 +146,7 @@ def test_the_session_opens_at_the_first_image_and_reconnects_under_its_id() -> N
 
     params = Params.from_values({"profile": "p", "task": "shelf"}, "/robot1", "vamos_bridge", suffix="abc")
     client, out = FakeClient(refuse_first=True), Recorder()
-    bridge = Bridge(params, client, out, reopen_after_s=0.2)
+    bridge = Bridge(params, client, CallbackOutputs(out.score, out.log), reopen_after_s=0.2)
     bridge.on_camera_info(NS(width=0, height=0, k=[0.0] * 9))  # uncalibrated: ignored, logged
     bridge.on_camera_info(NS(width=160, height=120, k=[100.0, 0, 80, 0, 100, 60, 0, 0, 1]))
     bridge.on_joint_state(joints(1))

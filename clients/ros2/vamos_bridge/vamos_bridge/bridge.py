@@ -15,7 +15,7 @@ import collections
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import Any, Optional, Protocol
+from typing import Any, Callable, Optional, Protocol
 
 from vamos.client import CameraInfo, FrameScore, SessionError, SessionEvent
 
@@ -104,6 +104,20 @@ class Outputs(Protocol):
 
     def log(self, level: str, text: str) -> None:
         """``level``: ``info`` or ``warning``."""
+
+
+@dataclass(frozen=True)
+class CallbackOutputs:
+    """:class:`Outputs` from two callables (the node's publishing and logging methods)."""
+
+    on_score: Callable[[dict[str, Any]], None]
+    on_log: Callable[[str, str], None]
+
+    def score(self, fields: dict[str, Any]) -> None:
+        self.on_score(fields)
+
+    def log(self, level: str, text: str) -> None:
+        self.on_log(level, text)
 
 
 class Bridge:

@@ -41,7 +41,7 @@ def main(args: Optional[list[str]] = None) -> int:
               f"<vamos>/clients/python ({e})", file=sys.stderr)
         return 2
 
-    from .bridge import Bridge
+    from .bridge import Bridge, CallbackOutputs
     from .params import PARAMETERS, ParameterError, Params
 
     class VamosBridge(Node):  # type: ignore[misc]
@@ -57,7 +57,7 @@ def main(args: Optional[list[str]] = None) -> int:
             self.score_pub = self.create_publisher(Float64, p.score_topic, 10)
             self.anomaly_pub = self.create_publisher(Bool, p.anomaly_topic, 10)
             self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
-            self.bridge = Bridge(p, self.client, self)
+            self.bridge = Bridge(p, self.client, CallbackOutputs(self.publish_score, self.log_from_bridge))
             self.create_subscription(CompressedImage if p.compressed else Image, p.image_topic,
                                      self.bridge.on_image, qos_profile_sensor_data)
             self.create_subscription(CameraInfo, p.camera_info_topic, self.bridge.on_camera_info,
@@ -71,7 +71,7 @@ def main(args: Optional[list[str]] = None) -> int:
 
         # Outputs of the bridge (called from its reader thread; rclpy publishers are
         # thread-safe).
-        def score(self, fields: dict[str, Any]) -> None:
+        def publish_score(self, fields: dict[str, Any]) -> None:
             (stamp, frame_id) = fields["header"]
             msg = FrameScore(**{k: v for k, v in fields.items() if k != "header"})
             msg.header.stamp.sec, msg.header.stamp.nanosec = stamp.sec, stamp.nanosec
@@ -80,7 +80,7 @@ def main(args: Optional[list[str]] = None) -> int:
             self.score_pub.publish(Float64(data=fields["score"]))
             self.anomaly_pub.publish(Bool(data=fields["anomaly"]))
 
-        def log(self, level: str, text: str) -> None:
+        def log_from_bridge(self, level: str, text: str) -> None:
             (self.get_logger().warning if level == "warning" else self.get_logger().info)(text)
 
         def publish_diagnostics(self) -> None:
