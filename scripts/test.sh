@@ -8,7 +8,8 @@
 #     PyPI wheel into its cache with pip.
 #  2. Python (clients/python): a virtual environment in .venv with the package and its
 #     `train` + `sim` + `test` extras (torch from PyPI: ~3 GB on the first run), then pytest,
-#     including the end-to-end test that runs the Rust binary built in step 1.
+#     including the end-to-end test that runs the Rust binary built in step 1; then the
+#     ROS 2 package's tests (clients/ros2/vamos_bridge: no ROS needed, see its README).
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 
@@ -31,3 +32,6 @@ export PIP_NO_CACHE_DIR=1
 
 echo "== Python tests"
 VAMOS_BIN="$PWD/target/release/vamos" .venv/bin/python -m pytest clients/python/tests -q
+
+echo "== ROS 2 package tests (clients/ros2/vamos_bridge, without ROS)"
+VAMOS_BIN="$PWD/target/release/vamos" .venv/bin/python -m pytest clients/ros2/vamos_bridge -q

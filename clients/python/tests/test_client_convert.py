@@ -2,10 +2,7 @@
 
 from __future__ import annotations
 
-import email.parser
-import io
 import zlib
-from pathlib import Path
 
 import pytest
 
@@ -14,7 +11,6 @@ pytest.importorskip("grpc")
 
 from vamos.client import CameraInfo, FrameScore, SessionEvent  # noqa: E402
 from vamos.client._convert import image_message, joint_message  # noqa: E402
-from vamos.client.admin import _Multipart  # noqa: E402
 from vamos.client.monitor import channel_target  # noqa: E402
 from vamos.v1 import monitor_pb2 as pb  # noqa: E402
 
@@ -98,19 +94,3 @@ def test_server_addresses() -> None:
     assert channel_target("127.0.0.1:8081") == ("127.0.0.1:8081", False)
     assert channel_target("http://h:1/") == ("h:1", False)
     assert channel_target("https://h:1") == ("h:1", True)
-
-
-def test_multipart_bodies_parse_back_with_their_declared_length(tmp_path: Path) -> None:
-    a, b = tmp_path / "a.mcap", tmp_path / 'we"ird.mcap'
-    a.write_bytes(b"\x00\x01" * 1000)
-    b.write_bytes(b"second")
-    form = _Multipart([("episodes", a), ("holdout", b)], [("alpha", "0.2")])
-    body = b"".join(form)
-    assert len(body) == len(form)
-    msg = email.parser.BytesParser().parse(io.BytesIO(
-        f"Content-Type: {form.content_type}\r\n\r\n".encode() + body))
-    parts = [(p.get_param("name", header="content-disposition"),
-              p.get_param("filename", header="content-disposition"), p.get_payload(decode=True))
-             for p in msg.get_payload()]
-    assert parts == [("alpha", None, b"0.2"), ("episodes", "a.mcap", a.read_bytes()),
-                     ("holdout", "we_ird.mcap", b"second")]

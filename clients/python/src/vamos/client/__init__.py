@@ -5,12 +5,12 @@
   over scores and events; :meth:`MonitorClient.replay` streams a recorded MCAP episode
   as a live robot (resuming the session when the stream breaks); ``score_episode``
   uploads an episode whole.
-- :class:`AdminClient` (REST, standard library only): models, robots, profiles,
-  thresholds, calibration jobs, sessions, metrics; errors are :class:`ApiError`
-  subclasses by status.
+- :class:`AdminClient` and :class:`AsyncAdminClient` (REST over httpx, blocking and
+  asyncio): models, robots, profiles, thresholds, calibration jobs, sessions, metrics;
+  errors are :class:`ApiError` subclasses by status.
 
-Needs the ``client`` extra (``pip install 'vamos-client[client]'``: grpcio, protobuf,
-numpy, mcap, mcap-ros2-support).
+Its dependencies (grpcio, protobuf, httpx, mcap, mcap-ros2-support) are the package's
+own; numpy is needed only to send numpy arrays as images.
 """
 
 from ._types import (
@@ -25,6 +25,7 @@ from ._types import (
 from .admin import (
     AdminClient,
     ApiError,
+    AsyncAdminClient,
     BadRequest,
     Conflict,
     Forbidden,
@@ -40,7 +41,7 @@ from .episode import Recording, read_episode
 from .monitor import MonitorClient, Session, Update
 
 __all__ = [
-    "AdminClient", "ApiError", "AsyncMonitorClient", "AsyncSession", "BadRequest", "CameraInfo",
+    "AdminClient", "ApiError", "AsyncAdminClient", "AsyncMonitorClient", "AsyncSession", "BadRequest", "CameraInfo",
     "Conflict", "EpisodeDamaged", "Forbidden", "FrameScore", "JobFailed", "MonitorClient",
     "NotFound", "PayloadTooLarge", "Recording", "ServerError", "Session", "SessionError",
     "SessionEvent", "SessionSummary", "TooManyRequests", "Unauthorized", "Update", "VamosError",

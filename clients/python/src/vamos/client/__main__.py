@@ -1,3 +1,5 @@
-from .cli import main
+"""``python -m vamos.client``: the ``vamos-client`` command."""
 
-raise SystemExit(main())
+from vamos._cli import client
+
+raise SystemExit(client())

@@ -1,23 +1,36 @@
-"""The REST administration client (models, robots, profiles, thresholds, calibration
-jobs, sessions), standard library only."""
+"""The REST administration clients (models, robots, profiles, thresholds, calibration
+jobs, sessions) over httpx: :class:`AdminClient` (blocking) and :class:`AsyncAdminClient`
+(asyncio), the same methods with the same arguments.
+
+Each endpoint is described once, as a :class:`_Call` built by a function of
+:mod:`vamos.client._admin_calls`; the two clients only differ in how they send it. Uploads
+are streamed from disk with a declared ``Content-Length`` (never held whole in memory),
+multipart bodies are httpx's.
+"""
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
 import json
 import os
 import ssl
+import tarfile
+import tempfile
 import time
-import urllib.error
-import urllib.parse
-import urllib.request
-import uuid
 from pathlib import Path
-from typing import Any, Iterable, Iterator, Optional, Sequence, Union
+from types import TracebackType
+from typing import Any, AsyncIterator, Iterator, Optional, Sequence, TypeVar, Union
 
+import httpx
+
+from . import _admin_calls as calls
+from ._admin_calls import UNSET, Call, Json
 from ._types import VamosError
 
-Json = Any
-_UNSET: Any = object()
+T = TypeVar("T")
+PathLike = Union[str, "os.PathLike[str]"]
+_CHUNK = 1 << 20
 
 
 class ApiError(VamosError):
@@ -70,8 +83,8 @@ class JobFailed(VamosError):
         self.job = job
 
 
-_BY_STATUS = {400: BadRequest, 401: Unauthorized, 403: Forbidden, 404: NotFound, 409: Conflict,
-              413: PayloadTooLarge, 429: TooManyRequests}
+_BY_STATUS: dict[int, type[ApiError]] = {400: BadRequest, 401: Unauthorized, 403: Forbidden, 404: NotFound,
+                                         409: Conflict, 413: PayloadTooLarge, 429: TooManyRequests}
 
 
 def _raise(status: int, body: bytes, method: str, path: str) -> None:
@@ -83,218 +96,206 @@ def _raise(status: int, body: bytes, method: str, path: str) -> None:
     raise cls(status, str(message), method, path)
 
 
-class _Multipart:
-    """A ``multipart/form-data`` body streamed from files (never held whole)."""
-
-    def __init__(self, files: Sequence[tuple[str, Path]], fields: Sequence[tuple[str, str]]) -> None:
-        self.boundary = f"vamos-{uuid.uuid4().hex}"
-        self._parts: list[Union[bytes, Path]] = []
-        for name, value in fields:
-            self._parts.append(
-                f'--{self.boundary}\r\nContent-Disposition: form-data; name="{name}"\r\n\r\n{value}\r\n'
-                .encode())
-        for name, path in files:
-            filename = path.name.replace('"', "_").replace("\r", "_").replace("\n", "_")
-            self._parts.append(
-                (f'--{self.boundary}\r\nContent-Disposition: form-data; name="{name}"; '
-                 f'filename="{filename}"\r\nContent-Type: application/octet-stream\r\n\r\n').encode())
-            self._parts.append(path)
-            self._parts.append(b"\r\n")
-        self._parts.append(f"--{self.boundary}--\r\n".encode())
-
-    @property
-    def content_type(self) -> str:
-        return f"multipart/form-data; boundary={self.boundary}"
-
-    def __len__(self) -> int:
-        return sum(p.stat().st_size if isinstance(p, Path) else len(p) for p in self._parts)
-
-    def __iter__(self) -> Iterator[bytes]:
-        for p in self._parts:
-            if isinstance(p, Path):
-                with open(p, "rb") as fh:
-                    while chunk := fh.read(1 << 20):
-                        yield chunk
-            else:
-                yield p
+def _result(call: Call[T], status: int, body: bytes) -> T:
+    """The value of a finished call, or the :class:`ApiError` of its status."""
+    if status >= 400:
+        _raise(status, body, call.method, call.path)
+    if call.raw:
+        return call.post(body)
+    return call.post(None if status == 204 or not body else json.loads(body))
 
 
-def _file_chunks(path: Path) -> Iterable[bytes]:
+def _file_chunks(path: Path) -> Iterator[bytes]:
     with open(path, "rb") as fh:
-        while chunk := fh.read(1 << 20):
+        while chunk := fh.read(_CHUNK):
             yield chunk
 
 
-class AdminClient:
-    """``vamos serve``'s REST API. ``base_url`` is the REST address
-    (``http://127.0.0.1:8080``); ``token`` an admin token (a robot token may read and
-    score only); ``ca_file`` a PEM CA for a TLS server."""
+async def _file_chunks_async(path: Path) -> AsyncIterator[bytes]:
+    # Local reads of 1 MiB are short; the event loop is not held for long.
+    with open(path, "rb") as fh:
+        while chunk := fh.read(_CHUNK):
+            yield chunk
 
-    def __init__(self, base_url: str = "http://127.0.0.1:8080", *, token: Optional[str] = None,
-                 timeout: float = 300.0, ca_file: Optional[str] = None) -> None:
+
+@contextlib.contextmanager
+def _robot_package(package: PathLike) -> Iterator[Path]:
+    """The file to upload for a robot: the path itself, or a folder packed as ``.tar.gz``
+    in a temporary folder (removed afterwards)."""
+    p = Path(package)
+    if not p.is_dir():
+        yield p
+        return
+    with tempfile.TemporaryDirectory() as tmp:
+        archive = Path(tmp) / f"{p.name}.tar.gz"
+        with tarfile.open(archive, "w:gz") as tar:
+            tar.add(p, arcname=p.name)
+        yield archive
+
+
+class _Base:
+    def __init__(self, base_url: str, token: Optional[str], timeout: float, ca_file: Optional[str]) -> None:
         if "://" not in base_url:
             base_url = "http://" + base_url
         self.base_url = base_url.rstrip("/")
         self.token = token
         self.timeout = timeout
-        self._context = ssl.create_default_context(cafile=ca_file) if ca_file else None
+        self._verify: Union[bool, ssl.SSLContext] = ssl.create_default_context(cafile=ca_file) if ca_file else True
 
-    def request(self, method: str, path: str, *, json_body: Json = _UNSET,
-                data: Any = None, content_type: Optional[str] = None,
-                length: Optional[int] = None, accept: Optional[str] = None,
-                raw: bool = False) -> Any:
-        """One call; returns the parsed JSON (``None`` for 204), or the bytes with
-        ``raw``; raises the :class:`ApiError` subclass of the status."""
-        headers: dict[str, str] = {}
+    def _headers(self, call: Call[Any], length: Optional[int]) -> dict[str, str]:
+        headers = dict(call.headers)
         if self.token:
             headers["Authorization"] = f"Bearer {self.token}"
-        if json_body is not _UNSET:
-            data = json.dumps(json_body).encode()
-            content_type = "application/json"
-        if content_type:
-            headers["Content-Type"] = content_type
-        if accept:
-            headers["Accept"] = accept
         if length is not None:
             headers["Content-Length"] = str(length)
-        req = urllib.request.Request(self.base_url + path, data=data, method=method, headers=headers)
-        try:
-            with urllib.request.urlopen(req, timeout=self.timeout, context=self._context) as resp:
-                body = resp.read()
-                if raw:
-                    return body
-                if resp.status == 204 or not body:
-                    return None
-                return json.loads(body)
-        except urllib.error.HTTPError as e:
-            _raise(e.code, e.read(), method, path)
-        except urllib.error.URLError as e:
-            raise VamosError(f"{method} {self.base_url}{path}: {e.reason}") from e
+        return headers
 
-    def _upload(self, method: str, path: str, file: "str | Path", content_type: str) -> Json:
-        p = Path(file)
-        return self.request(method, path, data=_file_chunks(p), content_type=content_type,
-                            length=p.stat().st_size)
+    def _transport_error(self, call: Call[Any], e: httpx.TransportError) -> VamosError:
+        return VamosError(f"{call.method} {self.base_url}{call.path}: {e}")
+
+
+class AdminClient(_Base):
+    """``vamos serve``'s REST API, blocking. ``base_url`` is the REST address
+    (``http://127.0.0.1:8080``); ``token`` an admin token (a robot token may read and
+    score only); ``ca_file`` a PEM CA for a TLS server. Usable as a context manager
+    (closes its connection pool)."""
+
+    def __init__(self, base_url: str = "http://127.0.0.1:8080", *, token: Optional[str] = None,
+                 timeout: float = 300.0, ca_file: Optional[str] = None) -> None:
+        super().__init__(base_url, token, timeout, ca_file)
+        self._http = httpx.Client(base_url=self.base_url, timeout=timeout, verify=self._verify)
+
+    def close(self) -> None:
+        self._http.close()
+
+    def __enter__(self) -> "AdminClient":
+        return self
+
+    def __exit__(self, et: Optional[type[BaseException]], e: Optional[BaseException],
+                 tb: Optional[TracebackType]) -> None:
+        self.close()
+
+    def _send(self, call: Call[T]) -> T:
+        with contextlib.ExitStack() as stack:
+            kwargs: dict[str, Any] = {}
+            length = None
+            if call.json is not UNSET:
+                kwargs["json"] = call.json
+            elif call.file is not None:
+                kwargs["content"], length = _file_chunks(call.file), call.file.stat().st_size
+            elif call.content is not None:
+                kwargs["content"], length = call.content, call.length
+            if call.files:
+                kwargs["files"] = [(f, (p.name, stack.enter_context(open(p, "rb")), "application/octet-stream"))
+                                   for f, p in call.files]
+                kwargs["data"] = dict(call.fields)
+            try:
+                r = self._http.request(call.method, call.path, headers=self._headers(call, length), **kwargs)
+            except httpx.TransportError as e:
+                raise self._transport_error(call, e) from e
+        return _result(call, r.status_code, r.content)
+
+    def request(self, method: str, path: str, *, json_body: Json = UNSET, data: Any = None,
+                content_type: Optional[str] = None, length: Optional[int] = None,
+                accept: Optional[str] = None, raw: bool = False) -> Any:
+        """One call; returns the parsed JSON (``None`` for 204), or the bytes with
+        ``raw``; raises the :class:`ApiError` subclass of the status. ``data`` is bytes
+        or an iterable of bytes (sent with ``length`` as its Content-Length)."""
+        return self._send(calls.raw_call(method, path, json_body, data, content_type, length, accept, raw))
 
     # Health and metrics.
     def healthy(self) -> bool:
-        """``GET /healthz``."""
+        """``GET /healthz`` answers live."""
         try:
-            return self.request("GET", "/healthz").get("status") == "live"
+            return self._send(calls.healthy())
         except VamosError:
             return False
 
     def ready(self) -> bool:
-        """``GET /readyz``."""
+        """``GET /readyz`` answers ready."""
         try:
-            return self.request("GET", "/readyz").get("status") == "ready"
+            return self._send(calls.ready())
         except VamosError:
             return False
 
     def metrics(self) -> str:
         """The Prometheus exposition of ``/metrics``."""
-        return bytes(self.request("GET", "/metrics", raw=True)).decode()
+        return self._send(calls.metrics())
 
     def openapi(self) -> Json:
-        return self.request("GET", "/openapi.json")
+        """The server's OpenAPI document."""
+        return self._send(calls.openapi())
 
     # Models.
     def models(self) -> list[Json]:
-        return list(self.request("GET", "/v1/models")["models"])
+        return self._send(calls.models())
 
     def model(self, name: str) -> Json:
-        return self.request("GET", f"/v1/models/{_q(name)}")
+        return self._send(calls.model(name))
 
-    def upload_model(self, name: str, bundle: "str | Path") -> Json:
+    def upload_model(self, name: str, bundle: PathLike) -> Json:
         """Uploads a model bundle (``.vamos``) as the next version of ``name``; the server
         refuses (:class:`BadRequest`) a bundle that does not load with ONNX Runtime."""
-        return self._upload("PUT", f"/v1/models/{_q(name)}", bundle, "application/octet-stream")
+        return self._send(calls.upload_model(name, Path(bundle)))
 
     def activate_model(self, name: str, version: int, *, reload_sessions: bool = False) -> Json:
         """Makes ``version`` active for new sessions (and, with ``reload_sessions``, for
         running ones, listed in the answer's ``reloaded_sessions``)."""
-        return self.request("POST", f"/v1/models/{_q(name)}/active",
-                            json_body={"version": int(version), "reload_sessions": reload_sessions})
+        return self._send(calls.activate_model(name, version, reload_sessions))
 
     def delete_model(self, name: str, version: Optional[int] = None) -> None:
-        path = f"/v1/models/{_q(name)}" + (f"/versions/{int(version)}" if version is not None else "")
-        self.request("DELETE", path)
+        self._send(calls.delete_model(name, version))
 
     # Robots.
     def robots(self) -> list[Json]:
-        return list(self.request("GET", "/v1/robots")["robots"])
+        return self._send(calls.robots())
 
     def robot(self, name: str) -> Json:
-        return self.request("GET", f"/v1/robots/{_q(name)}")
+        return self._send(calls.robot(name))
 
-    def upload_robot(self, name: str, package: "str | Path", format: Optional[str] = None) -> Json:
+    def upload_robot(self, name: str, package: PathLike, format: Optional[str] = None) -> Json:
         """Uploads a URDF (``.urdf``) or a robot package (``.tar.gz``, ``.zip``); a folder
         is packed into a ``.tar.gz`` first."""
-        p = Path(package)
-        if p.is_dir():
-            import tarfile
-            import tempfile
-
-            with tempfile.TemporaryDirectory() as tmp:
-                archive = Path(tmp) / f"{p.name}.tar.gz"
-                with tarfile.open(archive, "w:gz") as tar:
-                    tar.add(p, arcname=p.name)
-                return self.upload_robot(name, archive, "tar.gz")
-        fmt = format or ("tar.gz" if p.name.endswith((".tar.gz", ".tgz")) else p.suffix.lstrip("."))
-        if fmt not in ("urdf", "tar.gz", "zip"):
-            raise ValueError(f"cannot tell the robot format of {p.name}: pass format='urdf', 'tar.gz' or 'zip'")
-        return self._upload("PUT", f"/v1/robots/{_q(name)}?format={fmt}", p, "application/octet-stream")
+        with _robot_package(package) as p:
+            return self._send(calls.upload_robot(name, p, None if p != Path(package) else format))
 
     def delete_robot(self, name: str) -> None:
-        self.request("DELETE", f"/v1/robots/{_q(name)}")
+        self._send(calls.delete_robot(name))
 
     # Profiles and thresholds.
     def profiles(self) -> list[Json]:
-        return list(self.request("GET", "/v1/profiles")["profiles"])
+        return self._send(calls.profiles())
 
     def profile(self, name: str) -> Json:
-        return self.request("GET", f"/v1/profiles/{_q(name)}")
+        return self._send(calls.profile(name))
 
     def put_profile(self, name: str, spec: Json) -> Json:
         """Creates or replaces a stored profile from a ProfileSpec (robot, camera, model,
         pipeline...; see ``/openapi.json``)."""
-        return self.request("PUT", f"/v1/profiles/{_q(name)}", json_body=spec)
+        return self._send(calls.put_profile(name, spec))
 
     def delete_profile(self, name: str) -> None:
-        self.request("DELETE", f"/v1/profiles/{_q(name)}")
+        self._send(calls.delete_profile(name))
 
-    def set_thresholds(self, name: str, *, e_c: Optional[float] = _UNSET,
-                       e_b: Optional[float] = _UNSET, alarm: Optional[float] = _UNSET) -> Json:
+    def set_thresholds(self, name: str, *, e_c: Optional[float] = UNSET,
+                       e_b: Optional[float] = UNSET, alarm: Optional[float] = UNSET) -> Json:
         """Overrides thresholds; a value of ``None`` clears that override, an argument not
         given leaves it as it is."""
-        patch = {k: v for k, v in (("e_c", e_c), ("e_b", e_b), ("alarm", alarm)) if v is not _UNSET}
-        return self.request("PATCH", f"/v1/profiles/{_q(name)}/thresholds", json_body=patch)
+        return self._send(calls.set_thresholds(name, e_c, e_b, alarm))
 
     # Calibration jobs.
-    def calibrate(self, profile: str, episodes: Sequence["str | Path"],
-                  holdout: Sequence["str | Path"] = (), *, alpha: float = 0.1,
-                  upload: bool = True) -> int:
+    def calibrate(self, profile: str, episodes: Sequence[PathLike], holdout: Sequence[PathLike] = (), *,
+                  alpha: float = 0.1, upload: bool = True) -> int:
         """Starts a calibration job and returns its id. ``upload``: the episodes are local
-        files sent with the request; otherwise they are paths (files or folders) on the
-        server."""
-        path = f"/v1/profiles/{_q(profile)}/calibrate"
-        if not upload:
-            body = {"episodes": [str(e) for e in episodes], "holdout": [str(h) for h in holdout],
-                    "alpha": alpha}
-            return int(self.request("POST", path, json_body=body)["job"])
-        files = [("episodes", Path(e)) for e in episodes] + [("holdout", Path(h)) for h in holdout]
-        for _, f in files:
-            if not f.is_file():
-                raise FileNotFoundError(f)
-        form = _Multipart(files, [("alpha", repr(float(alpha)))])
-        return int(self.request("POST", path, data=iter(form), content_type=form.content_type,
-                                length=len(form))["job"])
+        files sent with the request (multipart); otherwise they are paths (files or
+        folders) on the server."""
+        return self._send(calls.calibrate(profile, episodes, holdout, alpha, upload))
 
     def jobs(self) -> list[Json]:
-        return list(self.request("GET", "/v1/jobs")["jobs"])
+        return self._send(calls.jobs())
 
     def job(self, job_id: int) -> Json:
-        return self.request("GET", f"/v1/jobs/{int(job_id)}")
+        return self._send(calls.job(job_id))
 
     def wait_job(self, job_id: int, *, timeout: float = 3600.0, poll_s: float = 0.5) -> Json:
         """Polls a job until it ends; returns the record of a succeeded job, raises
@@ -302,42 +303,180 @@ class AdminClient:
         deadline = time.monotonic() + timeout
         while True:
             job = self.job(job_id)
-            if job["state"] == "succeeded":
+            if calls.job_finished(job, JobFailed):
                 return job
-            if job["state"] in ("failed", "cancelled"):
-                raise JobFailed(job)
             if time.monotonic() > deadline:
                 raise TimeoutError(f"job {job_id} still running after {timeout} s")
             time.sleep(poll_s)
 
     def cancel_job(self, job_id: int) -> bool:
         """Cancels a running job (True) or removes a finished job's record (False)."""
-        return self.request("DELETE", f"/v1/jobs/{int(job_id)}") is not None
+        return self._send(calls.cancel_job(job_id))
 
     # The data directory and the fleet.
     def store_status(self) -> Json:
         """``GET /v1/store``: ``{"data_dir", "read_only", "problems", "shared_store"}``;
         ``shared_store`` (None without one) has the replica's ``role``, ``url``,
         ``generation``, ``files``, ``last_sync_unix_s`` and ``last_error``."""
-        return self.request("GET", "/v1/store")
+        return self._send(calls.store_status())
 
     # Sessions and episodes.
     def sessions(self) -> list[Json]:
-        return list(self.request("GET", "/v1/sessions")["sessions"])
+        return self._send(calls.sessions())
 
     def reload_session(self, session_id: str) -> Json:
         """Moves a running session to its profile as stored now."""
-        return self.request("POST", f"/v1/sessions/{_q(session_id)}/reload")
+        return self._send(calls.reload_session(session_id))
 
-    def score_episode(self, episode: "str | Path", profile: str, *, name: Optional[str] = None) -> Json:
+    def score_episode(self, episode: PathLike, profile: str, *, name: Optional[str] = None) -> Json:
         """``POST /v1/episodes:score``: ``{"frames": [...], "damage": str|None}``."""
-        p = Path(episode)
-        query = urllib.parse.urlencode({"profile": profile, "name": p.stem if name is None else name})
-        return self._upload("POST", f"/v1/episodes:score?{query}", p, "application/octet-stream")
+        return self._send(calls.score_episode(Path(episode), profile, name))
 
 
-def _q(segment: str) -> str:
-    return urllib.parse.quote(str(segment), safe="")
+class AsyncAdminClient(_Base):
+    """:class:`AdminClient` for asyncio: the same methods, as coroutines
+    (``await admin.models()``). Close it with ``await admin.aclose()`` or use it as an
+    ``async with`` block."""
+
+    def __init__(self, base_url: str = "http://127.0.0.1:8080", *, token: Optional[str] = None,
+                 timeout: float = 300.0, ca_file: Optional[str] = None) -> None:
+        super().__init__(base_url, token, timeout, ca_file)
+        self._http = httpx.AsyncClient(base_url=self.base_url, timeout=timeout, verify=self._verify)
+
+    async def aclose(self) -> None:
+        await self._http.aclose()
+
+    async def __aenter__(self) -> "AsyncAdminClient":
+        return self
+
+    async def __aexit__(self, et: Optional[type[BaseException]], e: Optional[BaseException],
+                        tb: Optional[TracebackType]) -> None:
+        await self.aclose()
+
+    async def _send(self, call: Call[T]) -> T:
+        with contextlib.ExitStack() as stack:
+            kwargs: dict[str, Any] = {}
+            length = None
+            if call.json is not UNSET:
+                kwargs["json"] = call.json
+            elif call.file is not None:
+                kwargs["content"], length = _file_chunks_async(call.file), call.file.stat().st_size
+            elif call.content is not None:
+                if not isinstance(call.content, bytes):
+                    raise TypeError("AsyncAdminClient.request takes bytes as data")
+                kwargs["content"], length = call.content, call.length
+            if call.files:
+                kwargs["files"] = [(f, (p.name, stack.enter_context(open(p, "rb")), "application/octet-stream"))
+                                   for f, p in call.files]
+                kwargs["data"] = dict(call.fields)
+            try:
+                r = await self._http.request(call.method, call.path, headers=self._headers(call, length), **kwargs)
+            except httpx.TransportError as e:
+                raise self._transport_error(call, e) from e
+        return _result(call, r.status_code, r.content)
+
+    async def request(self, method: str, path: str, *, json_body: Json = UNSET, data: Optional[bytes] = None,
+                      content_type: Optional[str] = None, accept: Optional[str] = None, raw: bool = False) -> Any:
+        """One call, as :meth:`AdminClient.request` (``data`` as bytes)."""
+        return await self._send(calls.raw_call(method, path, json_body, data, content_type,
+                                               None if data is None else len(data), accept, raw))
+
+    async def healthy(self) -> bool:
+        try:
+            return await self._send(calls.healthy())
+        except VamosError:
+            return False
+
+    async def ready(self) -> bool:
+        try:
+            return await self._send(calls.ready())
+        except VamosError:
+            return False
+
+    async def metrics(self) -> str:
+        return await self._send(calls.metrics())
+
+    async def openapi(self) -> Json:
+        return await self._send(calls.openapi())
+
+    async def models(self) -> list[Json]:
+        return await self._send(calls.models())
+
+    async def model(self, name: str) -> Json:
+        return await self._send(calls.model(name))
+
+    async def upload_model(self, name: str, bundle: PathLike) -> Json:
+        return await self._send(calls.upload_model(name, Path(bundle)))
+
+    async def activate_model(self, name: str, version: int, *, reload_sessions: bool = False) -> Json:
+        return await self._send(calls.activate_model(name, version, reload_sessions))
+
+    async def delete_model(self, name: str, version: Optional[int] = None) -> None:
+        await self._send(calls.delete_model(name, version))
+
+    async def robots(self) -> list[Json]:
+        return await self._send(calls.robots())
+
+    async def robot(self, name: str) -> Json:
+        return await self._send(calls.robot(name))
+
+    async def upload_robot(self, name: str, package: PathLike, format: Optional[str] = None) -> Json:
+        with _robot_package(package) as p:
+            return await self._send(calls.upload_robot(name, p, None if p != Path(package) else format))
+
+    async def delete_robot(self, name: str) -> None:
+        await self._send(calls.delete_robot(name))
+
+    async def profiles(self) -> list[Json]:
+        return await self._send(calls.profiles())
+
+    async def profile(self, name: str) -> Json:
+        return await self._send(calls.profile(name))
+
+    async def put_profile(self, name: str, spec: Json) -> Json:
+        return await self._send(calls.put_profile(name, spec))
+
+    async def delete_profile(self, name: str) -> None:
+        await self._send(calls.delete_profile(name))
+
+    async def set_thresholds(self, name: str, *, e_c: Optional[float] = UNSET,
+                             e_b: Optional[float] = UNSET, alarm: Optional[float] = UNSET) -> Json:
+        return await self._send(calls.set_thresholds(name, e_c, e_b, alarm))
+
+    async def calibrate(self, profile: str, episodes: Sequence[PathLike], holdout: Sequence[PathLike] = (), *,
+                        alpha: float = 0.1, upload: bool = True) -> int:
+        return await self._send(calls.calibrate(profile, episodes, holdout, alpha, upload))
+
+    async def jobs(self) -> list[Json]:
+        return await self._send(calls.jobs())
+
+    async def job(self, job_id: int) -> Json:
+        return await self._send(calls.job(job_id))
+
+    async def wait_job(self, job_id: int, *, timeout: float = 3600.0, poll_s: float = 0.5) -> Json:
+        deadline = time.monotonic() + timeout
+        while True:
+            job = await self.job(job_id)
+            if calls.job_finished(job, JobFailed):
+                return job
+            if time.monotonic() > deadline:
+                raise TimeoutError(f"job {job_id} still running after {timeout} s")
+            await asyncio.sleep(poll_s)
+
+    async def cancel_job(self, job_id: int) -> bool:
+        return await self._send(calls.cancel_job(job_id))
+
+    async def store_status(self) -> Json:
+        return await self._send(calls.store_status())
+
+    async def sessions(self) -> list[Json]:
+        return await self._send(calls.sessions())
+
+    async def reload_session(self, session_id: str) -> Json:
+        return await self._send(calls.reload_session(session_id))
+
+    async def score_episode(self, episode: PathLike, profile: str, *, name: Optional[str] = None) -> Json:
+        return await self._send(calls.score_episode(Path(episode), profile, name))
 
 
 def token_from_env() -> Optional[str]:

@@ -23,6 +23,7 @@ import sys
 from typing import Any, Optional, Sequence
 
 from ._types import FrameScore, SessionEvent, VamosError
+from .._cli import add_version
 from .admin import AdminClient, token_from_env
 
 
@@ -45,80 +46,85 @@ def _threshold(text: str) -> Optional[float]:
 
 
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="vamos-client", description=__doc__.split("\n\n")[0])
+    p = argparse.ArgumentParser(prog="vamos-client", description=(__doc__ or "").split("\n\n")[0])
+    add_version(p)
     p.add_argument("--server", default="127.0.0.1:8081", help="gRPC address (default %(default)s)")
     p.add_argument("--api", default="http://127.0.0.1:8080", help="REST address (default %(default)s)")
     p.add_argument("--token", default=None, help="bearer token (default: $VAMOS_TOKEN)")
     p.add_argument("--ca", default=None, help="PEM CA certificate for TLS servers")
-    sub = p.add_subparsers(dest="command", required=True)
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     s = sub.add_parser("stream", help="replay a bag as a live robot and print every score")
-    s.add_argument("episode")
-    s.add_argument("--profile", required=True)
+    s.add_argument("episode", help="the recorded episode (ROS 2 bag, .mcap)")
+    s.add_argument("--profile", required=True, help="the server's profile to score with")
     pace = s.add_mutually_exclusive_group()
     pace.add_argument("--rate", type=float, default=1.0, help="recorded pace x this (default 1.0)")
     pace.add_argument("--fast", action="store_true", help="as fast as the server scores")
     s.add_argument("--window", type=int, default=4, help="images unanswered with --fast (default 4)")
     s.add_argument("--session-id", default=None, help="default: the bag's file stem")
-    s.add_argument("--robot-id", default="vamos-client")
+    s.add_argument("--robot-id", default="vamos-client", help="the robot's name in the session (default %(default)s)")
 
     s = sub.add_parser("score", help="upload a bag whole and print every frame's score")
-    s.add_argument("episode")
-    s.add_argument("--profile", required=True)
+    s.add_argument("episode", help="the recorded episode (ROS 2 bag, .mcap)")
+    s.add_argument("--profile", required=True, help="the server's profile to score with")
 
     s = sub.add_parser("models", help="stored models")
-    ms = s.add_subparsers(dest="action", required=True)
-    ms.add_parser("list")
-    x = ms.add_parser("upload")
-    x.add_argument("name")
-    x.add_argument("file")
-    x = ms.add_parser("activate")
-    x.add_argument("name")
-    x.add_argument("version", type=int)
+    ms = s.add_subparsers(dest="action", required=True, metavar="ACTION")
+    ms.add_parser("list", help="every model with its versions")
+    x = ms.add_parser("upload", help="upload a bundle as the model's next version")
+    x.add_argument("name", help="model name")
+    x.add_argument("file", help="model bundle (.vamos)")
+    x = ms.add_parser("activate", help="make a version the active one")
+    x.add_argument("name", help="model name")
+    x.add_argument("version", type=int, help="version number")
     x.add_argument("--reload-sessions", action="store_true", help="move running sessions too")
-    x = ms.add_parser("delete")
-    x.add_argument("name")
-    x.add_argument("--version", type=int, default=None)
+    x = ms.add_parser("delete", help="delete a model, or one of its versions")
+    x.add_argument("name", help="model name")
+    x.add_argument("--version", type=int, default=None, help="only this version (default: the whole model)")
 
     s = sub.add_parser("robots", help="stored robots")
-    rs = s.add_subparsers(dest="action", required=True)
-    rs.add_parser("list")
-    x = rs.add_parser("upload")
-    x.add_argument("name")
+    rs = s.add_subparsers(dest="action", required=True, metavar="ACTION")
+    rs.add_parser("list", help="every stored robot")
+    x = rs.add_parser("upload", help="upload a robot description")
+    x.add_argument("name", help="robot name")
     x.add_argument("path", help="URDF, .tar.gz, .zip or a package folder")
-    x = rs.add_parser("delete")
-    x.add_argument("name")
+    x = rs.add_parser("delete", help="delete a robot")
+    x.add_argument("name", help="robot name")
 
     s = sub.add_parser("profiles", help="stored profiles")
-    ps = s.add_subparsers(dest="action", required=True)
-    ps.add_parser("list")
-    for action in ("get", "delete"):
-        x = ps.add_parser(action)
-        x.add_argument("name")
-    x = ps.add_parser("put")
-    x.add_argument("name")
+    ps = s.add_subparsers(dest="action", required=True, metavar="ACTION")
+    ps.add_parser("list", help="every stored profile")
+    for action, text in (("get", "print a profile"), ("delete", "delete a profile")):
+        x = ps.add_parser(action, help=text)
+        x.add_argument("name", help="profile name")
+    x = ps.add_parser("put", help="create or replace a profile")
+    x.add_argument("name", help="profile name")
     x.add_argument("spec", help="ProfileSpec JSON file")
 
     s = sub.add_parser("thresholds", help="override a profile's thresholds")
-    s.add_argument("profile")
+    s.add_argument("profile", help="profile name")
     for flag in ("--e-c", "--e-b", "--alarm"):
         s.add_argument(flag, type=_threshold, default=argparse.SUPPRESS, help="a number, or none to clear")
 
     s = sub.add_parser("calibrate", help="calibrate a stored profile on nominal episodes")
-    s.add_argument("profile")
-    s.add_argument("episodes", nargs="+")
-    s.add_argument("--holdout", nargs="*", default=[])
-    s.add_argument("--alpha", type=float, default=0.1)
+    s.add_argument("profile", help="profile name")
+    s.add_argument("episodes", nargs="+", help="nominal episodes (.mcap) to calibrate on")
+    s.add_argument("--holdout", nargs="*", default=[], help="nominal episodes held out for the conformal threshold")
+    s.add_argument("--alpha", type=float, default=0.1, help="false-alarm rate of the threshold (default %(default)s)")
     s.add_argument("--server-paths", action="store_true", help="the episodes are paths on the server")
     s.add_argument("--no-wait", action="store_true", help="print the job id and return")
 
     s = sub.add_parser("jobs", help="calibration jobs")
-    s.add_argument("id", nargs="?", type=int)
-    s.add_argument("--cancel", action="store_true")
+    s.add_argument("id", nargs="?", type=int, help="a job id (default: list every job)")
+    s.add_argument("--cancel", action="store_true", help="cancel the job (or forget a finished one)")
 
     s = sub.add_parser("sessions", help="sessions open now")
     s.add_argument("--reload", metavar="ID", default=None, help="move session ID to its profile as stored now")
     return p
+
+
+#: The parser, for documentation and tests.
+build_parser = _parser
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -199,6 +205,7 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
+    """Entry point of ``vamos-client``; returns the exit status."""
     args = _parser().parse_args(argv)
     try:
         return _run(args)

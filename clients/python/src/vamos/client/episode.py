@@ -1,7 +1,7 @@
 """Recorded episodes (ROS 2 bags in MCAP) as the messages a robot would stream.
 
-Needs the ``mcap`` and ``mcap-ros2-support`` packages (``pip install
-'vamos-client[client]'``).
+Needs the ``mcap`` and ``mcap-ros2-support`` packages (dependencies of the package:
+``pip install vamos-client`` brings them).
 """
 
 from __future__ import annotations
@@ -53,11 +53,11 @@ def read_episode(path: "str | Path", image_topic: Optional[str] = None,
     """Reads an MCAP episode into a :class:`Recording`. Topics are found by message type
     when there is one of a kind (joint states: every JointState topic), else name them."""
     try:
-        from mcap.reader import make_reader  # type: ignore[import-untyped]
-        from mcap_ros2.decoder import DecoderFactory  # type: ignore[import-untyped]
+        from mcap.reader import make_reader
+        from mcap_ros2.decoder import DecoderFactory
     except ImportError as e:  # pragma: no cover - depends on the environment
-        raise VamosError("reading MCAP episodes needs `pip install 'vamos-client[client]'` "
-                         f"(mcap, mcap-ros2-support): {e}") from e
+        raise VamosError("reading MCAP episodes needs mcap and mcap-ros2-support, dependencies of the "
+                         f"package (`pip install vamos-client`): {e}") from e
     path = Path(path)
     try:
         with open(path, "rb") as fh:

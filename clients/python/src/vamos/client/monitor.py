@@ -198,7 +198,7 @@ class MonitorClient:
                  root_certificates: Optional[bytes] = None, max_message_bytes: int = 64 << 20,
                  timeout: Optional[float] = None) -> None:
         self._channel = make_channel(server, root_certificates, max_message_bytes)
-        self._stub = pb_grpc.MonitorStub(self._channel)
+        self._stub = pb_grpc.MonitorStub(self._channel)  # type: ignore[no-untyped-call]  # generated, untyped
         self._metadata = [("authorization", f"Bearer {token}")] if token else []
         self._timeout = timeout
 

@@ -1,8 +1,6 @@
-"""A ROS 2 bridge: subscribes to a robot's image, camera-info and joint-state topics,
-streams them to ``vamos serve`` as one session, and publishes the scores.
-
-- :mod:`vamos.ros.convert`: the message conversions and the bridge's bookkeeping, plain
-  Python (tested without ROS).
-- :mod:`vamos.ros.node`: the rclpy node (``vamos-ros-bridge``); imports rclpy, so it needs
-  a sourced ROS 2 installation.
+"""Moved: the ROS 2 bridge is the ROS 2 package ``vamos_bridge`` (``clients/ros2`` in the
+vamos repository: ``ros2 run vamos_bridge bridge``, ``ros2 launch vamos_bridge
+bridge.launch.py``). What stays here is a thin shim: the ``vamos-ros-bridge`` command runs
+that package's node when it is on the path, and :mod:`vamos.ros.convert` re-exports its
+conversions.
 """

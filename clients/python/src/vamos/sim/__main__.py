@@ -1,7 +1,5 @@
 """``python -m vamos.sim``: the ``vamos-sim`` command."""
 
-import sys
+from vamos._cli import sim
 
-from vamos.sim.cli import main
-
-sys.exit(main())
+raise SystemExit(sim())

@@ -88,5 +88,5 @@ class BagWriter:
 
     def close(self) -> None:
         """Finishes the file (summary, index) and closes it."""
-        self._writer.finish()  # type: ignore[no-untyped-call]
+        self._writer.finish()
         self._file.close()

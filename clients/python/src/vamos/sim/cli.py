@@ -21,6 +21,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from vamos._cli import add_version
 from vamos.sim import robot as rb
 from vamos.sim.episode import (
     ANOMALY_TYPES,
@@ -131,8 +132,9 @@ def generate(out: Path, specs: list[EpisodeSpec], seed: int, workers: int,
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of ``vamos-sim``."""
-    parser = argparse.ArgumentParser(prog="vamos-sim", description=__doc__.split("\n\n")[0])
-    sub = parser.add_subparsers(dest="command", required=True)
+    parser = argparse.ArgumentParser(prog="vamos-sim", description=(__doc__ or "").split("\n\n")[0])
+    add_version(parser)
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     g = sub.add_parser("generate", help="generate a dataset of simulated episodes")
     g.add_argument("--out", type=Path, required=True, help="output folder")
     g.add_argument("--seed", type=int, default=0, help="dataset seed (default 0)")

@@ -1,5 +1,5 @@
-"""``python -m vamos.train``: same as the ``vamos-train`` command."""
+"""``python -m vamos.train``: the ``vamos-train`` command."""
 
-from vamos.train.cli import main
+from vamos._cli import train
 
-raise SystemExit(main())
+raise SystemExit(train())

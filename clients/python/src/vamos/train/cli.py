@@ -19,6 +19,7 @@ import sys
 import time
 from collections.abc import Sequence
 
+from vamos._cli import add_version
 from vamos.train.config import PAPER_FILTERS, ConfigError, FitConfig, ModelConfig, parse_filters
 
 _SUBCOMMANDS = ("fit", "export", "export-random", "bench-step")
@@ -63,15 +64,16 @@ def build_parser() -> argparse.ArgumentParser:
     """The argument parser (sub-commands fit, export, export-random, bench-step)."""
     parser = argparse.ArgumentParser(prog="vamos-train", description=(__doc__ or "").replace("``", ""),
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    sub = parser.add_subparsers(dest="command", required=True)
+    add_version(parser)
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     fit = sub.add_parser("fit", help="train on a dataset and export RUN_DIR/model.vamos")
     fit.add_argument("dataset", help="dataset directory (manifest.json + <episode>.npy)")
     fit.add_argument("-o", "--output", required=True, help="run folder (checkpoints, logs, model.vamos)")
     _add_model_args(fit)
     g = fit.add_argument_group("training")
-    g.add_argument("--epochs", type=int, default=50)
-    g.add_argument("--batch-size", type=int, default=128)
+    g.add_argument("--epochs", type=int, default=50, help="epochs (default %(default)s)")
+    g.add_argument("--batch-size", type=int, default=128, help="pairs per step (default %(default)s)")
     g.add_argument("--lr", type=float, default=1e-4, help="Adam learning rate")
     g.add_argument("--beta", type=float, default=10.0, help="weight of KL(posterior || prior)")
     g.add_argument("--weight-decay", type=float, default=1e-5,
@@ -82,7 +84,7 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--val-fraction", type=float, default=0.1, help="fraction of episodes for validation")
     g.add_argument("--val-episodes", type=_names, default=None, help="explicit validation episodes, comma-separated")
     g.add_argument("--train-episodes", type=_names, default=None, help="explicit training episodes, comma-separated")
-    g.add_argument("--seed", type=int, default=0)
+    g.add_argument("--seed", type=int, default=0, help="seed of weights, split and sampling (default 0)")
     g.add_argument("--name", default=None, help="model name in the manifest (default: run folder name)")
     g.add_argument("--keep-every", type=int, default=0, help="keep a checkpoint copy every K epochs")
     g.add_argument("--resume", action="store_true", help="continue from RUN_DIR/checkpoints/last.pt")
@@ -103,23 +105,26 @@ def build_parser() -> argparse.ArgumentParser:
     rand.add_argument("--seed", type=int, default=0, help="weight initialisation seed")
     rand.add_argument("--name", default=None, help="model name (default: untrained-<filters>)")
     rand.add_argument("--size", type=int, default=64, help="input size S")
-    rand.add_argument("--clip-px", type=float, default=15.0)
-    rand.add_argument("--reference-width-px", type=int, default=640)
+    rand.add_argument("--clip-px", type=float, default=15.0,
+                      help="flow magnitude mapped to +-0.5 at the reference width, px (default %(default)s)")
+    rand.add_argument("--reference-width-px", type=int, default=640,
+                      help="image width --clip-px refers to, px (default %(default)s)")
     rand.add_argument("--flow-variant", default="plain",
-                      choices=["plain", "registered", "masked", "masked_registered"])
+                      choices=["plain", "registered", "masked", "masked_registered"],
+                      help="the flow the network takes, recorded in the manifest (default %(default)s)")
     rand.add_argument("--proc-width", type=int, default=640, help="processing width, px")
     rand.add_argument("--proc-height", type=int, default=480, help="processing height, px")
     rand.add_argument("--stride", type=int, default=1, help="processing stride")
-    rand.add_argument("--a", type=int, default=5)
-    rand.add_argument("--b", type=int, default=4)
-    rand.add_argument("--m", type=int, default=10)
+    rand.add_argument("--a", type=int, default=5, help="smallest past offset A (flow frames)")
+    rand.add_argument("--b", type=int, default=4, help="offset range B: n in {A..A+B}")
+    rand.add_argument("--m", type=int, default=10, help="prior samples per offset at inference (manifest)")
     rand.add_argument("--no-verify", action="store_true", help="skip the onnxruntime parity check")
 
     bench = sub.add_parser("bench-step", help="time training steps (forward + backward + Adam)")
     _add_model_args(bench)
-    bench.add_argument("--batch-size", type=int, default=128)
-    bench.add_argument("--steps", type=int, default=3)
-    bench.add_argument("--warmup", type=int, default=1)
+    bench.add_argument("--batch-size", type=int, default=128, help="pairs per step (default %(default)s)")
+    bench.add_argument("--steps", type=int, default=3, help="timed steps (default %(default)s)")
+    bench.add_argument("--warmup", type=int, default=1, help="untimed steps first (default %(default)s)")
     bench.add_argument("--channels-last", action=argparse.BooleanOptionalAction, default=None,
                        help="NHWC activations (default: on for CPU, off for CUDA)")
     _add_runtime_args(bench)
@@ -129,7 +134,7 @@ def build_parser() -> argparse.ArgumentParser:
 def _normalise_argv(argv: list[str]) -> list[str]:
     if argv and argv[0] == "--export-only":
         return ["export", *argv[1:]]
-    if argv and argv[0] not in _SUBCOMMANDS and argv[0] not in ("-h", "--help"):
+    if argv and argv[0] not in _SUBCOMMANDS and argv[0] not in ("-h", "--help", "--version"):
         return ["fit", *argv]
     return argv
 
@@ -224,7 +229,7 @@ def _cmd_bench_step(args: argparse.Namespace) -> int:
         started = time.perf_counter()
         terms = training_loss(model, past, target, eps, 10.0, 1e-5)
         optimizer.zero_grad(set_to_none=True)
-        terms.total.backward()  # type: ignore[no-untyped-call]
+        terms.total.backward()
         optimizer.step()
         if device.type == "cuda":
             torch.cuda.synchronize()

@@ -145,7 +145,7 @@ def run_epoch(
             terms = training_loss(model, past, target, eps, beta, weight_decay)
             if optimizer is not None:
                 optimizer.zero_grad(set_to_none=True)
-                terms.total.backward()  # type: ignore[no-untyped-call]
+                terms.total.backward()
                 optimizer.step()
             count = past.shape[0]
             for key in sums:

@@ -1,0 +1,234 @@
+"""The bridge without ROS: its state and diagnostics, the session's life (opening at
+the first image, early joint states, reconnects), and a recorded robot fed through it
+to the real ``vamos serve`` (``VAMOS_BIN``): the decoded ROS 2 messages of a bag stand in
+for the subscriptions' messages, and every published FrameScore must carry its image's
+stamp and frame_id and the score ``vamos score`` gives offline."""
+
+from __future__ import annotations
+
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any, Iterator
+
+import pytest
+
+from vamos.client import FrameScore, SessionError, SessionEvent
+from vamos_bridge.bridge import ERROR, OK, STALE, WARN, Bridge, BridgeState, CallbackOutputs
+from vamos_bridge.convert import Stamp
+from vamos_bridge.params import Params
+
+ROOT = Path(__file__).resolve().parents[4]
+
+
+def score(anomaly: bool, warming: bool = False, stamp_ns: int = 1) -> FrameScore:
+    return FrameScore(stamp_ns=stamp_ns, index=0, frame=0, score=2.5 if anomaly else 0.1, e_c=None, e_b=None,
+                      e_o=None, anomaly=anomaly, detector="flow" if anomaly else None,
+                      warming_up=warming, latency_s=0.02)
+
+
+def test_the_bridge_state_drives_its_outputs_and_diagnostics() -> None:
+    st = BridgeState()
+    level, message, _ = st.diagnostic(now=0.0)
+    assert level == ERROR and "not connected" in message
+    st.on_update(SessionEvent("opened", "robot-1", "session robot-1 profile p model m"))
+    assert st.connected and st.session_id == "robot-1"
+    assert st.diagnostic(now=100.0)[0] == STALE
+    st.on_sent_image(now=100.0)
+    assert st.diagnostic(now=100.5)[:2] == (WARN, "images sent but no scores back")
+    assert st.on_update(score(False, warming=True), now=100.6) == (0.1, False)
+    assert st.diagnostic(now=100.7)[:2] == (OK, "scoring (flow predictor warming up)")
+    assert st.on_update(score(True), now=100.8) == (2.5, True)
+    level, message, values = st.diagnostic(now=100.9)
+    assert (level, message) == (OK, "scoring")
+    assert dict(values)["anomaly"] == "True" and dict(values)["frames_scored"] == "2"
+    st.on_update(SessionEvent("frames_dropped", "robot-1", "queue full", count=3))
+    st.on_update(SessionEvent("message_error", "robot-1", "image refused: bad size"))
+    level, message, _ = st.diagnostic(now=101.0)
+    assert level == WARN and "3 image(s) dropped, 1 message(s) refused" == message
+    assert st.diagnostic(now=200.0)[0] == STALE
+
+
+class Recorder:
+    """The node's side: what the bridge published and logged."""
+
+    def __init__(self) -> None:
+        self.scores: list[dict[str, Any]] = []
+        self.logs: list[tuple[str, str]] = []
+        self.done = threading.Event()
+
+    def score(self, fields: dict[str, Any]) -> None:
+        self.scores.append(fields)
+
+    def log(self, level: str, text: str) -> None:
+        self.logs.append((level, text))
+
+
+class FakeSession:
+    """A session that answers each image with a score of its stamp, until ``broken``."""
+
+    def __init__(self, session_id: str) -> None:
+        self.sent: list[Any] = []
+        self.opened = SessionEvent("opened", session_id, "")
+        self.answers: "list[Any]" = []
+        self.cond = threading.Condition()
+        self.finished = self.broken = False
+
+    def send(self, request: Any) -> None:
+        with self.cond:
+            self.sent.append(request)
+            if request.WhichOneof("message") == "image":
+                self.answers.append(score(False, stamp_ns=request.image.stamp_ns))
+            self.cond.notify_all()
+
+    def finish(self) -> None:
+        with self.cond:
+            self.finished = True
+            self.cond.notify_all()
+
+    def __iter__(self) -> Iterator[Any]:
+        while True:
+            with self.cond:
+                self.cond.wait_for(lambda: self.answers or self.finished or self.broken)
+                if self.broken:
+                    raise SessionError("UNAVAILABLE", "connection reset")
+                if not self.answers:
+                    return
+                item = self.answers.pop(0)
+            yield item
+
+
+class FakeClient:
+    def __init__(self, refuse_first: bool = False) -> None:
+        self.sessions: list[FakeSession] = []
+        self.opens: list[dict[str, Any]] = []
+        self.refuse = refuse_first
+
+    def open_session(self, profile: str, **kw: Any) -> FakeSession:
+        self.opens.append({"profile": profile, **kw})
+        if self.refuse:
+            self.refuse = False
+            raise SessionError("UNAVAILABLE", "server down")
+        s = FakeSession(kw["session_id"])
+        self.sessions.append(s)
+        return s
+
+
+def header(ns: int, frame_id: str) -> Any:
+    from types import SimpleNamespace as NS
+
+    return NS(stamp=NS(sec=ns // 10**9, nanosec=ns % 10**9), frame_id=frame_id)
+
+
+def image(ns: int, frame_id: str = "cam") -> Any:
+    from types import SimpleNamespace as NS
+
+    return NS(header=header(ns, frame_id), height=1, width=1, encoding="mono8", is_bigendian=0, step=1,
+              data=b"\x00")
+
+
+def joints(ns: int) -> Any:
+    from types import SimpleNamespace as NS
+
+    return NS(header=header(ns, ""), name=["j1"], position=[0.5], velocity=[], effort=[])
+
+
+def wait_for(cond: Any, timeout: float = 10.0) -> None:
+    deadline = time.monotonic() + timeout
+    while not cond():
+        assert time.monotonic() < deadline, "timed out"
+        time.sleep(0.005)
+
+
+def test_the_session_opens_at_the_first_image_and_reconnects_under_its_id() -> None:
+    from types import SimpleNamespace as NS
+
+    params = Params.from_values({"profile": "p", "task": "shelf"}, "/robot1", "vamos_bridge", suffix="abc")
+    client, out = FakeClient(refuse_first=True), Recorder()
+    bridge = Bridge(params, client, CallbackOutputs(out.score, out.log), reopen_after_s=0.2)
+    bridge.on_camera_info(NS(width=0, height=0, k=[0.0] * 9))  # uncalibrated: ignored, logged
+    bridge.on_camera_info(NS(width=160, height=120, k=[100.0, 0, 80, 0, 100, 60, 0, 0, 1]))
+    bridge.on_joint_state(joints(1))
+    bridge.on_joint_state(joints(2))
+    bridge.on_image(image(3))  # the server refuses the first open: nothing sent, ERROR
+    assert bridge.diagnostic(now=0.0)[0] == ERROR and client.sessions == []
+    bridge.on_image(image(4))  # within reopen_after_s of the refusal: dropped, no new try
+    assert len(client.opens) == 1 and bridge.state.images_sent == 0
+    time.sleep(0.25)
+    bridge.on_image(image(10**9 + 5, "cam_left"))
+    (s,) = client.sessions
+    assert client.opens[-1] == {"profile": "p", "robot_id": "robot1", "session_id": "robot1-abc", "task": "shelf",
+                                "camera_info": bridge.camera}
+    # The early joint states first, then the image.
+    assert [m.WhichOneof("message") for m in s.sent] == ["joints", "joints", "image"]
+    wait_for(lambda: len(out.scores) == 1)
+    assert out.scores[0]["header"] == (Stamp(1, 5), "cam_left")
+    assert out.scores[0]["session_id"] == "robot1-abc"
+    # The stream breaks: the next image reopens the same session id.
+    with s.cond:
+        s.broken = True
+        s.cond.notify_all()
+    wait_for(lambda: bridge.state.reconnects == 1)
+    bridge.on_image(image(2 * 10**9, "cam_left"))
+    assert len(client.sessions) == 2 and client.opens[-1]["session_id"] == "robot1-abc"
+    wait_for(lambda: len(out.scores) == 2)
+    assert out.scores[1]["header"] == (Stamp(2, 0), "cam_left")
+    # A compressed image vamos cannot decode is refused here, not sent.
+    bridge.on_image(NS(header=header(3, "c"), format="theora", data=b"x"))
+    assert bridge.state.refused == 1
+    bridge.close()
+    assert client.sessions[1].finished
+    warnings = [text for level, text in out.logs if level == "warning"]
+    assert any("camera info ignored" in w for w in warnings) and any("cannot open" in w for w in warnings)
+    assert any("stream ended" in w for w in warnings) and any("image ignored" in w for w in warnings)
+    values = dict(bridge.diagnostic()[2])
+    assert values["image_topic"] == "/robot1/camera/image_raw" and values["robot_id"] == "robot1"
+
+
+def test_a_recorded_robot_through_the_bridge_to_the_real_server(tmp_path: Path) -> None:
+    sys.path.insert(0, str(ROOT / "clients" / "python" / "tests"))
+    try:
+        from _server import ROBOT, SIM, Server, vamos_bin
+    finally:
+        sys.path.pop(0)
+    pytest.importorskip("mcap_ros2.decoder")
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    from vamos.client import MonitorClient
+
+    episode = SIM / "test" / "test_0001_external_push.mcap"
+    server = Server(vamos_bin(), tmp_path / "server")
+    try:
+        offline = server.offline(episode)
+        params = Params.from_values({"profile": "sim-arm"}, "/arm_1", "vamos_bridge", suffix="e2e")
+        out = Recorder()
+        with MonitorClient(server.grpc, token=ROBOT) as client, open(episode, "rb") as fh:
+            bridge = Bridge(params, client, out)
+            reader = make_reader(fh, decoder_factories=[DecoderFactory()])
+            frame_ids = {}
+            for schema, _channel, _message, ros_msg in reader.iter_decoded_messages(log_time_order=True):
+                if schema.name == "sensor_msgs/msg/Image":
+                    # A live camera does not wait; here the bag would outrun the server's
+                    # queue, so keep at most 4 images unanswered.
+                    wait_for(lambda: bridge.state.images_sent - len(out.scores) < 4, timeout=120)
+                    frame_ids[ros_msg.header.stamp.sec * 10**9 + ros_msg.header.stamp.nanosec] = \
+                        ros_msg.header.frame_id
+                    bridge.on_image(ros_msg)
+                elif schema.name == "sensor_msgs/msg/JointState":
+                    bridge.on_joint_state(ros_msg)
+                elif schema.name == "sensor_msgs/msg/CameraInfo":
+                    bridge.on_camera_info(ros_msg)
+            bridge.close(timeout_s=120)
+        assert bridge.state.dropped == 0 and bridge.state.refused == 0, out.logs
+        assert len(out.scores) == len(offline) > 10, (len(out.scores), len(offline))
+        for fields, o in zip(out.scores, offline, strict=True):
+            stamp, frame_id = fields["header"]
+            ns = stamp.sec * 10**9 + stamp.nanosec
+            assert ns == o["stamp_ns"] and frame_id == frame_ids[ns] and frame_id
+            assert (fields["score"], fields["anomaly"]) == (o["score"], o["anomaly"])
+            assert fields["session_id"] == "arm_1-e2e"
+    finally:
+        stderr = server.stop()
+    assert server.proc.returncode == 0, stderr

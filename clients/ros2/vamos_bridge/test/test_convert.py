@@ -1,0 +1,120 @@
+"""Messages to requests and scores to FrameScore fields, with stand-in messages that
+have the fields of sensor_msgs (no ROS here)."""
+
+from __future__ import annotations
+
+import math
+import re
+from pathlib import Path
+from types import SimpleNamespace as NS
+
+import pytest
+
+from vamos.client import FrameScore
+from vamos_bridge.convert import (
+    FrameIds,
+    Stamp,
+    camera_info,
+    frame_score_fields,
+    image_request,
+    joints_request,
+    stamp_from_ns,
+    stamp_ns,
+)
+
+MSG = Path(__file__).resolve().parents[2] / "vamos_msgs" / "msg" / "FrameScore.msg"
+
+
+def header(sec: int, nanosec: int, frame_id: str = "camera") -> NS:
+    return NS(stamp=NS(sec=sec, nanosec=nanosec), frame_id=frame_id)
+
+
+def test_ros_messages_become_stream_requests() -> None:
+    raw = NS(header=header(3, 500), height=2, width=3, encoding="rgb8", is_bigendian=0, step=9,
+             data=bytes(range(18)))
+    r = image_request(raw)
+    assert r.WhichOneof("message") == "image"
+    assert (r.image.stamp_ns, r.image.encoding, r.image.width, r.image.height, r.image.step) == (
+        3_000_000_500, "rgb8", 3, 2, 9)
+    assert r.image.data == bytes(range(18))
+    jpeg = NS(header=header(1, 0), format="rgb8; jpeg compressed bgr8", data=b"\xff\xd8\xff\xe0xx")
+    assert image_request(jpeg).image.encoding == "jpeg"
+    png = NS(header=header(1, 0), format="png", data=b"garbage")
+    assert image_request(png).image.encoding == "png"
+    with pytest.raises(ValueError, match="neither JPEG nor PNG"):
+        image_request(NS(header=header(1, 0), format="theora", data=b"x"))
+    j = joints_request(NS(header=header(2, 7), name=["a", "b"], position=[0.1, 0.2], velocity=[],
+                          effort=[1.0, 2.0]))
+    assert (j.joints.stamp_ns, list(j.joints.names), list(j.joints.efforts)) == (2_000_000_007, ["a", "b"], [1.0, 2.0])
+    c = camera_info(NS(width=640, height=480, k=[500.0, 0, 320, 0, 505, 240, 0, 0, 1]))
+    assert (c.fx, c.fy, c.cx, c.cy, c.width) == (500.0, 505.0, 320.0, 240.0, 640)
+    with pytest.raises(ValueError, match="uncalibrated"):
+        camera_info(NS(width=640, height=480, k=[0.0] * 9))
+    with pytest.raises(ValueError, match="non-finite"):
+        camera_info(NS(width=640, height=480, k=[500.0, 0, float("nan"), 0, 505, 240, 0, 0, 1]))
+    with pytest.raises(ValueError, match="size"):
+        camera_info(NS(width=0, height=0, k=[500.0, 0, 320, 0, 505, 240, 0, 0, 1]))
+    with pytest.raises(ValueError, match="expected 9"):
+        camera_info(NS(width=640, height=480, k=[1.0] * 4))
+
+
+@pytest.mark.parametrize("ns,sec,nanosec", [
+    (0, 0, 0),
+    (1_704_067_200_123_456_789, 1_704_067_200, 123_456_789),
+    (999_999_999, 0, 999_999_999),
+    (-1, -1, 999_999_999),            # before 1970: nanosec stays in [0, 1e9)
+    (-1_500_000_000, -2, 500_000_000),
+    ((2**31 - 1) * 10**9 + 999_999_999, 2**31 - 1, 999_999_999),
+])
+def test_stamps_round_trip_exactly(ns: int, sec: int, nanosec: int) -> None:
+    assert stamp_from_ns(ns) == Stamp(sec, nanosec)
+    assert stamp_ns(NS(header=header(sec, nanosec))) == ns
+
+
+def test_stamps_outside_int32_seconds_are_refused() -> None:
+    with pytest.raises(ValueError, match="outside"):
+        stamp_from_ns(2**31 * 10**9)
+    with pytest.raises(ValueError, match="outside"):
+        stamp_from_ns(-(2**31) * 10**9 - 1)
+
+
+def test_frame_ids_follow_their_images_and_stay_bounded() -> None:
+    ids = FrameIds(capacity=3)
+    assert ids.pop(5) == ""
+    for stamp, frame in ((1, "cam_a"), (2, "cam_b"), (3, "cam_c"), (4, "cam_d")):
+        ids.remember(stamp, frame)
+    assert len(ids) == 3
+    assert ids.pop(2) == "cam_b" and len(ids) == 2
+    assert ids.pop(1) == "cam_d"  # forgotten (oldest): the latest frame id
+    assert ids.pop(99) == "cam_d"
+
+
+def msg_fields() -> dict[str, str]:
+    fields = {}
+    for line in MSG.read_text().splitlines():
+        line = line.split("#", 1)[0].strip()
+        if line:
+            kind, name = line.split()
+            fields[name] = kind
+    return fields
+
+
+def test_frame_score_fields_are_the_message_definition() -> None:
+    fields = msg_fields()
+    assert all(re.fullmatch(r"[a-z][a-z0-9_]*", name) for name in fields)
+    score = FrameScore(stamp_ns=1_704_067_200_000_000_042, index=7, frame=9, score=3.5, e_c=1.25, e_b=None,
+                       e_o=0.5, anomaly=True, detector="camera", warming_up=False, e_r=None, latency_s=0.03)
+    got = frame_score_fields(score, "head_camera_optical", "arm-1-abc")
+    assert list(got) == list(fields)
+    python_type = {"float64": float, "bool": bool, "string": str, "uint64": int}
+    for name, kind in fields.items():
+        if kind == "std_msgs/Header":
+            assert got[name] == (Stamp(1_704_067_200, 42), "head_camera_optical")
+        else:
+            assert type(got[name]) is python_type[kind], name
+    assert (got["score"], got["anomaly"], got["detector"], got["e_c"], got["e_o"]) == (3.5, True, "camera", 1.25, 0.5)
+    assert math.isnan(got["e_b"]) and math.isnan(got["e_r"])
+    assert (got["frame"], got["latency_s"], got["session_id"], got["warming_up"]) == (9, 0.03, "arm-1-abc", False)
+    quiet = FrameScore(stamp_ns=0, index=0, frame=0, score=0.0, e_c=None, e_b=None, e_o=None, anomaly=False,
+                       detector=None, warming_up=True)
+    assert frame_score_fields(quiet, "", "s")["detector"] == ""

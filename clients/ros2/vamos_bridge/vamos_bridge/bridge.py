@@ -1,0 +1,231 @@
+"""The bridge without ROS: a robot's messages in, one vamos session, scores out.
+
+:class:`Bridge` takes messages from the node's callbacks (duck-typed ``sensor_msgs``),
+keeps the session (opened at the first image, so the camera info has arrived; joint
+states that came before are sent right after; reopened under the same ``session_id``,
+which the server resumes, at the next image after the stream broke), and hands every
+score to :class:`Outputs` as the fields of a stamped ``vamos_msgs/FrameScore``.
+:class:`BridgeState` is its bookkeeping and the diagnostics it implies. The node
+(:mod:`vamos_bridge.node`) only wires these to rclpy.
+"""
+
+from __future__ import annotations
+
+import collections
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable, Optional, Protocol
+
+from vamos.client import CameraInfo, FrameScore, SessionError, SessionEvent
+
+from .convert import FrameIds, camera_info, frame_score_fields, image_request, joints_request
+from .params import Params
+
+# diagnostic_msgs/DiagnosticStatus levels.
+OK, WARN, ERROR, STALE = 0, 1, 2, 3
+
+
+@dataclass
+class BridgeState:
+    """What the bridge knows about its session, for its outputs."""
+
+    session_id: str = ""
+    connected: bool = False
+    images_sent: int = 0
+    frames_scored: int = 0
+    dropped: int = 0
+    refused: int = 0
+    reconnects: int = 0
+    warming_up: bool = True
+    latest: Optional[FrameScore] = None
+    last_error: str = ""
+    last_image_wall: Optional[float] = None
+    last_score_wall: Optional[float] = None
+    events: list[str] = field(default_factory=list)
+
+    def on_sent_image(self, now: Optional[float] = None) -> None:
+        self.images_sent += 1
+        self.last_image_wall = time.monotonic() if now is None else now
+
+    def on_update(self, u: Any, now: Optional[float] = None) -> Optional[tuple[float, bool]]:
+        """Records a score or event; for a score returns ``(score, anomaly)``."""
+        if isinstance(u, FrameScore):
+            self.frames_scored += 1
+            self.latest = u
+            self.warming_up = u.warming_up
+            self.last_score_wall = time.monotonic() if now is None else now
+            return u.score, u.anomaly
+        if isinstance(u, SessionEvent):
+            if u.kind in ("opened", "resumed", "reloaded"):
+                self.session_id = u.session_id
+                self.connected = True
+            elif u.kind == "frames_dropped":
+                self.dropped = max(self.dropped, u.count)
+            elif u.kind == "message_error":
+                self.refused += 1
+                self.last_error = u.detail
+            self.events = (self.events + [f"{u.kind}: {u.detail}"])[-10:]
+        return None
+
+    def diagnostic(self, now: Optional[float] = None,
+                   stale_after_s: float = 5.0) -> tuple[int, str, list[tuple[str, str]]]:
+        """``(level, message, key-values)`` of the bridge's DiagnosticStatus."""
+        now = time.monotonic() if now is None else now
+        values = [
+            ("session_id", self.session_id),
+            ("images_sent", str(self.images_sent)),
+            ("frames_scored", str(self.frames_scored)),
+            ("dropped", str(self.dropped)),
+            ("refused", str(self.refused)),
+            ("reconnects", str(self.reconnects)),
+        ]
+        if self.latest is not None:
+            values += [("score", repr(self.latest.score)), ("anomaly", str(self.latest.anomaly)),
+                       ("latency_s", f"{self.latest.latency_s:.4f}")]
+        if not self.connected:
+            return ERROR, f"not connected to vamos{': ' + self.last_error if self.last_error else ''}", values
+        if self.last_image_wall is None or now - self.last_image_wall > stale_after_s:
+            return STALE, "no images from the camera topic", values
+        if self.last_score_wall is None or now - self.last_score_wall > stale_after_s:
+            return WARN, "images sent but no scores back", values
+        if self.dropped or self.refused:
+            return WARN, f"{self.dropped} image(s) dropped, {self.refused} message(s) refused", values
+        if self.warming_up:
+            return OK, "scoring (flow predictor warming up)", values
+        return OK, "scoring", values
+
+
+class Outputs(Protocol):
+    """Where the bridge's results go (the node: publishers and its logger)."""
+
+    def score(self, fields: dict[str, Any]) -> None:
+        """One scored frame: the fields of a ``vamos_msgs/FrameScore``."""
+
+    def log(self, level: str, text: str) -> None:
+        """``level``: ``info`` or ``warning``."""
+
+
+@dataclass(frozen=True)
+class CallbackOutputs:
+    """:class:`Outputs` from two callables (the node's publishing and logging methods)."""
+
+    on_score: Callable[[dict[str, Any]], None]
+    on_log: Callable[[str, str], None]
+
+    def score(self, fields: dict[str, Any]) -> None:
+        self.on_score(fields)
+
+    def log(self, level: str, text: str) -> None:
+        self.on_log(level, text)
+
+
+class Bridge:
+    """One robot's session. ``client`` is a :class:`vamos.client.MonitorClient` (or
+    anything with its ``open_session``)."""
+
+    def __init__(self, params: Params, client: Any, outputs: Outputs, early_joints: int = 200,
+                 reopen_after_s: float = 1.0) -> None:
+        self.params = params
+        self.client = client
+        self.out = outputs
+        self.state = BridgeState()
+        self.camera: Optional[CameraInfo] = None
+        self.frame_ids = FrameIds()
+        self._session: Any = None
+        self._early: "collections.deque[Any]" = collections.deque(maxlen=early_joints)
+        self._lock = threading.Lock()
+        self._readers: list[threading.Thread] = []
+        # After a refused open, images are dropped for this long before the next try
+        # (a camera at 30 Hz would otherwise try, and log, 30 times a second).
+        self._reopen_after_s = reopen_after_s
+        self._next_open = 0.0
+
+    def _ensure_session(self) -> Any:
+        with self._lock:
+            if self._session is not None:
+                return self._session
+            if time.monotonic() < self._next_open:
+                return None
+            p = self.params
+            try:
+                s = self.client.open_session(p.profile, robot_id=p.robot_id, session_id=p.session_id, task=p.task,
+                                             camera_info=self.camera)
+            except SessionError as e:
+                self.state.connected = False
+                self.state.last_error = str(e)
+                self._next_open = time.monotonic() + self._reopen_after_s
+                self.out.log("warning", f"cannot open the session: {e}; next try in {self._reopen_after_s:g} s")
+                return None
+            self.state.on_update(s.opened)
+            while self._early:
+                s.send(self._early.popleft())
+            self._session = s
+            reader = threading.Thread(target=self._read, args=(s,), name="vamos-bridge-reader", daemon=True)
+            self._readers.append(reader)
+            reader.start()
+            return s
+
+    def _read(self, s: Any) -> None:
+        try:
+            for u in s:
+                self.state.on_update(u)
+                if isinstance(u, FrameScore):
+                    self.out.score(frame_score_fields(u, self.frame_ids.pop(u.stamp_ns), self.state.session_id))
+        except SessionError as e:
+            self.state.last_error = str(e)
+            self.out.log("warning", f"stream ended: {e}; reconnecting at the next image")
+        with self._lock:
+            if self._session is s:
+                self._session = None
+                self.state.connected = False
+                self.state.reconnects += 1
+
+    def on_camera_info(self, msg: Any) -> None:
+        """The first usable camera info is kept (sent when the session opens)."""
+        if self.camera is None:
+            try:
+                self.camera = camera_info(msg)
+            except ValueError as e:
+                self.out.log("warning", f"camera info ignored: {e}")
+
+    def on_image(self, msg: Any) -> None:
+        try:
+            request = image_request(msg)
+        except ValueError as e:
+            self.state.refused += 1
+            self.out.log("warning", f"image ignored: {e}")
+            return
+        s = self._ensure_session()
+        if s is None:
+            return
+        self.frame_ids.remember(request.image.stamp_ns, str(getattr(msg.header, "frame_id", "")))
+        s.send(request)
+        self.state.on_sent_image()
+
+    def on_joint_state(self, msg: Any) -> None:
+        request = joints_request(msg)
+        with self._lock:
+            if self._session is None:
+                self._early.append(request)
+                return
+            s = self._session
+        s.send(request)
+
+    def diagnostic(self, now: Optional[float] = None) -> tuple[int, str, list[tuple[str, str]]]:
+        """The state's diagnostic, with the robot and the resolved topic names."""
+        level, message, values = self.state.diagnostic(now)
+        values = [("robot_id", self.params.robot_id), ("profile", self.params.profile), *values,
+                  *sorted(self.params.resolved.items())]
+        return level, message, values
+
+    def close(self, timeout_s: float = 10.0) -> None:
+        """Finishes the session (the server scores what it holds) and waits up to
+        ``timeout_s`` for the last scores."""
+        with self._lock:
+            s, self._session = self._session, None
+        if s is not None:
+            s.finish()
+        deadline = time.monotonic() + timeout_s
+        for reader in self._readers:
+            reader.join(max(0.0, deadline - time.monotonic()))
