@@ -141,6 +141,8 @@ pub fn init(config: &LogConfig) -> Result<Telemetry, TelemetryError> {
         LogFormat::Human => lines.with_filter(filter()?).boxed(),
         LogFormat::Json => lines.json().flatten_event(true).with_filter(filter()?).boxed(),
     };
+    // Pushed to only with the `otlp` feature.
+    #[allow(unused_mut)]
     let mut layers = vec![lines];
     #[cfg(feature = "otlp")]
     let mut provider = None;
