@@ -139,7 +139,11 @@ pub fn init(config: &LogConfig) -> Result<Telemetry, TelemetryError> {
     let lines = tracing_subscriber::fmt::layer().with_writer(std::io::stderr);
     let lines: BoxedLayer = match config.format {
         LogFormat::Human => lines.with_filter(filter()?).boxed(),
-        LogFormat::Json => lines.json().flatten_event(true).with_filter(filter()?).boxed(),
+        LogFormat::Json => lines
+            .json()
+            .flatten_event(true)
+            .with_filter(filter()?)
+            .boxed(),
     };
     // Pushed to only with the `otlp` feature.
     #[allow(unused_mut)]
