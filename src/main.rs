@@ -6,7 +6,7 @@
 mod cli;
 
 use anyhow::Result;
-use clap::{Parser, Subcommand};
+use clap::{CommandFactory, Parser, Subcommand};
 use std::path::PathBuf;
 use vamos::config::Settings;
 use vamos::telemetry::{self, LogFormat};
@@ -86,6 +86,10 @@ enum Command {
         #[command(subcommand)]
         command: cli::model::Command,
     },
+    /// Print a shell completion script (bash, zsh, fish, elvish, powershell).
+    Completions(cli::shell::CompletionsArgs),
+    /// Print the man page (roff), or write one page per command into a folder.
+    Man(cli::shell::ManArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -115,6 +119,20 @@ fn main() -> std::process::ExitCode {
 }
 
 fn run(cli: Cli) -> Result<()> {
+    // Made from the clap definition alone: no settings, no logging.
+    match &cli.command {
+        Command::Completions(args) => {
+            cli::shell::completions(Cli::command(), args, &mut std::io::stdout());
+            return Ok(());
+        }
+        Command::Man(args) => {
+            for path in cli::shell::man(Cli::command(), args, &mut std::io::stdout())? {
+                println!("{}", path.display());
+            }
+            return Ok(());
+        }
+        _ => {}
+    }
     let mut settings = Settings::load(cli.config.as_deref())?;
     if let Some(level) = cli.log_level {
         settings.log.level = level;
@@ -129,7 +147,8 @@ fn run(cli: Cli) -> Result<()> {
     if let Some(format) = cli.log_format {
         settings.log.format = format;
     }
-    telemetry::init(&settings.log)?;
+    // Kept to the end of the command: dropping it flushes the OTLP export, if any.
+    let _telemetry = telemetry::init(&settings.log)?;
     tracing::debug!(settings = ?settings, "effective settings");
     match cli.command {
         Command::Demo(args) => cli::demo::run(&settings, args),
@@ -148,5 +167,6 @@ fn run(cli: Cli) -> Result<()> {
         Command::Robot { command } => cli::robot::run(&settings, command),
         Command::Episode { command } => cli::episode::run(&settings, command),
         Command::Model { command } => cli::model::run(&settings, command),
+        Command::Completions(_) | Command::Man(_) => Ok(()),
     }
 }

@@ -1,10 +1,15 @@
-//! Logging set-up: `tracing` with human-readable or JSON lines on stderr.
+//! Logging set-up: `tracing` with human-readable or JSON lines on stderr, and the spans
+//! exported over OTLP/HTTP when built with the `otlp` cargo feature and
+//! [`LogConfig::otlp_endpoint`] is set (off by default).
 //!
-//! The filter comes from `RUST_LOG` when set, else from [`LogConfig::level`]. Stdout is
-//! left to commands that print results (JSON objects), so logs never mix with them.
+//! The filter comes from `RUST_LOG` when set, else from [`LogConfig::level`]; it applies
+//! to the log lines and to the exported spans alike. Stdout is left to commands that print
+//! results (JSON objects), so logs never mix with them.
 
 use serde::{Deserialize, Serialize};
-use tracing_subscriber::EnvFilter;
+use tracing_subscriber::layer::SubscriberExt;
+use tracing_subscriber::util::SubscriberInitExt;
+use tracing_subscriber::{EnvFilter, Layer, Registry};
 
 /// Log line format.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
@@ -25,6 +30,9 @@ pub struct LogConfig {
     pub level: String,
     /// Line format.
     pub format: LogFormat,
+    /// OTLP/HTTP traces URL (e.g. `http://collector:4318/v1/traces`) the spans are
+    /// exported to; empty: no export. Needs a binary built with `--features otlp`.
+    pub otlp_endpoint: String,
 }
 
 impl Default for LogConfig {
@@ -32,6 +40,7 @@ impl Default for LogConfig {
         Self {
             level: "info".into(),
             format: LogFormat::Human,
+            otlp_endpoint: String::new(),
         }
     }
 }
@@ -50,24 +59,113 @@ pub enum TelemetryError {
     /// A global subscriber was already installed.
     #[error("logging was already initialised")]
     AlreadyInitialised,
+    /// `otlp_endpoint` is set but this binary has no OTLP export.
+    #[error("[log] otlp_endpoint is set, but this vamos was built without the `otlp` feature")]
+    OtlpNotBuilt,
+    /// The OTLP exporter could not be made.
+    #[error("OTLP export to {endpoint:?}: {reason}")]
+    Otlp {
+        /// The endpoint.
+        endpoint: String,
+        /// Why.
+        reason: String,
+    },
 }
 
-/// Installs the global subscriber. Call once, early in `main`.
-pub fn init(config: &LogConfig) -> Result<(), TelemetryError> {
-    let filter = match std::env::var("RUST_LOG") {
-        Ok(directive) if !directive.is_empty() => EnvFilter::try_new(&directive),
-        _ => EnvFilter::try_new(&config.level),
+/// What the logging set-up keeps running: the OTLP span pipeline, flushed and shut down
+/// when this is dropped (keep it until the command ends).
+#[must_use = "dropping it ends the span export"]
+pub struct Telemetry {
+    #[cfg(feature = "otlp")]
+    provider: Option<opentelemetry_sdk::trace::SdkTracerProvider>,
+}
+
+impl Drop for Telemetry {
+    fn drop(&mut self) {
+        #[cfg(feature = "otlp")]
+        if let Some(p) = self.provider.take()
+            && let Err(e) = p.shutdown()
+        {
+            eprintln!("OTLP export: spans not flushed at exit: {e}");
+        }
     }
-    .map_err(|e| TelemetryError::BadFilter {
-        level: config.level.clone(),
-        reason: e.to_string(),
-    })?;
-    let builder = tracing_subscriber::fmt()
-        .with_env_filter(filter)
-        .with_writer(std::io::stderr);
-    let result = match config.format {
-        LogFormat::Human => builder.try_init(),
-        LogFormat::Json => builder.json().flatten_event(true).try_init(),
+}
+
+type BoxedLayer = Box<dyn Layer<Registry> + Send + Sync>;
+
+/// The OTLP layer and its provider (batch export on its own thread, blocking HTTP client).
+#[cfg(feature = "otlp")]
+fn otlp_layer(
+    endpoint: &str,
+    filter: EnvFilter,
+) -> Result<(BoxedLayer, opentelemetry_sdk::trace::SdkTracerProvider), TelemetryError> {
+    use opentelemetry::trace::TracerProvider as _;
+    use opentelemetry_otlp::WithExportConfig;
+    let exporter = opentelemetry_otlp::SpanExporter::builder()
+        .with_http()
+        .with_endpoint(endpoint)
+        .build()
+        .map_err(|e| TelemetryError::Otlp {
+            endpoint: endpoint.to_string(),
+            reason: e.to_string(),
+        })?;
+    let resource = opentelemetry_sdk::Resource::builder()
+        .with_service_name("vamos")
+        .build();
+    let provider = opentelemetry_sdk::trace::SdkTracerProvider::builder()
+        .with_batch_exporter(exporter)
+        .with_resource(resource)
+        .build();
+    let layer = tracing_opentelemetry::layer()
+        .with_tracer(provider.tracer("vamos"))
+        .with_filter(filter)
+        .boxed();
+    Ok((layer, provider))
+}
+
+/// Installs the global subscriber. Call once, early in `main`, and keep the returned
+/// [`Telemetry`] until the command ends.
+pub fn init(config: &LogConfig) -> Result<Telemetry, TelemetryError> {
+    let filter = || {
+        match std::env::var("RUST_LOG") {
+            Ok(directive) if !directive.is_empty() => EnvFilter::try_new(&directive),
+            _ => EnvFilter::try_new(&config.level),
+        }
+        .map_err(|e| TelemetryError::BadFilter {
+            level: config.level.clone(),
+            reason: e.to_string(),
+        })
     };
-    result.map_err(|_| TelemetryError::AlreadyInitialised)
+    let lines = tracing_subscriber::fmt::layer().with_writer(std::io::stderr);
+    let lines: BoxedLayer = match config.format {
+        LogFormat::Human => lines.with_filter(filter()?).boxed(),
+        LogFormat::Json => lines
+            .json()
+            .flatten_event(true)
+            .with_filter(filter()?)
+            .boxed(),
+    };
+    // Pushed to only with the `otlp` feature.
+    #[allow(unused_mut)]
+    let mut layers = vec![lines];
+    #[cfg(feature = "otlp")]
+    let mut provider = None;
+    if !config.otlp_endpoint.is_empty() {
+        #[cfg(feature = "otlp")]
+        {
+            let (layer, p) = otlp_layer(&config.otlp_endpoint, filter()?)?;
+            layers.push(layer);
+            provider = Some(p);
+        }
+        #[cfg(not(feature = "otlp"))]
+        return Err(TelemetryError::OtlpNotBuilt);
+    }
+    tracing_subscriber::registry()
+        .with(layers)
+        .try_init()
+        .map_err(|_| TelemetryError::AlreadyInitialised)?;
+    Ok(Telemetry {
+        #[cfg(feature = "otlp")]
+        provider,
+    })
 }

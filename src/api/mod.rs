@@ -12,6 +12,7 @@
 
 pub mod auth;
 pub mod grpc;
+pub mod observe;
 pub mod proto;
 pub mod rest;
 pub mod state;

@@ -72,6 +72,15 @@ pub fn labelled_frames(results: &[EpisodeScores]) -> Result<Vec<ScoredFrame>> {
 
 /// Runs the evaluation; prints the report as JSON on stdout.
 pub fn run(settings: &Settings, opts: Args) -> Result<()> {
+    if let Some(path) = &opts.json {
+        super::check_output_file("--json", path)?;
+    }
+    if let Some(path) = &opts.ablation {
+        super::check_output_file("--ablation", path)?;
+    }
+    if let Some(dir) = &opts.plots {
+        super::check_output_dir("--plots", dir)?;
+    }
     let progress = Progress::new(opts.no_progress);
     let setup = Setup::load(settings, &opts.profile)?;
     let episodes = expand_episodes(&opts.episodes)?;

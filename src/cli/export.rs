@@ -153,6 +153,7 @@ pub struct Args {
 /// Runs `vamos export-dataset`: a profile's robot, camera, pipeline, preset and topics
 /// first, the flags over them, on a pool of `--threads` workers.
 pub fn run(settings: &Settings, args: Args) -> Result<()> {
+    super::check_output_dir("--out", &args.out)?;
     let Args {
         episodes,
         out,

@@ -2,6 +2,7 @@
 //! and reports the achieved rate, score latency percentiles, drops, and the server's CPU
 //! and memory (scraped from its `/metrics`).
 
+use crate::cli::percentile;
 use anyhow::{Context, Result, bail};
 use serde_json::json;
 use std::collections::HashMap;
@@ -85,14 +86,6 @@ struct Tally {
     errors: Vec<String>,
     latencies_s: Vec<f64>,
     server_latencies_s: Vec<f64>,
-}
-
-fn percentile(sorted: &[f64], q: f64) -> Option<f64> {
-    if sorted.is_empty() {
-        return None;
-    }
-    let i = ((sorted.len() - 1) as f64 * q).round() as usize;
-    Some(sorted[i.min(sorted.len() - 1)])
 }
 
 async fn one_session(

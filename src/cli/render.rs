@@ -6,6 +6,7 @@ use anyhow::{Context, Result, bail};
 use serde_json::{Map, Value, json};
 use std::path::{Path, PathBuf};
 use vamos::config::Settings;
+use vamos::episode::{EpisodeConfig, EpisodeFrame, McapEpisode};
 use vamos::robot::render::{
     RenderConfig, RenderFrame, RenderOutput, RobotView, create_renderer, tvl1_body_flow,
 };
@@ -20,12 +21,21 @@ pub struct Args {
     /// URDF file, robot package folder, or .zip / .tar.gz package archive.
     #[arg(long)]
     pub robot: PathBuf,
-    /// JSON object of joint name -> position at time t.
-    #[arg(long)]
-    pub joints: PathBuf,
+    /// JSON object of joint name -> position at time t (or --episode and --frame).
+    #[arg(long, required_unless_present = "episode")]
+    pub joints: Option<PathBuf>,
     /// Joint positions at t-1: adds the expected body flow t-1 -> t.
     #[arg(long)]
     pub previous_joints: Option<PathBuf>,
+    /// A recorded episode (ROS 2 bag in MCAP, topics from `[episode]`): take the joint
+    /// states at image `--frame` (and at the image before it, for the expected flow) and
+    /// draw over that image, to check the overlay on a real frame.
+    #[arg(long, requires = "frame", conflicts_with_all = ["joints", "previous_joints"])]
+    pub episode: Option<PathBuf>,
+    /// The image of --episode to draw: its index on the image topic, from 0 (`vamos
+    /// episode inspect --frames` counts them).
+    #[arg(long, requires = "episode")]
+    pub frame: Option<usize>,
     /// Camera JSON: {"frame": LINK, "convention": "optical"|"body", "width": W,
     /// "height": H, and "fx","fy","cx","cy" or "k" (CameraInfo) or "hfov_deg"}.
     #[arg(long)]
@@ -49,13 +59,24 @@ pub struct Args {
 
 /// Renders, writes the image and prints the JSON summary.
 pub fn run(settings: &Settings, args: Args) -> Result<()> {
-    let summary = render(&args, &settings.robot, &settings.render)?;
+    super::check_output_file("--out", &args.out)?;
+    let summary = render(&args, &settings.robot, &settings.render, &settings.episode)?;
     println!("{summary}");
     Ok(())
 }
 
 /// Renders and writes the image; returns the JSON summary to print.
-pub fn render(opts: &Args, robot_cfg: &RobotConfig, render_cfg: &RenderConfig) -> Result<Value> {
+pub fn render(
+    opts: &Args,
+    robot_cfg: &RobotConfig,
+    render_cfg: &RenderConfig,
+    episode_cfg: &EpisodeConfig,
+) -> Result<Value> {
+    // The recorded frame first: a bad bag or frame number fails before any loading.
+    let recorded = match (&opts.episode, opts.frame) {
+        (Some(bag), Some(n)) => Some(recorded_frame(bag, n, episode_cfg)?),
+        _ => None,
+    };
     let robot = Robot::load(&opts.robot, robot_cfg)
         .with_context(|| format!("cannot load robot {}", opts.robot.display()))?;
     let spec: CameraSpec = read_json(&opts.camera, "a camera description")?;
@@ -71,28 +92,33 @@ pub fn render(opts: &Args, robot_cfg: &RobotConfig, render_cfg: &RenderConfig) -
         .camera_for(&spec)
         .with_context(|| format!("camera link {:?}", spec.frame))?;
     let mut mapper = robot.joint_mapper();
-    let mut pose_of = |path: &Path| -> Result<_> {
-        let given: Map<String, Value> = read_json(path, "a JSON object of joint name -> position")?;
-        let mut pairs = Vec::with_capacity(given.len());
-        for (name, v) in &given {
-            let value = v.as_f64().with_context(|| {
-                format!("{}: joint {name:?}: {v} is not a number", path.display())
-            })?;
-            pairs.push((name.as_str(), value));
-        }
-        let q = mapper.map_pairs(pairs)?.positions;
+    let mut pose_of = |pairs: &[(String, f64)]| -> Result<_> {
+        let q = mapper
+            .map_pairs(pairs.iter().map(|(n, v)| (n.as_str(), *v)))?
+            .positions;
         let base_from_link = robot.forward(&q)?;
         let camera_from_base = mount
             .camera_from_base(&base_from_link)
             .with_context(|| format!("camera link {:?} has no pose", spec.frame))?;
         Ok((base_from_link, camera_from_base))
     };
-    let (links_t, camera_t) = pose_of(&opts.joints)?;
-    let previous = opts
-        .previous_joints
-        .as_deref()
-        .map(&mut pose_of)
-        .transpose()?;
+    let (now, before) = match &recorded {
+        Some(r) => (r.now.clone(), r.previous.clone()),
+        None => {
+            let path = opts
+                .joints
+                .as_deref()
+                .context("--joints or --episode is needed")?;
+            let before = opts
+                .previous_joints
+                .as_deref()
+                .map(joint_file)
+                .transpose()?;
+            (joint_file(path)?, before)
+        }
+    };
+    let (links_t, camera_t) = pose_of(&now)?;
+    let previous = before.as_deref().map(&mut pose_of).transpose()?;
     let unknown = mapper.unknown_total();
 
     let mut renderer = create_renderer(render_cfg)?;
@@ -136,13 +162,14 @@ pub fn render(opts: &Args, robot_cfg: &RobotConfig, render_cfg: &RenderConfig) -
         bail!("--tvl1 needs --previous-joints");
     }
 
-    let background = match &opts.background {
-        Some(path) => {
+    let background = match (&opts.background, &recorded) {
+        (Some(path), _) => {
             let img = GrayImage::load(path)
                 .with_context(|| format!("background image {}", path.display()))?;
             Some(resize(&img, out.width, out.height, ResizeFilter::Area)?)
         }
-        None => None,
+        (None, Some(r)) => Some(resize(&r.image, out.width, out.height, ResizeFilter::Area)?),
+        (None, None) => None,
     };
     write_panels(&opts.out, &out, flow.as_ref(), background.as_ref())?;
 
@@ -196,8 +223,79 @@ pub fn render(opts: &Args, robot_cfg: &RobotConfig, render_cfg: &RenderConfig) -
         "camera_from_base": {"translation": [t.x, t.y, t.z], "rotation_xyzw": [q.x, q.y, q.z, q.w]},
         "expected_flow_median_px": flow.as_ref().map(|f| [median(&f.u), median(&f.v)]),
         "expected_flow": if flow.is_none() { "none" } else if opts.tvl1 { "tvl1" } else { "exact" },
+        "episode_frame": recorded.as_ref().map(|r| json!({
+            "index": r.index,
+            "stamp_ns": r.stamp_ns,
+            "expected_flow_from_previous_frame": r.previous.is_some(),
+        })),
         "warnings": warnings,
     }))
+}
+
+/// A JSON object of joint name -> position.
+fn joint_file(path: &Path) -> Result<Vec<(String, f64)>> {
+    let given: Map<String, Value> = read_json(path, "a JSON object of joint name -> position")?;
+    given
+        .iter()
+        .map(|(name, v)| {
+            let value = v.as_f64().with_context(|| {
+                format!("{}: joint {name:?}: {v} is not a number", path.display())
+            })?;
+            Ok((name.clone(), value))
+        })
+        .collect()
+}
+
+/// Image `index` of a recorded episode with its joint states, and the joint states of
+/// the image before it.
+struct RecordedFrame {
+    index: usize,
+    stamp_ns: i64,
+    image: GrayImage,
+    now: Vec<(String, f64)>,
+    previous: Option<Vec<(String, f64)>>,
+}
+
+fn recorded_frame(bag: &Path, index: usize, cfg: &EpisodeConfig) -> Result<RecordedFrame> {
+    let episode = McapEpisode::open(bag, cfg)
+        .with_context(|| format!("cannot open episode {}", bag.display()))?;
+    let pairs = |f: &EpisodeFrame| {
+        f.joints.as_ref().map(|j| {
+            j.names
+                .iter()
+                .cloned()
+                .zip(j.positions.iter().copied())
+                .collect::<Vec<_>>()
+        })
+    };
+    let mut previous = None;
+    for frame in episode.frames() {
+        let frame = frame.with_context(|| format!("{}: reading frames", bag.display()))?;
+        if frame.index > index {
+            break;
+        }
+        if frame.index == index {
+            let now = pairs(&frame).with_context(|| {
+                format!(
+                    "{}: image {index} has no joint states (the bag has no joint-state topic)",
+                    bag.display()
+                )
+            })?;
+            return Ok(RecordedFrame {
+                index,
+                stamp_ns: frame.stamp_ns,
+                image: frame.image,
+                now,
+                previous,
+            });
+        }
+        previous = pairs(&frame);
+    }
+    bail!(
+        "{}: no image {index} (images are numbered from 0 on their topic; `vamos episode \
+         inspect --frames` counts them)",
+        bag.display()
+    )
 }
 
 fn read_json<T: serde::de::DeserializeOwned>(path: &Path, what: &str) -> Result<T> {

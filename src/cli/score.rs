@@ -201,6 +201,9 @@ pub struct Args {
 }
 /// `vamos score`: prints one JSON summary line per episode on stdout.
 pub fn run(settings: &Settings, args: Args) -> Result<()> {
+    if let Some(dir) = &args.out {
+        super::check_output_dir("--out", dir)?;
+    }
     score(
         settings,
         &args.profile,

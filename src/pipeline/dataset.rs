@@ -4,7 +4,6 @@
 use super::frames::FlowVariant;
 use crate::vision::preprocess::NetworkInputParams;
 use serde::{Deserialize, Serialize};
-use std::io::Write;
 use std::path::{Path, PathBuf};
 
 /// The dataset format this build writes and reads.
@@ -221,33 +220,21 @@ impl DatasetWriter {
     }
 }
 
-/// Writes a little-endian float32 C-order `.npy` (format version 1.0).
+/// Writes a little-endian float32 C-order `.npy` (npyz; format 1.0, the header padded so
+/// the data starts on a 64-byte boundary), through a temporary file and a rename.
 pub fn write_npy_f32(path: &Path, shape: &[usize], data: &[f32]) -> Result<(), DatasetError> {
-    let dims = match shape {
-        [one] => format!("({one},)"),
-        _ => format!(
-            "({})",
-            shape
-                .iter()
-                .map(|d| d.to_string())
-                .collect::<Vec<_>>()
-                .join(", ")
-        ),
-    };
-    let mut header = format!("{{'descr': '<f4', 'fortran_order': False, 'shape': {dims}, }}");
-    // Magic (6) + version (2) + length (2) + header + '\n' is a multiple of 64.
-    let unpadded = 10 + header.len() + 1;
-    header.push_str(&" ".repeat(unpadded.next_multiple_of(64) - unpadded));
-    header.push('\n');
+    let shape: Vec<u64> = shape.iter().map(|&d| d as u64).collect();
     let tmp = path.with_extension("npy.tmp");
     let write = || -> std::io::Result<()> {
+        use npyz::WriterBuilder;
         let mut f = std::io::BufWriter::new(std::fs::File::create(&tmp)?);
-        f.write_all(b"\x93NUMPY\x01\x00")?;
-        f.write_all(&(header.len() as u16).to_le_bytes())?;
-        f.write_all(header.as_bytes())?;
-        for v in data {
-            f.write_all(&v.to_le_bytes())?;
-        }
+        let mut npy = npyz::WriteOptions::<f32>::new()
+            .default_dtype()
+            .shape(&shape)
+            .writer(&mut f)
+            .begin_nd()?;
+        npy.extend(data.iter().copied())?;
+        npy.finish()?;
         f.into_inner().map_err(|e| e.into_error())?.sync_all()
     };
     write().map_err(io_err(&tmp))?;
@@ -262,53 +249,49 @@ pub fn read_npy_f32(path: &Path) -> Result<(Vec<usize>, Vec<f32>), DatasetError>
 }
 
 /// Parses the bytes of a `.npy` (as [`read_npy_f32`]; `name` labels errors), e.g. a member
-/// of an `.npz`.
+/// of an `.npz`. The header is read by npyz; the data length is checked against the
+/// shape before anything is allocated for it.
 pub fn parse_npy_f32(bytes: &[u8], name: &str) -> Result<(Vec<usize>, Vec<f32>), DatasetError> {
     let bad = |reason: &str| DatasetError::BadNpy {
         path: name.to_string(),
         reason: reason.into(),
     };
-    if bytes.len() < 10 || &bytes[..6] != b"\x93NUMPY" {
-        return Err(bad("no .npy magic"));
-    }
-    let (header_len, start) = match bytes[6] {
-        1 => (u16::from_le_bytes([bytes[8], bytes[9]]) as usize, 10),
-        2 | 3 if bytes.len() >= 12 => (
-            u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]) as usize,
-            12,
-        ),
-        _ => return Err(bad("unknown format version")),
+    // npyz allocates the header length the file claims before reading it: check the claim
+    // against the bytes there are (version 1 has a u16 length at 8, later ones a u32).
+    let claimed = match bytes.get(6) {
+        Some(1) => bytes
+            .get(8..10)
+            .map(|b| u16::from_le_bytes([b[0], b[1]]) as usize),
+        Some(_) => bytes
+            .get(8..12)
+            .map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as usize),
+        None => None,
     };
-    let header = bytes
-        .get(start..start + header_len)
-        .and_then(|h| std::str::from_utf8(h).ok())
-        .ok_or_else(|| bad("truncated header"))?;
-    if !header.contains("'descr': '<f4'") {
-        return Err(bad("dtype is not <f4"));
+    if !bytes.starts_with(b"\x93NUMPY") || claimed.is_none_or(|n| n > bytes.len()) {
+        return Err(bad("no .npy magic, or a truncated header"));
     }
-    if !header.contains("'fortran_order': False") {
+    let mut reader = std::io::Cursor::new(bytes);
+    let header = npyz::NpyHeader::from_reader(&mut reader).map_err(|e| bad(&e.to_string()))?;
+    match header.dtype() {
+        npyz::DType::Plain(t) if t.to_string() == "<f4" => {}
+        other => return Err(bad(&format!("dtype is {}, not '<f4'", other.descr()))),
+    }
+    if header.order() != npyz::Order::C {
         return Err(bad("Fortran order"));
     }
-    let shape_text = header
-        .split("'shape': (")
-        .nth(1)
-        .and_then(|s| s.split(')').next())
-        .ok_or_else(|| bad("no shape"))?;
-    let shape: Vec<usize> = shape_text
-        .split(',')
-        .map(str::trim)
-        .filter(|s| !s.is_empty())
-        .map(|s| s.parse().map_err(|_| bad("bad shape")))
+    let shape: Vec<usize> = header
+        .shape()
+        .iter()
+        .map(|&d| usize::try_from(d).map_err(|_| bad("bad shape")))
         .collect::<Result<_, _>>()?;
-    let count: usize = shape.iter().product();
-    let body = &bytes[start + header_len..];
-    if body.len() != count * 4 {
+    let body = bytes.len() - reader.position() as usize;
+    let expected = shape.iter().try_fold(4usize, |acc, &d| acc.checked_mul(d));
+    if expected != Some(body) {
         return Err(bad("data length does not match the shape"));
     }
-    let data = body
-        .chunks_exact(4)
-        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-        .collect();
+    let data = npyz::NpyFile::with_header(header, reader)
+        .into_vec::<f32>()
+        .map_err(|e| bad(&e.to_string()))?;
     Ok((shape, data))
 }
 

@@ -223,14 +223,22 @@ impl Server {
         };
         // gRPC (HTTP/2, content-type application/grpc) and REST are both axum routers;
         // on one port they are merged. Unknown paths: gRPC UNIMPLEMENTED or REST 404.
+        // Request ids, spans and request metrics wrap each whole router (api::observe).
+        let observed = |r: axum::Router| crate::api::observe::layer(r, shared.metrics().clone());
         match rest_listener {
             Some(rest_listener) => {
-                serve(rest_listener, rest_router.fallback(rest::not_found))?;
-                serve(grpc_listener, grpc_router.fallback(rest::not_found))?;
+                serve(
+                    rest_listener,
+                    observed(rest_router.fallback(rest::not_found)),
+                )?;
+                serve(
+                    grpc_listener,
+                    observed(grpc_router.fallback(rest::not_found)),
+                )?;
             }
             None => serve(
                 grpc_listener,
-                grpc_router.merge(rest_router).fallback(rest::not_found),
+                observed(grpc_router.merge(rest_router).fallback(rest::not_found)),
             )?,
         }
         // Images that waited long enough for joint states; detached sessions past their

@@ -86,6 +86,7 @@ pub async fn score_episode(
             episode: true,
             seed_key: Some(seed_key),
             slot: Some(slot),
+            request_id: String::new(),
         },
         tx.clone(),
     )?;

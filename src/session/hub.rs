@@ -219,6 +219,7 @@ impl Hub {
             reloads: AtomicU64::new(0),
             seed_key,
             profile_name: profile.name.clone(),
+            request_id: req.request_id,
             camera: req.camera,
             opened: Instant::now(),
             state: Mutex::new(SessionState {

@@ -11,6 +11,12 @@ const LATENCY_BUCKETS: &[f64] = &[
     0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.075, 0.1, 0.15, 0.25, 0.5, 1.0, 2.5, 5.0,
 ];
 
+/// Request durations, seconds: 1 ms .. 1 h (a gRPC stream lasts as long as its session).
+const REQUEST_BUCKETS: &[f64] = &[
+    0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 5.0, 10.0, 30.0, 60.0,
+    300.0, 900.0, 3600.0,
+];
+
 /// The service's metrics, registered in their own registry.
 #[derive(Clone)]
 pub struct Metrics {
@@ -62,6 +68,17 @@ pub struct Metrics {
     pub connections_open: IntGauge,
     /// Connections closed at once because the cap was reached.
     pub connections_refused: IntCounter,
+    /// HTTP requests answered, by method, route (the path template, `unmatched` for
+    /// unknown paths) and status code.
+    pub http_requests: IntCounterVec,
+    /// HTTP request to end of response body, seconds, by method and route.
+    pub http_request_seconds: HistogramVec,
+    /// gRPC calls ended, by method (`/package.Service/Method`, `unmatched` for unknown
+    /// ones) and status code name (`Ok`, `Unavailable`, ...; `Cancelled` when the client
+    /// went away before the status).
+    pub grpc_requests: IntCounterVec,
+    /// gRPC call start to its status, seconds, by method.
+    pub grpc_request_seconds: HistogramVec,
 }
 
 fn must<T>(r: prometheus::Result<T>) -> T {
@@ -195,6 +212,34 @@ impl Metrics {
             "Connections closed at once because the connection cap was reached",
         ));
         must(registry.register(Box::new(connections_refused.clone())));
+        let request_histogram = |name: &str, help: &str, labels: &[&str]| {
+            let h = must(HistogramVec::new(
+                HistogramOpts::new(name, help).buckets(REQUEST_BUCKETS.to_vec()),
+                labels,
+            ));
+            must(registry.register(Box::new(h.clone())));
+            h
+        };
+        let http_requests = counter(
+            "vamos_http_requests_total",
+            "HTTP requests answered",
+            &["method", "route", "status"],
+        );
+        let http_request_seconds = request_histogram(
+            "vamos_http_request_duration_seconds",
+            "HTTP request to end of response",
+            &["method", "route"],
+        );
+        let grpc_requests = counter(
+            "vamos_grpc_requests_total",
+            "gRPC calls ended",
+            &["method", "code"],
+        );
+        let grpc_request_seconds = request_histogram(
+            "vamos_grpc_request_duration_seconds",
+            "gRPC call start to its status",
+            &["method"],
+        );
         // process_cpu_seconds_total, process_resident_memory_bytes, ... (Linux).
         #[cfg(target_os = "linux")]
         must(registry.register(Box::new(
@@ -224,6 +269,10 @@ impl Metrics {
             uploads_refused,
             connections_open,
             connections_refused,
+            http_requests,
+            http_request_seconds,
+            grpc_requests,
+            grpc_request_seconds,
         }
     }
 

@@ -122,6 +122,8 @@ pub struct Session {
     pub episode: bool,
     /// The name of its profile (fixed for the session's life).
     pub profile_name: String,
+    /// The request id of the call that opened it (may be empty).
+    pub request_id: String,
     /// The profile it scores with: the one it was opened with, until a reload
     /// ([`Hub::reload`]) moves it to the profile as stored now.
     pub(super) profile: Mutex<Arc<LoadedProfile>>,
@@ -209,6 +211,9 @@ pub struct OpenRequest {
     pub seed_key: Option<String>,
     /// A place reserved before the episode's upload was read ([`Hub::reserve_session`]).
     pub slot: Option<SessionSlot>,
+    /// The request id of the call that opened it (`x-request-id`), for its spans; may be
+    /// empty.
+    pub request_id: String,
 }
 
 /// A session place held for an episode while its upload is read

@@ -119,6 +119,22 @@ impl Hub {
             session.space.notify_all();
             if let Some(frame) = frame {
                 let stamp = frame.stamp_ns;
+                // One span per frame, named after its session and opening request.
+                let span = tracing::debug_span!(
+                    "frame",
+                    session = %session.id,
+                    request_id = %session.request_id,
+                    stamp_ns = stamp,
+                    kinematics_us = tracing::field::Empty,
+                    render_us = tracing::field::Empty,
+                    flow_us = tracing::field::Empty,
+                    registration_us = tracing::field::Empty,
+                    camera_us = tracing::field::Empty,
+                    body_us = tracing::field::Empty,
+                    model_us = tracing::field::Empty,
+                    total_us = tracing::field::Empty,
+                );
+                let _entered = span.enter();
                 if let Err(panic) = catch_unwind(AssertUnwindSafe(|| self.score(&session, frame))) {
                     self.recover(&session, stamp, panic_message(panic.as_ref()));
                 }
@@ -172,6 +188,7 @@ impl Hub {
         let started = Instant::now();
         // Held until the frame is scored: the buffered bytes, then the decoding's.
         let _buffered = frame.charge;
+        let decode_span = tracing::debug_span!("decode").entered();
         let (image, frame_camera, _decoding) = match frame.image {
             ImagePayload::Decoded(img, k) => (img, k, None),
             ImagePayload::Live(msg) => {
@@ -187,6 +204,7 @@ impl Hub {
         if Self::take_injected(&self.injected_frame_panics) {
             panic!("injected scoring panic");
         }
+        drop(decode_span);
         let decode_s = started.elapsed().as_secs_f64();
         let intrinsics = frame_camera.or_else(|| {
             s.camera.and_then(|k| {
@@ -199,11 +217,13 @@ impl Hub {
             names: n,
             positions: p,
         });
-        let result = lock(&s.scorer).push(&FrameInput {
-            stamp_ns: stamp,
-            image: &image,
-            joints,
-            intrinsics: intrinsics.as_ref(),
+        let result = tracing::debug_span!("score").in_scope(|| {
+            lock(&s.scorer).push(&FrameInput {
+                stamp_ns: stamp,
+                image: &image,
+                joints,
+                intrinsics: intrinsics.as_ref(),
+            })
         });
         match result {
             Ok(Some(score)) => self.deliver(s, score, frame.arrived, started, decode_s),
@@ -225,6 +245,21 @@ impl Hub {
         m.frames.with_label_values(&[profile]).inc();
         s.frames_scored.fetch_add(1, Ordering::Relaxed);
         let t = &score.timings;
+        // The pipeline's own stage timings, on the frame's span (the scorer's stages run
+        // inside its `score` span; the pipeline itself opens no spans).
+        let span = tracing::Span::current();
+        for (field, v) in [
+            ("kinematics_us", t.kinematics_us),
+            ("render_us", t.render_us),
+            ("flow_us", t.front_end.flow_us),
+            ("registration_us", t.front_end.registration_us),
+            ("camera_us", t.camera_us),
+            ("body_us", t.body_us),
+            ("model_us", t.model_us),
+            ("total_us", t.total_us),
+        ] {
+            span.record(field, v);
+        }
         let us = |v: u64| v as f64 * 1e-6;
         for (stage, v) in [
             ("decode", decode_s),

@@ -191,3 +191,80 @@ fn vision_demo_runs_on_the_synthetic_pairs() {
     }
     assert!(out_dir.join("translation_flow_default.png").is_file());
 }
+
+#[test]
+fn output_paths_are_checked_before_any_work() {
+    let dir = tempfile::tempdir().unwrap();
+    let missing = dir.path().join("no_such_dir/report.json");
+    let sim = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/sim/test");
+    // The profile does not even exist: the output is checked first.
+    let out = vamos(
+        &[
+            "eval",
+            "--profile",
+            dir.path().join("nothing.toml").to_str().unwrap(),
+            "--episodes",
+            sim.to_str().unwrap(),
+            "--json",
+            missing.to_str().unwrap(),
+        ],
+        &[],
+    );
+    assert_clean_failure(&out, "does not exist");
+    assert!(
+        text(&out.stderr).contains("--json"),
+        "{}",
+        text(&out.stderr)
+    );
+    let file = dir.path().join("file");
+    std::fs::write(&file, "x").unwrap();
+    let plots = file.join("plots");
+    let out = vamos(
+        &[
+            "score",
+            "--profile",
+            "nothing.toml",
+            sim.to_str().unwrap(),
+            "--out",
+            plots.to_str().unwrap(),
+        ],
+        &[],
+    );
+    assert_clean_failure(&out, "is a file, not a folder");
+}
+
+#[test]
+fn completions_and_man_pages_come_from_the_cli_definition() {
+    let out = vamos(&["completions", "bash"], &[]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let script = text(&out.stdout);
+    // Sub-commands and their flags are completed.
+    for word in ["render", "calibrate", "--episode", "--frame", "completions"] {
+        assert!(script.contains(word), "bash completion lacks {word}");
+    }
+    let out = vamos(&["completions", "zsh"], &[]);
+    assert!(out.status.success() && text(&out.stdout).contains("#compdef vamos"));
+    let out = vamos(&["completions", "nushell"], &[]);
+    assert!(!out.status.success());
+
+    let out = vamos(&["man"], &[]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let page = text(&out.stdout);
+    assert!(
+        page.starts_with(".ie") || page.contains(".TH vamos"),
+        "{page}"
+    );
+    assert!(page.contains("serve"), "the page lists the sub-commands");
+    let dir = tempfile::tempdir().unwrap();
+    let out = vamos(&["man", "--dir", dir.path().to_str().unwrap()], &[]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let render = std::fs::read_to_string(dir.path().join("vamos-render.1")).unwrap();
+    assert!(render.contains("vamos\\-render") || render.contains("vamos-render"));
+    assert!(render.contains("episode"), "{render}");
+    assert!(dir.path().join("vamos.1").is_file());
+    let out = vamos(
+        &["man", "--dir", dir.path().join("none").to_str().unwrap()],
+        &[],
+    );
+    assert_clean_failure(&out, "not an existing folder");
+}

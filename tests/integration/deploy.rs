@@ -105,8 +105,32 @@ async fn dashboards_and_alerts_query_metrics_the_server_exposes() {
         .unwrap();
     assert!(summary.scores.iter().any(|s| s.anomaly));
     assert!(!summary.message_errors.is_empty());
+    // An HTTP request with a request id before the scrape, so the HTTP request series
+    // exist; the id comes back, and one is made when none is sent.
+    let http = reqwest::Client::new();
+    let healthz = format!("http://{}/healthz", server.rest_addr);
+    let resp = http
+        .get(&healthz)
+        .header("x-request-id", "deploy-test-1")
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(resp.headers()["x-request-id"], "deploy-test-1");
+    let resp = http.get(&healthz).send().await.unwrap();
+    assert_eq!(resp.headers()["x-request-id"].len(), 32);
     let text = super::service::metrics_text(server.rest_addr).await;
     let have = exposed(&text);
+    // Request metrics of both transports, with their labels.
+    assert!(
+        text.contains(r#"vamos_http_requests_total{method="GET",route="/healthz",status="200"} 2"#),
+        "{text}"
+    );
+    assert!(
+        text.contains(
+            r#"vamos_grpc_requests_total{code="Ok",method="/vamos.v1.Monitor/Stream"} 1"#
+        ),
+        "{text}"
+    );
 
     for (file, text) in [
         (
@@ -127,6 +151,21 @@ async fn dashboards_and_alerts_query_metrics_the_server_exposes() {
     let dash: serde_json::Value =
         serde_json::from_str(&deploy("grafana/dashboards/vamos.json")).unwrap();
     assert!(dash["panels"].as_array().unwrap().len() >= 10);
+    // Fleet variables: every query reads the chosen data source and instances.
+    let vars: Vec<&str> = dash["templating"]["list"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v["name"].as_str().unwrap())
+        .collect();
+    assert_eq!(vars, ["datasource", "instance", "profile"]);
+    for panel in dash["panels"].as_array().unwrap() {
+        for target in panel["targets"].as_array().unwrap() {
+            assert_eq!(target["datasource"]["uid"], "${datasource}", "{panel}");
+            let expr = target["expr"].as_str().unwrap();
+            assert!(expr.contains(r#"instance=~"$instance""#), "{expr}");
+        }
+    }
     server.shutdown().await.unwrap();
 }
 

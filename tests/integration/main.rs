@@ -21,8 +21,11 @@ mod fleet;
 mod flow_accuracy;
 mod flow_golden;
 mod fuzz_corpus;
+mod kserve;
 mod model;
 mod model_trained;
+#[cfg(feature = "otlp")]
+mod otlp;
 mod registration_accuracy;
 mod reliability;
 mod render_cli;

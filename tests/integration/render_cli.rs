@@ -135,3 +135,74 @@ fn paper_variant_and_set_up_mistakes() {
         assert!(!err.contains("panicked"));
     }
 }
+
+/// `vamos render --episode BAG --frame N` on the simulated fixture bag, against the
+/// fixture's own robot and camera.
+fn render_recorded(out: &Path, frame: &str) -> Output {
+    let sim = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/sim");
+    Command::new(env!("CARGO_BIN_EXE_vamos"))
+        .arg("render")
+        .arg("--robot")
+        .arg(sim.join("robot/vamos_arm.urdf"))
+        .arg("--camera")
+        .arg(sim.join("camera.json"))
+        .arg("--episode")
+        .arg(sim.join("test/test_0000.mcap"))
+        .args(["--frame", frame, "-o"])
+        .arg(out)
+        .env_remove("VAMOS_CONFIG")
+        .output()
+        .unwrap()
+}
+
+#[test]
+fn render_draws_a_recorded_frame_with_its_joint_states() {
+    let dir = tempfile::tempdir().unwrap();
+    let png = dir.path().join("f5.png");
+    let out = render_recorded(&png, "5");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let summary: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(summary["episode_frame"]["index"], 5, "{summary}");
+    assert!(summary["episode_frame"]["stamp_ns"].as_i64().unwrap() > 0);
+    // The image before it gives the previous joint states: an expected flow is drawn.
+    assert_eq!(
+        summary["episode_frame"]["expected_flow_from_previous_frame"],
+        true
+    );
+    assert_eq!(summary["expected_flow"], "exact");
+    // The simulated head camera sees the arm.
+    assert!(summary["covered_px"].as_u64().unwrap() > 0, "{summary}");
+    assert_eq!(summary["width"], 160);
+    let panels = image::open(&png).unwrap();
+    assert!(
+        panels.width() >= 2 * 160,
+        "{}x{}",
+        panels.width(),
+        panels.height()
+    );
+
+    // Image 0 has nothing before it: no expected flow.
+    let first = render_recorded(&dir.path().join("f0.png"), "0");
+    assert!(first.status.success());
+    let summary: Value = serde_json::from_slice(&first.stdout).unwrap();
+    assert_eq!(summary["expected_flow"], "none");
+
+    // A frame past the end, and an output folder that does not exist, fail clearly; the
+    // second before the bag is read.
+    let past = render_recorded(&dir.path().join("x.png"), "100000");
+    let err = String::from_utf8_lossy(&past.stderr);
+    assert!(
+        !past.status.success() && err.contains("no image 100000"),
+        "{err}"
+    );
+    let missing = render_recorded(&dir.path().join("no/such/x.png"), "5");
+    let err = String::from_utf8_lossy(&missing.stderr);
+    assert!(
+        !missing.status.success() && err.contains("does not exist"),
+        "{err}"
+    );
+}

@@ -18,6 +18,7 @@ use tokio::sync::mpsc;
 use tokio_stream::Stream;
 use tokio_stream::wrappers::ReceiverStream;
 use tonic::{Request, Response, Status, Streaming};
+use tracing::Instrument;
 
 /// The `Monitor` service.
 pub struct MonitorService {
@@ -114,6 +115,11 @@ impl Monitor for MonitorService {
         request: Request<Streaming<proto::StreamRequest>>,
     ) -> Result<Response<Self::StreamStream>, Status> {
         self.authorize(&request)?;
+        let request_id = request
+            .extensions()
+            .get::<crate::api::observe::RequestId>()
+            .map(|r| r.0.clone())
+            .unwrap_or_default();
         let mut inbound = request.into_inner();
         let hub = self.shared.hub.clone();
         let idle = Duration::from_secs_f64(hub.config().idle_timeout_s.max(0.001));
@@ -141,6 +147,7 @@ impl Monitor for MonitorService {
                 episode: false,
                 seed_key: None,
                 slot: None,
+                request_id,
             },
             tx.clone(),
         )?;
@@ -165,12 +172,17 @@ impl Monitor for MonitorService {
             }))
             .await;
         drop(tx);
-        tokio::spawn(read_session(
-            hub,
-            session,
-            inbound,
-            self.shared.stop.subscribe(),
-        ));
+        // The session's span: its reading task (and, by its fields, the worker's frames).
+        let span = tracing::info_span!(
+            "session",
+            session = %session.id,
+            robot = %session.robot_id,
+            profile = %session.profile_name,
+            request_id = %session.request_id,
+        );
+        tokio::spawn(
+            read_session(hub, session, inbound, self.shared.stop.subscribe()).instrument(span),
+        );
         Ok(Response::new(Box::pin(
             ReceiverStream::new(rx).map(stream_response),
         )))

@@ -3,12 +3,13 @@
 //!
 //! Every route is listed once in [`ROUTES`] with who may call it; the router is built
 //! from that list (the access check is a layer of each route) and `GET /openapi.json`
-//! describes the same routes (a test keeps the two equal). `/healthz`, `/readyz`,
-//! `/v2/health/*`, `/v2/models/*/ready`, `/metrics` and `/openapi.json` are open (probes
-//! and scrapers); the rest needs a bearer token when tokens are configured: `robot` for
+//! describes the same routes (a test keeps the two equal). `/healthz`, `/readyz`, `/v2`,
+//! `/v2/health/*`, `/v2/models/*/ready`, `/v2/models/*/versions/*/ready`, `/metrics` and
+//! `/openapi.json` are open (probes and scrapers); the rest needs a bearer token when tokens are configured: `robot` for
 //! scoring and reading lists, `admin` for everything that changes state.
 //!
-//! One module per resource: [`health`] (probes, metrics, the API description),
+//! One module per resource: [`health`] (probes, metrics, the API description), `kserve`
+//! (KServe v2 server and model metadata),
 //! `sessions`, `episodes` (scoring), `models`, `robots`, `profiles`, `calibration`
 //! (calibration jobs); `body` reads and writes bodies. Each handler parses, calls one
 //! session or store operation and maps the result.
@@ -22,6 +23,7 @@ mod calibration;
 mod episodes;
 pub mod errors;
 mod health;
+mod kserve;
 mod models;
 mod profiles;
 mod robots;
@@ -68,6 +70,14 @@ pub const ROUTES: &[(&str, &str, Access)] = &[
     ("GET", "/v2/health/live", Access::Open),
     ("GET", "/v2/health/ready", Access::Open),
     ("GET", "/v2/models/{name}/ready", Access::Open),
+    ("GET", "/v2", Access::Open),
+    ("GET", "/v2/models/{name}", Access::Robot),
+    ("GET", "/v2/models/{name}/versions/{version}", Access::Robot),
+    (
+        "GET",
+        "/v2/models/{name}/versions/{version}/ready",
+        Access::Open,
+    ),
     ("GET", "/metrics", Access::Open),
     ("GET", "/openapi.json", Access::Open),
     ("GET", "/v1/sessions", Access::Admin),
@@ -108,6 +118,10 @@ pub fn handler(method: &str, path: &str) -> Option<MethodRouter<Arc<Shared>>> {
         ("GET", "/healthz" | "/v2/health/live") => get(health::healthz),
         ("GET", "/readyz" | "/v2/health/ready") => get(health::readyz),
         ("GET", "/v2/models/{name}/ready") => get(health::model_ready),
+        ("GET", "/v2") => get(kserve::server_metadata),
+        ("GET", "/v2/models/{name}") => get(kserve::model_metadata),
+        ("GET", "/v2/models/{name}/versions/{version}") => get(kserve::version_metadata),
+        ("GET", "/v2/models/{name}/versions/{version}/ready") => get(kserve::version_ready),
         ("GET", "/metrics") => get(health::metrics),
         ("GET", "/openapi.json") => get(health::openapi),
         ("GET", "/v1/sessions") => get(sessions::sessions),

@@ -2,19 +2,12 @@
 
 use super::{Streamed, fmt_score, fmt_threshold};
 use crate::cli::eval::{Timeline, write_plots};
+use crate::cli::percentile;
 use anyhow::{Context, Result};
 use serde_json::json;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 use vamos::eval::{EvalReport, ScoredFrame, evaluate};
-
-fn percentile(sorted: &[f64], q: f64) -> Option<f64> {
-    if sorted.is_empty() {
-        return None;
-    }
-    let i = ((sorted.len() - 1) as f64 * q).round() as usize;
-    sorted.get(i).copied()
-}
 
 fn opt(v: Option<f64>, digits: usize) -> String {
     v.map_or("-".into(), |v| format!("{v:.digits$}"))
