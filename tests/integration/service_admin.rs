@@ -208,7 +208,7 @@ pub(crate) async fn open_session(
                 Ok(r) => match r.message {
                     Some(proto::stream_response::Message::Score(s)) => scores.push(s),
                     Some(proto::stream_response::Message::Event(e)) => events.push(e),
-                    None => {}
+                    Some(proto::stream_response::Message::Alarm(_)) | None => {}
                 },
                 Err(s) => return (scores, events, Some(s)),
             }

@@ -141,6 +141,7 @@ impl Monitor for MonitorService {
                 episode: false,
                 seed_key: None,
                 slot: None,
+                maps: open.anomaly_maps,
             },
             tx.clone(),
         )?;
@@ -210,6 +211,7 @@ impl Monitor for MonitorService {
             episode_name,
             slot,
             Some(ticket),
+            false,
         )
         .await?;
         let mapped = scores
