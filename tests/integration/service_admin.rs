@@ -137,7 +137,7 @@ async fn every_route_refuses_missing_and_insufficient_tokens() {
             Access::Open => {
                 assert_ne!(none, StatusCode::UNAUTHORIZED, "{method} {path}");
             }
-            Access::Robot => {
+            Access::Viewer | Access::Robot => {
                 assert_eq!(none, StatusCode::UNAUTHORIZED, "{method} {path}");
                 assert_ne!(robot, StatusCode::FORBIDDEN, "{method} {path}");
                 assert_ne!(robot, StatusCode::UNAUTHORIZED, "{method} {path}");
