@@ -379,6 +379,7 @@ fn stream_requests() -> Result<()> {
         }),
         task: "place_book".into(),
         session_id: "s1".into(),
+        anomaly_maps: false,
     });
     let joint = |stamp_ns: i64, p: f64| {
         In::Joints(proto::JointState {
@@ -493,6 +494,7 @@ fn episode_requests(images: usize) -> Result<Vec<In>> {
         camera_info: rec.camera,
         task: String::new(),
         session_id: String::new(),
+        anomaly_maps: false,
     })];
     let mut seen = 0;
     for (_, m) in rec.messages {

@@ -1,4 +1,4 @@
-//! Bearer tokens with two roles. Tokens are kept as sha256 digests only (in the settings
+//! Bearer tokens with three roles (viewer < robot < admin). Tokens are kept as sha256 digests only (in the settings
 //! and in memory) and compared in constant time.
 
 use sha2::{Digest, Sha256};
@@ -9,6 +9,12 @@ const TOKEN_VARS: [&str; 2] = ["VAMOS_ADMIN_TOKEN", "VAMOS_ROBOT_TOKEN"];
 
 /// Digests of the plain tokens taken out of the environment by [`take_env_tokens`].
 static TAKEN: OnceLock<[Vec<[u8; 32]>; 2]> = OnceLock::new();
+
+/// The environment variable of plain viewer tokens (read-only: the live view, lists).
+const VIEWER_VAR: &str = "VAMOS_VIEWER_TOKEN";
+
+/// Digests of the plain viewer tokens taken out of the environment.
+static TAKEN_VIEWER: OnceLock<Vec<[u8; 32]>> = OnceLock::new();
 
 fn plain_digests(s: Option<&str>) -> Vec<[u8; 32]> {
     s.unwrap_or("")
@@ -29,7 +35,8 @@ fn plain_digests(s: Option<&str>) -> Vec<[u8; 32]> {
 /// `main` before any thread is started.
 pub unsafe fn take_env_tokens() {
     let taken = TOKEN_VARS.map(|var| plain_digests(std::env::var(var).ok().as_deref()));
-    for var in TOKEN_VARS {
+    let _ = TAKEN_VIEWER.set(plain_digests(std::env::var(VIEWER_VAR).ok().as_deref()));
+    for var in TOKEN_VARS.into_iter().chain([VIEWER_VAR]) {
         #[cfg(unix)]
         if let Ok(name) = std::ffi::CString::new(var) {
             // SAFETY: the caller guarantees no other thread touches the environment;
@@ -57,9 +64,19 @@ pub fn env_token_digests() -> [Vec<[u8; 32]>; 2] {
     }
 }
 
+/// Digests of the plain viewer tokens (`VAMOS_VIEWER_TOKEN`), as [`env_token_digests`].
+pub fn env_viewer_digests() -> Vec<[u8; 32]> {
+    match TAKEN_VIEWER.get() {
+        Some(t) => t.clone(),
+        None => plain_digests(std::env::var(VIEWER_VAR).ok().as_deref()),
+    }
+}
+
 /// What a caller may do.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
 pub enum Role {
+    /// Read only: the live view, session and alarm lists, thumbnails.
+    Viewer,
     /// Stream sessions and score episodes.
     Robot,
     /// Everything, including changes of state (models, robots, profiles, thresholds).
@@ -98,6 +115,7 @@ pub struct BadDigest {
 pub struct Tokens {
     admin: Vec<[u8; 32]>,
     robot: Vec<[u8; 32]>,
+    viewer: Vec<[u8; 32]>,
 }
 
 /// sha256 of a token.
@@ -143,7 +161,28 @@ impl Tokens {
         admin.extend(plain_digests(admin_plain));
         let mut robot = parse(robot_sha256, "robot")?;
         robot.extend(plain_digests(robot_plain));
-        Ok(Self { admin, robot })
+        Ok(Self {
+            admin,
+            robot,
+            viewer: Vec::new(),
+        })
+    }
+
+    /// Adds viewer tokens: configured digests (hex) and plain digests (e.g.
+    /// [`env_viewer_digests`]).
+    pub fn with_viewers(
+        mut self,
+        viewer_sha256: &[String],
+        plain: Vec<[u8; 32]>,
+    ) -> Result<Self, BadDigest> {
+        for (index, s) in viewer_sha256.iter().enumerate() {
+            self.viewer.push(parse_hex(s).ok_or(BadDigest {
+                role: "viewer",
+                index,
+            })?);
+        }
+        self.viewer.extend(plain);
+        Ok(self)
     }
 
     /// Adds token digests: admin, then robot (e.g. [`env_token_digests`]).
@@ -155,7 +194,7 @@ impl Tokens {
 
     /// Whether any token is configured (otherwise every caller is admin).
     pub fn enabled(&self) -> bool {
-        !(self.admin.is_empty() && self.robot.is_empty())
+        !(self.admin.is_empty() && self.robot.is_empty() && self.viewer.is_empty())
     }
 
     /// The role of an `authorization` header value (`Bearer TOKEN`); every caller is
@@ -173,6 +212,11 @@ impl Tokens {
         let d = digest(token);
         // Every digest is compared, so the time does not tell which list matched.
         let mut role = None;
+        for known in &self.viewer {
+            if constant_time_eq(known, &d) {
+                role = Some(Role::Viewer);
+            }
+        }
         for known in &self.robot {
             if constant_time_eq(known, &d) {
                 role = Some(Role::Robot);
@@ -233,6 +277,37 @@ mod tests {
             err,
             BadDigest {
                 role: "robot",
+                index: 0
+            }
+        );
+    }
+
+    #[test]
+    fn viewers_are_below_robots_and_alone_enable_tokens() {
+        let t = Tokens::new(&[], &[], None, None)
+            .unwrap()
+            .with_viewers(&[hex(digest("v1"))], vec![digest("v2")])
+            .unwrap();
+        assert!(t.enabled());
+        assert_eq!(t.role_of(Some("Bearer v1")), Ok(Role::Viewer));
+        assert_eq!(t.require(Some("Bearer v2"), Role::Viewer), Ok(Role::Viewer));
+        assert_eq!(
+            t.require(Some("Bearer v2"), Role::Robot),
+            Err(AuthError::Forbidden {
+                needed: Role::Robot
+            })
+        );
+        assert_eq!(t.role_of(None), Err(AuthError::Missing));
+        let t = Tokens::new(&[], &[], Some("adm"), None)
+            .unwrap()
+            .with_viewers(&[], vec![])
+            .unwrap();
+        assert_eq!(t.require(Some("Bearer adm"), Role::Viewer), Ok(Role::Admin));
+        let err = t.with_viewers(&["zz".into()], vec![]).unwrap_err();
+        assert_eq!(
+            err,
+            BadDigest {
+                role: "viewer",
                 index: 0
             }
         );

@@ -106,6 +106,13 @@ pub fn run(settings: &Settings, opts: Args) -> Result<()> {
     }
     if let Some(dir) = &opts.plots {
         write_plots(dir, &timelines(&results), &frames, alarm)?;
+        write_detector_plots(
+            dir,
+            &results,
+            &setup.profile.thresholds(),
+            alarm,
+            setup.profile.file.alarm_events.unwrap_or_default(),
+        )?;
         eprintln!("plots in {}", dir.display());
     }
     if let Some(out) = &opts.ablation {
@@ -115,6 +122,103 @@ pub fn run(settings: &Settings, opts: Args) -> Result<()> {
         eprintln!("{md}\nablation table written to {}", out.display());
     }
     Ok(())
+}
+
+/// Writes `<episode>.detectors.png` for every scored episode: the fused score (log axis,
+/// the alarm threshold) above each detector's value against its own threshold, the flow
+/// predictor's warm-up greyed, the labelled intervals shaded, and the first alarm (the
+/// debounced start, as the service reports it) marked. Returns the files written.
+pub fn write_detector_plots(
+    dir: &Path,
+    results: &[EpisodeScores],
+    thresholds: &vamos::eval::Thresholds,
+    alarm: f64,
+    rule: vamos::eval::alarm::Debounce,
+) -> Result<Vec<PathBuf>> {
+    use vamos::eval::detector_plot::{Panel, plot_detectors};
+    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    let options = PlotOptions {
+        width_px: 900,
+        height_px: 780,
+        log_y: false,
+    };
+    let mut written = Vec::new();
+    for e in results {
+        let Some(t0) = e.frames.first().map(|f| f.stamp_ns) else {
+            continue;
+        };
+        let s = |ns: i64| (ns - t0) as f64 / 1e9;
+        let stamps: Vec<f64> = e.frames.iter().map(|f| s(f.stamp_ns)).collect();
+        let series = |get: fn(&vamos::pipeline::FrameScore) -> Option<f64>| -> Vec<f64> {
+            e.frames
+                .iter()
+                .map(|f| get(f).unwrap_or(f64::NAN))
+                .collect()
+        };
+        let score = series(|f| Some(f.score));
+        let (e_c, e_b, e_o, e_r) = (
+            series(|f| f.e_c),
+            series(|f| f.e_b),
+            series(|f| f.e_o),
+            series(|f| f.e_r),
+        );
+        let warming: Vec<bool> = e.frames.iter().map(|f| f.warming_up).collect();
+        let first_alarm =
+            vamos::eval::alarm::alarm_intervals(e.frames.iter().map(|f| f.anomaly), rule)?
+                .first()
+                .and_then(|(start, _)| stamps.get(*start).copied());
+        let intervals: Vec<(f64, f64)> = e
+            .labels
+            .as_ref()
+            .map(|l| l.intervals_ns.iter().map(|[a, b]| (s(*a), s(*b))).collect())
+            .unwrap_or_default();
+        let finite = |v: Option<f64>| v.filter(|x| x.is_finite());
+        let panels = [
+            Panel {
+                label: "fused score",
+                values: &score,
+                threshold: finite(Some(alarm)),
+                log_y: true,
+            },
+            Panel {
+                label: "e_c camera (px)",
+                values: &e_c,
+                threshold: finite(thresholds.e_c),
+                log_y: false,
+            },
+            Panel {
+                label: "e_b body (px)",
+                values: &e_b,
+                threshold: finite(thresholds.e_b),
+                log_y: false,
+            },
+            Panel {
+                label: "e_o flow",
+                values: &e_o,
+                threshold: None,
+                log_y: false,
+            },
+            Panel {
+                label: "e_r scene",
+                values: &e_r,
+                threshold: None,
+                log_y: false,
+            },
+        ];
+        let path = dir.join(format!("{}.detectors.png", e.name));
+        plot_detectors(
+            &path,
+            &e.name,
+            &stamps,
+            &panels,
+            &warming,
+            &intervals,
+            first_alarm,
+            &options,
+        )?;
+        written.push(path);
+    }
+    Ok(written)
 }
 
 /// One episode's score timeline for the plots.

@@ -114,6 +114,7 @@ async fn one_session(
         camera_info: rec.camera,
         task: "loadgen".into(),
         session_id: format!("loadgen-{robot}-{n}"),
+        anomaly_maps: false,
     };
     let mut sent_at: HashMap<i64, Instant> = HashMap::new();
     let mut local = Tally::default();
@@ -133,7 +134,7 @@ async fn one_session(
                         local.latencies_s.push(t.elapsed().as_secs_f64());
                     }
                 }
-                Update::Event(_) => {}
+                Update::Event(_) | Update::Alarm(_) => {}
             },
         )
         .await;

@@ -13,6 +13,7 @@ use vamos::eval::Thresholds;
 use vamos::model::FlowModel;
 use vamos::pipeline::offline::{EpisodeScores, score_episode};
 use vamos::pipeline::{FrameScore, PipelineConfig, Scorer};
+use vamos::session::live::{Thumb, anomaly_map};
 pub use vamos::setup::Setup;
 
 /// One scoring run of [`ScoreAll::score_all`]: thresholds, optional overrides of the
@@ -82,7 +83,7 @@ impl ScoreAll for Setup {
                 // Image indices count every image read (strided ones too).
                 let seen = |frame: &EpisodeFrame| bar.set(frame.index as u64 + 1);
                 let scores = match run.output {
-                    Some(o) => write_outputs(&mut scorer, &episode, o, seen)?,
+                    Some(o) => write_outputs(&mut scorer, &episode, o, run, seen)?,
                     None => score_episode::<anyhow::Error>(&mut scorer, &episode, |frame, _| {
                         seen(frame);
                         Ok(())
@@ -133,6 +134,7 @@ fn write_outputs(
     scorer: &mut Scorer,
     episode: &McapEpisode,
     o: &OutputOptions,
+    run: &ScoreRun<'_>,
     seen: impl Fn(&EpisodeFrame),
 ) -> Result<EpisodeScores> {
     std::fs::create_dir_all(&o.dir)
@@ -144,16 +146,20 @@ fn write_outputs(
     );
     let mut bag = if o.mcap {
         let path = o.dir.join(format!("{}.scored.mcap", episode.name()));
-        Some(ScoreBagWriter::create(&path, Some(&episode.info()))?)
+        let mut bag = ScoreBagWriter::create(&path, Some(&episode.info()))?;
+        bag.copy_context(episode)?;
+        Some(bag)
     } else {
         None
     };
+    let mut thresholds_json = Some(thresholds_json(&run.thresholds, run.alarm_threshold));
     let scores = score_episode::<anyhow::Error>(scorer, episode, |frame, score| {
         seen(frame);
         serde_json::to_writer(&mut lines, score)?;
         lines.write_all(b"\n")?;
         if let Some(bag) = bag.as_mut() {
-            write_frame(bag, frame, score)?;
+            let map = anomaly_map(score, &run.thresholds, run.alarm_threshold);
+            write_frame(bag, frame, score, map.as_ref(), thresholds_json.take())?;
         }
         Ok(())
     })?;
@@ -164,8 +170,26 @@ fn write_outputs(
     Ok(scores)
 }
 
+/// The thresholds in force as the JSON of a scored bag's `/vamos/thresholds`
+/// (`null`: none).
+pub fn thresholds_json(t: &Thresholds, alarm: f64) -> String {
+    let finite = |v: Option<f64>| v.filter(|x| x.is_finite());
+    serde_json::json!({
+        "alarm": finite(Some(alarm)),
+        "e_c": finite(t.e_c),
+        "e_b": finite(t.e_b),
+    })
+    .to_string()
+}
+
 /// The score topics of one frame, beside a copy of its image.
-fn write_frame(bag: &mut ScoreBagWriter, frame: &EpisodeFrame, s: &FrameScore) -> Result<()> {
+fn write_frame(
+    bag: &mut ScoreBagWriter,
+    frame: &EpisodeFrame,
+    s: &FrameScore,
+    map: Option<&Thumb>,
+    thresholds_json: Option<String>,
+) -> Result<()> {
     bag.write_scored_frame(
         frame,
         &ScoreTopics {
@@ -175,6 +199,8 @@ fn write_frame(bag: &mut ScoreBagWriter, frame: &EpisodeFrame, s: &FrameScore) -
             e_b: s.e_b,
             e_o: s.e_o,
             heatmap: s.heatmap.as_deref(),
+            anomaly_map: map.map(|m| (m.width as u32, m.height as u32, m.pixels.as_slice())),
+            thresholds_json: thresholds_json.as_deref(),
         },
     )?;
     Ok(())
@@ -191,8 +217,9 @@ pub struct Args {
     /// Output folder for `<episode>.scores.jsonl` (and `.scored.mcap`).
     #[arg(short, long)]
     pub out: Option<PathBuf>,
-    /// Also write `<episode>.scored.mcap`: input images, /vamos/score, /vamos/anomaly,
-    /// /vamos/e_c, /vamos/e_b, /vamos/e_o, /vamos/heatmap.
+    /// Also write `<episode>.scored.mcap`: input images, camera info, joint states and
+    /// robot description, /vamos/score, /vamos/anomaly, /vamos/e_c, /vamos/e_b,
+    /// /vamos/e_o, /vamos/heatmap, /vamos/anomaly_map, /vamos/thresholds.
     #[arg(long)]
     pub mcap: bool,
     /// No progress bars (they are drawn on stderr only when it is a terminal).

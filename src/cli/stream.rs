@@ -96,6 +96,24 @@ fn event_json(e: &proto::SessionEvent) -> serde_json::Value {
     })
 }
 
+fn alarm_json(a: &proto::AlarmEvent) -> serde_json::Value {
+    let edge = proto::alarm_event::Edge::try_from(a.edge).map_or_else(
+        |_| format!("EDGE_{}", a.edge),
+        |k| k.as_str_name().to_string(),
+    );
+    let detector = |d: i32| {
+        proto::Detector::try_from(d).map_or_else(|_| d.to_string(), |k| k.as_str_name().into())
+    };
+    json!({
+        "type": "alarm", "edge": edge, "alarm_id": a.alarm_id, "session_id": a.session_id,
+        "detector": detector(a.detector),
+        "detectors": a.detectors.iter().map(|d| detector(*d)).collect::<Vec<_>>(),
+        "start_frame": a.start_frame, "end_frame": a.end_frame,
+        "frames_flagged": a.frames_flagged, "alarm_threshold": a.alarm_threshold,
+        "e_c_threshold": a.e_c_threshold, "e_b_threshold": a.e_b_threshold,
+    })
+}
+
 fn emit(value: &serde_json::Value) {
     let mut out = std::io::stdout().lock();
     // A closed stdout (e.g. `| head`) is not an error worth stopping the session for.
@@ -162,12 +180,14 @@ async fn stream(opts: StreamOptions) -> Result<()> {
                 camera_info: rec.camera,
                 task: stem.clone(),
                 session_id: opts.session_id.clone().unwrap_or_else(|| stem.clone()),
+                anomaly_maps: false,
             };
             let summary = client
                 .replay(open, &rec, pace, |u| match u {
                     Update::Sent { .. } => {}
                     Update::Score(s) => emit(&score_json(s)),
                     Update::Event(e) => emit(&event_json(e)),
+                    Update::Alarm(a) => emit(&alarm_json(a)),
                 })
                 .await?;
             let alarms = summary.scores.iter().filter(|s| s.anomaly).count();

@@ -100,6 +100,8 @@ pub enum Update {
     Score(proto::FrameScore),
     /// A session event came back.
     Event(proto::SessionEvent),
+    /// An alarm started or ended (boxed: rare, and larger than a score).
+    Alarm(Box<proto::AlarmEvent>),
 }
 
 /// The outcome of a replayed session.
@@ -283,6 +285,7 @@ impl Client {
                         }
                         on_update(&Update::Event(e));
                     }
+                    Some(Ok(u @ Update::Alarm(_))) => on_update(&u),
                     Some(Ok(Update::Sent { .. })) => {}
                     Some(Err(e)) => return Err(e),
                     None => break,
@@ -398,6 +401,7 @@ impl Session {
                 Ok(r) => match r.message {
                     Some(Out::Score(s)) => Some(Ok(Update::Score(s))),
                     Some(Out::Event(e)) => Some(Ok(Update::Event(e))),
+                    Some(Out::Alarm(a)) => Some(Ok(Update::Alarm(Box::new(a)))),
                     None => continue,
                 },
                 Err(status) => Some(Err(ClientError::Status(status))),

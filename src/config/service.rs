@@ -108,6 +108,9 @@ pub struct ServiceConfig {
     pub admin_token_sha256: Vec<String>,
     /// sha256 digests (hex) of robot tokens; `VAMOS_ROBOT_TOKEN` adds plain tokens.
     pub robot_token_sha256: Vec<String>,
+    /// sha256 digests (hex) of viewer tokens (read only: the live view at `/ui`, session
+    /// and alarm lists); `VAMOS_VIEWER_TOKEN` adds plain tokens.
+    pub viewer_token_sha256: Vec<String>,
     /// Without any token, listen on non-loopback addresses anyway.
     pub allow_unauthenticated_remote: bool,
     /// TLS for both transports; absent: plain text.
@@ -168,6 +171,7 @@ impl Default for ServiceConfig {
             max_calibration_bytes: 16 << 30,
             admin_token_sha256: Vec::new(),
             robot_token_sha256: Vec::new(),
+            viewer_token_sha256: Vec::new(),
             allow_unauthenticated_remote: false,
             tls: None,
             shutdown_grace_s: 10.0,

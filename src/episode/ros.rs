@@ -46,6 +46,15 @@ pub fn definition(schema_name: &str) -> Option<String> {
         schema::JOINT_STATE => {
             "std_msgs/Header header\nstring[] name\nfloat64[] position\nfloat64[] velocity\nfloat64[] effort\n"
         }
+        schema::CAMERA_INFO => {
+            return Some(format!(
+                "std_msgs/Header header\nuint32 height\nuint32 width\nstring distortion_model\n\
+                 float64[] d\nfloat64[9] k\nfloat64[9] r\nfloat64[12] p\nuint32 binning_x\n\
+                 uint32 binning_y\nsensor_msgs/RegionOfInterest roi\n\n{HEADER_DEPS}\n{SEP}\
+                 MSG: sensor_msgs/RegionOfInterest\nuint32 x_offset\nuint32 y_offset\n\
+                 uint32 height\nuint32 width\nbool do_rectify\n"
+            ));
+        }
         _ => return None,
     };
     debug_assert!(HEADER_DEPS.starts_with(SEP));

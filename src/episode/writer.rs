@@ -47,6 +47,12 @@ pub struct ScoreTopics<'a> {
     pub e_o: Option<f64>,
     /// Square squared-error map of the best prediction (`/vamos/heatmap`), when kept.
     pub heatmap: Option<&'a [f32]>,
+    /// The frame's anomaly map `(width, height, mono8 pixels)` (`/vamos/anomaly_map`,
+    /// 0 = nominal), when there is one.
+    pub anomaly_map: Option<(u32, u32, &'a [u8])>,
+    /// The thresholds in force as JSON (`/vamos/thresholds`, a `std_msgs/msg/String`),
+    /// written when given (once, with the first frame).
+    pub thresholds_json: Option<&'a str>,
 }
 
 /// Colours a squared-error map: black (0) through red and yellow to white at an RMS error
@@ -351,7 +357,54 @@ impl ScoreBagWriter {
                 self.write_heatmap("/vamos/heatmap", t, side as u32, side as u32, &rgb)?;
             }
         }
+        if let Some((width, height, data)) = s.anomaly_map {
+            self.write_image(
+                "/vamos/anomaly_map",
+                t,
+                ImageData::Raw {
+                    width,
+                    height,
+                    encoding: "mono8",
+                    data,
+                },
+            )?;
+        }
+        if let Some(json) = s.thresholds_json {
+            self.write_string("/vamos/thresholds", t, json)?;
+        }
         Ok(())
+    }
+
+    /// Copies the input episode's camera info, joint states and robot description (the
+    /// chosen topics, as recorded) into the bag, so that it replays the whole context of
+    /// its scores. Messages of other schemas on those topics are left out.
+    pub fn copy_context(&mut self, episode: &super::McapEpisode) -> Result<(), EpisodeError> {
+        let chosen = &episode.info().chosen;
+        let topics: Vec<String> = [
+            &chosen.camera_info,
+            &chosen.joint_states,
+            &chosen.robot_description,
+        ]
+        .into_iter()
+        .flatten()
+        .cloned()
+        .collect();
+        if topics.is_empty() {
+            return Ok(());
+        }
+        let mut first_error = None;
+        episode.for_each_message(&topics, |topic, schema_name, log_time, cdr| {
+            if first_error.is_some() || ros::definition(schema_name).is_none() {
+                return;
+            }
+            let written = self
+                .ros_channel(topic, schema_name)
+                .and_then(|id| self.write(id, log_time, cdr));
+            if let Err(e) = written {
+                first_error = Some(e);
+            }
+        })?;
+        first_error.map_or(Ok(()), Err)
     }
 
     /// Completes the file (summary, indexes, footer).

@@ -12,7 +12,9 @@
 //! alarm instead. Calibration refuses non-finite inputs with an error.
 
 mod ablation;
+pub mod alarm;
 mod calibrate;
+pub mod detector_plot;
 mod episodes;
 mod fuse;
 mod metrics;

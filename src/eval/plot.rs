@@ -21,7 +21,7 @@ static FONT: &[u8] = include_bytes!("../../assets/fonts/DejaVuSans.ttf");
 /// Fill of the anomalous intervals in [`plot_episode`].
 pub const INTERVAL_SHADE: RGBColor = RGBColor(255, 205, 205);
 const SCORE_COLOR: RGBColor = RGBColor(31, 119, 180);
-const THRESHOLD_COLOR: RGBColor = RGBColor(214, 39, 40);
+pub(super) const THRESHOLD_COLOR: RGBColor = RGBColor(214, 39, 40);
 const GRAY: RGBColor = RGBColor(150, 150, 150);
 /// Curve colours (matplotlib's tab10).
 const PALETTE: [RGBColor; 8] = [
@@ -76,10 +76,10 @@ fn ensure_font() -> Result<(), String> {
     }
 }
 
-type Area<'a> = DrawingArea<BitMapBackend<'a>, Shift>;
+pub(super) type Area<'a> = DrawingArea<BitMapBackend<'a>, Shift>;
 
 /// Draw into an RGB buffer with `draw`, then write it to `path` as PNG.
-fn render<F>(path: &Path, options: &PlotOptions, draw: F) -> Result<(), EvalError>
+pub(super) fn render<F>(path: &Path, options: &PlotOptions, draw: F) -> Result<(), EvalError>
 where
     F: FnOnce(&Area<'_>) -> Result<(), String>,
 {
@@ -113,7 +113,7 @@ where
         })
 }
 
-fn padded(lo: f64, hi: f64) -> (f64, f64) {
+pub(super) fn padded(lo: f64, hi: f64) -> (f64, f64) {
     if !(lo.is_finite() && hi.is_finite()) {
         return (0.0, 1.0);
     }

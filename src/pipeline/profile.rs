@@ -94,6 +94,9 @@ pub struct ProfileFile {
     /// Manual threshold overrides, on top of the calibration.
     #[serde(default, skip_serializing_if = "ThresholdOverrides::is_empty")]
     pub thresholds: ThresholdOverrides,
+    /// How per-frame flags become alarm events (`[alarm_events]`; absent: 3 of 5 frames).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub alarm_events: Option<crate::eval::alarm::Debounce>,
 }
 
 /// Manual thresholds that replace calibrated ones (`[thresholds]` of a profile; the
@@ -208,6 +211,12 @@ impl Profile {
             return Err(ProfileError::Invalid {
                 path: path.into(),
                 reason: format!("thresholds.{key} = {value} is not a finite number"),
+            });
+        }
+        if let Some(Err(e)) = file.alarm_events.map(|d| d.check()) {
+            return Err(ProfileError::Invalid {
+                path: path.into(),
+                reason: e.to_string(),
             });
         }
         let dir = path.parent().unwrap_or(Path::new("."));

@@ -80,7 +80,9 @@ impl Server {
         let cfg = settings.service.clone();
         let tokens = Tokens::new(&cfg.admin_token_sha256, &cfg.robot_token_sha256, None, None)
             .map_err(|e| ServiceError::Config(e.to_string()))?
-            .with_digests(auth::env_token_digests());
+            .with_digests(auth::env_token_digests())
+            .with_viewers(&cfg.viewer_token_sha256, auth::env_viewer_digests())
+            .map_err(|e| ServiceError::Config(e.to_string()))?;
         let store = Store::open(
             &cfg.data_dir,
             StoreLimits {

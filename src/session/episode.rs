@@ -30,7 +30,7 @@ impl EpisodeScores {
         loop {
             match self.rx.recv().await? {
                 Output::Score(s) => return Some(Ok(s)),
-                Output::Event(_) => continue,
+                Output::Event(_) | Output::Alarm(_) => continue,
                 Output::Closed(e) => return Some(Err(e)),
             }
         }
@@ -60,7 +60,8 @@ impl EpisodeScores {
 /// Scores the buffered episode `file` with `profile` through the worker pool, in the
 /// session place `slot` reserved before it was read. `seed_key` seeds the predictor's
 /// sampling (the episode's name, as `vamos score` does). `ticket` (the upload's slot and
-/// disk) is given back when the file is removed.
+/// disk) is given back when the file is removed. With `maps`, each score carries its
+/// anomaly map.
 pub async fn score_episode(
     hub: Arc<Hub>,
     profile: Arc<LoadedProfile>,
@@ -68,6 +69,7 @@ pub async fn score_episode(
     seed_key: String,
     slot: SessionSlot,
     ticket: Option<UploadTicket>,
+    maps: bool,
 ) -> Result<EpisodeScores, SessionError> {
     let config = profile.setup.episode.clone();
     let path = file.path().to_path_buf();
@@ -87,6 +89,7 @@ pub async fn score_episode(
             seed_key: Some(seed_key),
             slot: Some(slot),
             request_id: String::new(),
+            maps,
         },
         tx.clone(),
     )?;

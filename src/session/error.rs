@@ -130,6 +130,37 @@ pub enum SessionError {
     /// A failure of the server itself (a task that died).
     #[error("{0}")]
     Internal(String),
+    /// No open session has that id (it never existed, or it ended).
+    #[error("no open session {id:?} (it may have ended, or the server restarted)")]
+    UnknownSession {
+        /// The id asked for.
+        id: String,
+    },
+    /// No recent alarm has that id.
+    #[error("no alarm {id:?} among the recent alarms (it may be older, or the server restarted)")]
+    UnknownAlarm {
+        /// The id asked for.
+        id: String,
+    },
+    /// The alarm is already marked as a false alarm.
+    #[error("alarm {id:?} is already marked as a false alarm")]
+    AlarmMarked {
+        /// The id.
+        id: String,
+    },
+    /// A mark's note is too long.
+    #[error("the note is longer than {max} characters")]
+    BadNote {
+        /// The limit, characters.
+        max: usize,
+    },
+    /// The data directory refused or failed an operation.
+    #[error("{source}")]
+    Store {
+        /// Why.
+        #[source]
+        source: Box<crate::store::StoreError>,
+    },
 }
 
 impl SessionError {

@@ -62,6 +62,9 @@ pub struct ScoredFrame {
     pub latency_s: f64,
     /// Time spent computing the score, seconds.
     pub compute_s: f64,
+    /// The frame's anomaly map (8-bit gray, 0 = nominal; see [`super::live`]), for
+    /// sessions that asked for maps.
+    pub anomaly_map: Option<super::live::Thumb>,
 }
 
 impl ScoredFrame {
@@ -134,6 +137,8 @@ pub enum Output {
     Score(ScoredFrame),
     /// An event.
     Event(Event),
+    /// An alarm started or ended.
+    Alarm(super::alarms::AlarmEvent),
     /// The stream ends with this error (a stream that just ends ended well).
     Closed(SessionError),
 }

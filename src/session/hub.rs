@@ -47,6 +47,8 @@ pub struct Hub {
     /// frame.
     pub(super) injected_frame_panics: AtomicU64,
     pub(super) injected_worker_panics: AtomicU64,
+    /// The recent alarms of every session.
+    pub alarms: super::alarms::AlarmBook,
 }
 
 impl Hub {
@@ -72,6 +74,7 @@ impl Hub {
             reserved: Arc::new(AtomicUsize::new(0)),
             injected_frame_panics: AtomicU64::new(0),
             injected_worker_panics: AtomicU64::new(0),
+            alarms: super::alarms::AlarmBook::default(),
             config,
             metrics,
             sessions: Mutex::new(HashMap::new()),
@@ -207,8 +210,9 @@ impl Hub {
         let seed_key = req.seed_key.unwrap_or_else(|| id.clone());
         let scorer = profile
             .setup
-            .calibrated_scorer(&seed_key, false)
+            .calibrated_scorer(&seed_key, req.maps)
             .map_err(SessionError::scorer)?;
+        let alarm_rule = profile.setup.profile.file.alarm_events;
         let session = Arc::new(Session {
             id: id.clone(),
             robot_id: req.robot_id,
@@ -245,6 +249,9 @@ impl Hub {
             frames_scored: AtomicU64::new(0),
             dropped: AtomicU64::new(0),
             anomalies: AtomicU64::new(0),
+            maps: req.maps,
+            alarms: Mutex::new(super::alarms::AlarmTracker::new(alarm_rule)),
+            live: Mutex::new(super::live::LiveView::default()),
             profile: Mutex::new(profile),
         });
         sessions.insert(id.clone(), session.clone());
@@ -312,7 +319,7 @@ impl Hub {
         }
         let mut scorer = profile
             .setup
-            .calibrated_scorer(&s.seed_key, false)
+            .calibrated_scorer(&s.seed_key, s.maps)
             .map_err(SessionError::scorer)?;
         if lock(&s.state).closed {
             return Err(SessionError::Closed { id: s.id.clone() });

@@ -25,6 +25,8 @@ pub struct Metrics {
     pub frames: IntCounterVec,
     /// Frames with the anomaly flag, by profile and detector.
     pub anomalies: IntCounterVec,
+    /// Alarms started (debounced), by profile and the detector that fired first.
+    pub alarms: IntCounterVec,
     /// Images not scored, by profile and reason (`queue_full`, `rejected`,
     /// `bad_message`, `undelivered`).
     pub drops: IntCounterVec,
@@ -116,6 +118,11 @@ impl Metrics {
         let anomalies = counter(
             "vamos_anomalies_total",
             "Frames flagged anomalous",
+            &["profile", "detector"],
+        );
+        let alarms = counter(
+            "vamos_alarms_total",
+            "Alarms started (debounced k of n frames)",
             &["profile", "detector"],
         );
         let drops = counter(
@@ -249,6 +256,7 @@ impl Metrics {
             registry,
             frames,
             anomalies,
+            alarms,
             drops,
             message_errors,
             stage_seconds,

@@ -14,12 +14,16 @@
 //!   buffer; [`admission`]: upload slots and session places taken before a body is read.
 //! - [`profiles`]: the profiles sessions score with; [`jobs`] and [`calibration`]: the
 //!   calibration jobs.
+//! - [`alarms`]: per-frame flags debounced into alarms (start/end events, the recent
+//!   alarms of all sessions, false-alarm marks stored); [`live`]: what the live view
+//!   shows of a session (timeline points, latest frame thumbnail, anomaly map).
 //! - [`budget`]: memory and upload-disk budgets; [`metrics`]: Prometheus metrics;
 //!   [`fleet`]: the data directory shared with other replicas.
 //!
 //! May import the core (`vision` .. `pipeline`, `eval`), `setup`, `store` and `config`.
 
 pub mod admission;
+pub mod alarms;
 pub mod budget;
 pub mod calibration;
 pub mod episode;
@@ -30,6 +34,7 @@ pub mod hub;
 pub mod input;
 pub mod jobs;
 pub mod joints;
+pub mod live;
 pub mod metrics;
 pub mod profiles;
 pub mod reload;

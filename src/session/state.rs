@@ -85,6 +85,12 @@ pub struct SessionSummary {
     pub latest: Option<LatestScore>,
     /// Times the session was moved to its profile's stored state ([`Hub::reload`]).
     pub reloads: u64,
+    /// An alarm is on.
+    pub alarm_on: bool,
+    /// Mean server latency of the frames on its timeline, seconds.
+    pub latency_s: Option<f64>,
+    /// Scored frames per second over its timeline (image stamps).
+    pub frame_rate_hz: Option<f64>,
 }
 
 pub(super) struct SessionState {
@@ -142,6 +148,12 @@ pub struct Session {
     pub(super) frames_scored: AtomicU64,
     pub(super) dropped: AtomicU64,
     pub(super) anomalies: AtomicU64,
+    /// Whether scores carry anomaly maps ([`OpenRequest::maps`]).
+    pub maps: bool,
+    /// Its alarm in progress and the debouncer.
+    pub(super) alarms: Mutex<super::alarms::AlarmTracker>,
+    /// What the live view shows of it.
+    pub(super) live: Mutex<super::live::LiveView>,
 }
 
 impl Session {
@@ -154,9 +166,42 @@ impl Session {
         self.needs_joints.load(Ordering::Relaxed)
     }
 
+    /// Timeline points after frame `after` (all kept when `None`).
+    pub fn timeline(&self, after: Option<u64>) -> Vec<super::live::FramePoint> {
+        lock(&self.live).since(after)
+    }
+
+    /// The latest frame (shrunk) and anomaly map, as PNG files.
+    pub fn latest_images(&self) -> (Option<Vec<u8>>, Option<Vec<u8>>) {
+        let live = lock(&self.live);
+        (
+            live.frame.as_ref().map(super::live::Thumb::to_png),
+            live.map.as_ref().map(super::live::Thumb::to_png),
+        )
+    }
+
+    /// Whether an alarm is on.
+    pub fn alarm_on(&self) -> bool {
+        lock(&self.alarms).active()
+    }
+
     /// The session as listed by the REST API.
     pub fn summary(&self) -> SessionSummary {
         let model = self.profile().model_label.clone();
+        let alarm_on = self.alarm_on();
+        let (latency_s, frame_rate_hz) = {
+            let live = lock(&self.live);
+            let n = live.history.len();
+            let latency =
+                (n > 0).then(|| live.history.iter().map(|p| p.latency_s).sum::<f64>() / n as f64);
+            let rate = match (live.history.front(), live.history.back()) {
+                (Some(a), Some(b)) if b.stamp_ns > a.stamp_ns => {
+                    Some((n - 1) as f64 / ((b.stamp_ns - a.stamp_ns) as f64 * 1e-9))
+                }
+                _ => None,
+            };
+            (latency, rate)
+        };
         let st = lock(&self.state);
         SessionSummary {
             id: self.id.clone(),
@@ -180,6 +225,9 @@ impl Session {
             age_s: self.opened.elapsed().as_secs_f64(),
             latest: st.latest,
             reloads: self.reloads.load(Ordering::Relaxed),
+            alarm_on,
+            latency_s,
+            frame_rate_hz,
         }
     }
 
@@ -214,6 +262,9 @@ pub struct OpenRequest {
     /// The request id of the call that opened it (`x-request-id`), for its spans; may be
     /// empty.
     pub request_id: String,
+    /// Whether each streamed score carries the frame's anomaly map (the scorer keeps
+    /// the flow predictor's error map for it).
+    pub maps: bool,
 }
 
 /// A session place held for an episode while its upload is read

@@ -6,6 +6,7 @@
 use super::budget::{BudgetSpent, ByteBudget, Charge};
 use super::event::{EventKind, LiveImage, Output, ScoredFrame, detector_name};
 use super::hub::{Hub, event};
+use super::live;
 use super::state::{ImagePayload, LatestScore, ReadyFrame, Session, lock};
 use crate::episode::ros::MessageError;
 use crate::pipeline::{FrameInput, FrameScore, JointInput};
@@ -165,7 +166,7 @@ impl Hub {
             .inc();
         tracing::error!(session = %s.id, stamp_ns = stamp, "scoring panicked: {what}");
         let profile = s.profile();
-        let rebuilt = match profile.setup.calibrated_scorer(&s.seed_key, false) {
+        let rebuilt = match profile.setup.calibrated_scorer(&s.seed_key, s.maps) {
             Ok(mut fresh) => {
                 let mut current = lock(&s.scorer);
                 fresh.continue_after(&current);
@@ -226,7 +227,7 @@ impl Hub {
             })
         });
         match result {
-            Ok(Some(score)) => self.deliver(s, score, frame.arrived, started, decode_s),
+            Ok(Some(score)) => self.deliver(s, score, &image, frame.arrived, started, decode_s),
             Ok(None) => {}
             Err(e) => self.refuse(s, "frame", format!("frame refused: {e}"), stamp),
         }
@@ -236,6 +237,7 @@ impl Hub {
         &self,
         s: &Arc<Session>,
         score: FrameScore,
+        image: &GrayImage,
         arrived: Instant,
         started: Instant,
         decode_s: f64,
@@ -317,12 +319,31 @@ impl Hub {
         m.latency_seconds
             .with_label_values(&[profile])
             .observe(latency);
+        // The live view: the frame shrunk, its anomaly map, the timeline point; then the
+        // alarm tracker (an alarm's start keeps the frame's thumbnail).
+        let thumb = live::thumbnail(image, live::THUMB_WIDTH);
+        let map = live::anomaly_map(
+            &score,
+            &current.setup.profile.thresholds(),
+            current.setup.profile.alarm_threshold(),
+        );
+        let alarm = self.track_alarm(s, &score, Some(&thumb));
+        let anomaly_map = if s.maps { map.clone() } else { None };
+        lock(&s.live).push(
+            live::FramePoint::of(&score, s.alarm_on(), latency),
+            Some(thumb),
+            map,
+        );
         let scored = ScoredFrame {
             score,
             latency_s: latency,
             compute_s: now.saturating_duration_since(started).as_secs_f64(),
+            anomaly_map,
         };
         self.send(s, Output::Score(scored));
+        if let Some(a) = alarm {
+            self.send(s, a);
+        }
     }
 }
 

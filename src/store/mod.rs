@@ -57,6 +57,7 @@
 //!   names exist. Replacing a profile keeps its calibration; [`ResolvedProfile::warnings`]
 //!   says when the calibration was made with another model than the one resolved.
 
+mod alarms;
 mod error;
 mod files;
 mod jobs;
@@ -72,6 +73,9 @@ mod validate;
 #[cfg(test)]
 mod tests;
 
+pub use alarms::{
+    AlarmComponents, AlarmRecord, AlarmThresholds, FalseAlarmMark, KEPT_MARKED_ALARMS, now_s,
+};
 pub use error::{StoreError, StoreErrorKind};
 pub use jobs::{JobInfo, JobState, KEPT_JOBS};
 pub use mirror::{MirrorChange, StoredFile};

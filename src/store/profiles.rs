@@ -106,6 +106,9 @@ impl State {
         if let Some(pipeline) = &spec.pipeline {
             pipeline.check_limits().map_err(StoreError::invalid)?;
         }
+        if let Some(d) = &spec.alarm_events {
+            d.check().map_err(|e| StoreError::invalid(e.to_string()))?;
+        }
         check_overrides(&spec.thresholds)
     }
 }
@@ -333,6 +336,7 @@ impl Store {
             pipeline: spec.pipeline.clone(),
             topics: spec.topics.clone(),
             thresholds: spec.thresholds,
+            alarm_events: spec.alarm_events,
         };
         Ok(ResolvedProfile {
             profile: Profile {

@@ -124,6 +124,9 @@ pub struct ProfileSpec {
     /// [`super::Store::patch_thresholds`]).
     #[serde(default, skip_serializing_if = "ThresholdOverrides::is_empty")]
     pub thresholds: ThresholdOverrides,
+    /// How per-frame flags become alarm events (absent: 3 of 5 frames).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub alarm_events: Option<crate::eval::alarm::Debounce>,
 }
 
 /// A stored profile.

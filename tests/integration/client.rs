@@ -14,6 +14,7 @@ fn open(session_id: &str, camera: Option<proto::CameraInfo>) -> proto::OpenSessi
         camera_info: camera,
         task: "place_book".into(),
         session_id: session_id.into(),
+        anomaly_maps: false,
     }
 }
 
@@ -39,7 +40,7 @@ async fn a_window_paced_replay_drops_nothing_on_a_short_queue_and_matches_offlin
                 max_in_flight = max_in_flight.max(sent - scored_seen);
             }
             Update::Score(_) => scored_seen += 1,
-            Update::Event(_) => {}
+            Update::Event(_) | Update::Alarm(_) => {}
         })
         .await
         .unwrap();

@@ -98,6 +98,7 @@ async fn dashboards_and_alerts_query_metrics_the_server_exposes() {
         camera_info: rec.camera,
         task: String::new(),
         session_id: String::new(),
+        anomaly_maps: false,
     };
     let summary = client
         .replay(open, &rec, Pace::Window(2), |_| {})

@@ -128,6 +128,7 @@ pub(crate) fn open_msg(profile: &str, session_id: &str, camera: Option<proto::Ca
         camera_info: camera,
         task: "place_book".into(),
         session_id: session_id.into(),
+        anomaly_maps: false,
     })
 }
 
@@ -179,7 +180,7 @@ pub(crate) async fn stream_all(
         match item?.message {
             Some(proto::stream_response::Message::Score(s)) => scores.push(s),
             Some(proto::stream_response::Message::Event(e)) => events.push(e),
-            None => {}
+            Some(proto::stream_response::Message::Alarm(_)) | None => {}
         }
     }
     Ok((scores, events))

@@ -137,7 +137,7 @@ async fn every_route_refuses_missing_and_insufficient_tokens() {
             Access::Open => {
                 assert_ne!(none, StatusCode::UNAUTHORIZED, "{method} {path}");
             }
-            Access::Robot => {
+            Access::Viewer | Access::Robot => {
                 assert_eq!(none, StatusCode::UNAUTHORIZED, "{method} {path}");
                 assert_ne!(robot, StatusCode::FORBIDDEN, "{method} {path}");
                 assert_ne!(robot, StatusCode::UNAUTHORIZED, "{method} {path}");
@@ -208,7 +208,7 @@ pub(crate) async fn open_session(
                 Ok(r) => match r.message {
                     Some(proto::stream_response::Message::Score(s)) => scores.push(s),
                     Some(proto::stream_response::Message::Event(e)) => events.push(e),
-                    None => {}
+                    Some(proto::stream_response::Message::Alarm(_)) | None => {}
                 },
                 Err(s) => return (scores, events, Some(s)),
             }

@@ -39,20 +39,24 @@ def vamos_bin() -> Path:
 
 class Server:
     """``vamos serve`` with the ``sim-arm`` profile, admin and robot tokens, on free ports.
+    ``profile_keys`` (top-level keys, e.g. ``model = "..."``) go before the profile's
+    tables, ``profile_extra`` (tables, e.g. ``[thresholds]``) after them.
 
     The constructor returns once ``GET /readyz`` answers ready (or fails the test when
     the process exits or 60 s pass). The server's stderr goes to a file in ``tmp`` so a
     chatty server can never block on a full pipe.
     """
 
-    def __init__(self, bin: Path, tmp: Path, env: "dict[str, str] | None" = None) -> None:
+    def __init__(self, bin: Path, tmp: Path, env: "dict[str, str] | None" = None,
+                 profile_keys: str = "", profile_extra: str = "") -> None:
         self.bin, self.tmp = bin, tmp
         tmp.mkdir(parents=True, exist_ok=True)
         self.profile = tmp / "sim-arm.toml"
         self.profile.write_text(
             f'name = "sim-arm"\nrobot = "{SIM / "robot" / "vamos_arm.urdf"}"\n'
-            f'camera = "{SIM / "camera.json"}"\nflow_preset = "realtime"\n'
-            '[pipeline]\nstride = 1\n[pipeline.frames]\nwidth = 160\nheight = 120\nvariant = "masked"\n')
+            f'camera = "{SIM / "camera.json"}"\nflow_preset = "realtime"\n' + profile_keys +
+            '[pipeline]\nstride = 1\n[pipeline.frames]\nwidth = 160\nheight = 120\nvariant = "masked"\n'
+            + profile_extra)
         self.env = {k: v for k, v in os.environ.items() if not k.startswith("VAMOS_")}
         self.env.update(VAMOS_LOG__LEVEL="warn", VAMOS_ADMIN_TOKEN=ADMIN, VAMOS_ROBOT_TOKEN=ROBOT)
         self.env.update(env or {})

@@ -4,7 +4,9 @@ use crate::api::proto;
 use crate::episode::image::Encoding;
 use crate::eval::Detector;
 use crate::robot::Intrinsics;
+use crate::session::alarms::{AlarmEdge, AlarmEvent};
 use crate::session::{Event, EventKind, LiveImage, LiveJoints, Output, ScoredFrame, SessionError};
+use crate::store::AlarmComponents;
 use tonic::Status;
 
 /// The camera of an open message.
@@ -71,6 +73,61 @@ pub fn frame_score(f: &ScoredFrame) -> proto::FrameScore {
         warming_up: s.warming_up,
         latency_s: f.latency_s,
         compute_s: f.compute_s,
+        anomaly_map: f
+            .anomaly_map
+            .as_ref()
+            .map(crate::session::live::Thumb::to_png)
+            .unwrap_or_default(),
+    }
+}
+
+fn detector_by_name(name: &str) -> proto::Detector {
+    match name {
+        "camera" => proto::Detector::Camera,
+        "body" => proto::Detector::Body,
+        "flow" => proto::Detector::Flow,
+        "scene" => proto::Detector::Scene,
+        _ => proto::Detector::Unspecified,
+    }
+}
+
+fn alarm_components(c: &AlarmComponents) -> proto::AlarmComponents {
+    proto::AlarmComponents {
+        stamp_ns: c.stamp_ns,
+        score: c.score,
+        e_c: c.e_c,
+        e_b: c.e_b,
+        e_o: c.e_o,
+        e_r: c.e_r,
+    }
+}
+
+/// An alarm event as `vamos.v1.AlarmEvent`.
+pub fn alarm_event(e: &AlarmEvent) -> proto::AlarmEvent {
+    use proto::alarm_event::Edge;
+    let a = &e.alarm;
+    proto::AlarmEvent {
+        edge: match e.edge {
+            AlarmEdge::Started => Edge::Started,
+            AlarmEdge::Ended => Edge::Ended,
+        } as i32,
+        alarm_id: a.id.clone(),
+        session_id: a.session_id.clone(),
+        detector: detector_by_name(&a.detector) as i32,
+        detectors: a
+            .detectors
+            .iter()
+            .map(|d| detector_by_name(d) as i32)
+            .collect(),
+        start_frame: a.start_frame,
+        end_frame: a.end_frame,
+        end_stamp_ns: a.end_stamp_ns,
+        frames_flagged: a.frames_flagged,
+        alarm_threshold: a.thresholds.alarm,
+        e_c_threshold: a.thresholds.e_c,
+        e_b_threshold: a.thresholds.e_b,
+        start: Some(alarm_components(&a.start)),
+        peak: Some(alarm_components(&a.peak)),
     }
 }
 
@@ -105,6 +162,7 @@ pub fn stream_response(o: Output) -> Result<proto::StreamResponse, Status> {
     let message = match o {
         Output::Score(f) => Message::Score(frame_score(&f)),
         Output::Event(e) => Message::Event(session_event(e)),
+        Output::Alarm(a) => Message::Alarm(alarm_event(&a)),
         Output::Closed(e) => return Err(e.into()),
     };
     Ok(proto::StreamResponse {

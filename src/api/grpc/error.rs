@@ -27,7 +27,10 @@ pub fn code_of(e: &SessionError) -> Code {
         E::NoOpen | E::TooOld { .. } | E::Idle { .. } => Code::DeadlineExceeded,
         E::MessageTooLarge { .. } => Code::OutOfRange,
         E::Damaged { .. } => Code::DataLoss,
-        E::Buffer { .. } | E::Internal(_) => Code::Internal,
+        E::Buffer { .. } | E::Internal(_) | E::Store { .. } => Code::Internal,
+        E::UnknownSession { .. } | E::UnknownAlarm { .. } => Code::NotFound,
+        E::AlarmMarked { .. } => Code::AlreadyExists,
+        E::BadNote { .. } => Code::InvalidArgument,
     }
 }
 

@@ -148,6 +148,7 @@ impl Monitor for MonitorService {
                 seed_key: None,
                 slot: None,
                 request_id,
+                maps: open.anomaly_maps,
             },
             tx.clone(),
         )?;
@@ -222,6 +223,7 @@ impl Monitor for MonitorService {
             episode_name,
             slot,
             Some(ticket),
+            false,
         )
         .await?;
         let mapped = scores

@@ -6,6 +6,7 @@ use super::body::{content_length, file_body};
 use super::errors::ApiError;
 use crate::api::state::Shared;
 use crate::episode::{EpisodeConfig, McapEpisode, ScoreBagWriter, ScoreTopics};
+use crate::eval::Thresholds;
 use crate::session::episode::score_episode as score;
 use crate::session::event::detector_name;
 use crate::session::upload::EpisodeBuffer;
@@ -108,7 +109,17 @@ pub(super) async fn score_episode(
         (Some(ticket), None)
     };
     let name = q.name.unwrap_or_default();
-    let scores = score(s.hub.clone(), profile, file, name, slot, scoring_ticket).await?;
+    // A scored bag carries each frame's anomaly map; JSON answers do not.
+    let scores = score(
+        s.hub.clone(),
+        profile.clone(),
+        file,
+        name,
+        slot,
+        scoring_ticket,
+        wants_mcap,
+    )
+    .await?;
     let (frames, damage) = scores.collect().await;
     let damage = damage.map(|e| e.to_string());
     match input {
@@ -118,8 +129,10 @@ pub(super) async fn score_episode(
         }
         Some(input) => {
             let dir = s.upload_dir();
+            let p = &profile.setup.profile;
+            let thresholds = (p.thresholds(), p.alarm_threshold());
             let out = tokio::task::spawn_blocking(move || {
-                scored_bag(input.path(), &config, &frames, &dir)
+                scored_bag(input.path(), &config, &frames, &dir, thresholds)
             })
             .await
             .map_err(ApiError::internal)??;
@@ -141,6 +154,7 @@ fn scored_bag(
     config: &EpisodeConfig,
     frames: &[ScoredFrame],
     dir: &Path,
+    thresholds: (Thresholds, f64),
 ) -> Result<tempfile::NamedTempFile, ApiError> {
     let episode = McapEpisode::open(input, config).map_err(ApiError::bad_request)?;
     let out = tempfile::Builder::new()
@@ -150,6 +164,16 @@ fn scored_bag(
         .map_err(ApiError::internal)?;
     let mut bag =
         ScoreBagWriter::create(out.path(), Some(&episode.info())).map_err(ApiError::internal)?;
+    bag.copy_context(&episode).map_err(ApiError::internal)?;
+    let finite = |v: Option<f64>| v.filter(|x| x.is_finite());
+    let mut thresholds_json = Some(
+        json!({
+            "alarm": finite(Some(thresholds.1)),
+            "e_c": finite(thresholds.0.e_c),
+            "e_b": finite(thresholds.0.e_b),
+        })
+        .to_string(),
+    );
     let by_stamp: HashMap<i64, &ScoredFrame> =
         frames.iter().map(|f| (f.score.stamp_ns, f)).collect();
     for frame in episode.frames() {
@@ -166,6 +190,11 @@ fn scored_bag(
                     e_b: s.e_b,
                     e_o: s.e_o,
                     heatmap: None,
+                    anomaly_map: f
+                        .anomaly_map
+                        .as_ref()
+                        .map(|m| (m.width as u32, m.height as u32, m.pixels.as_slice())),
+                    thresholds_json: thresholds_json.take().as_deref(),
                 },
             )
             .map_err(ApiError::internal)?;
@@ -195,6 +224,7 @@ mod tests {
             (Some(Detector::Scene), true),
         ] {
             let f = ScoredFrame {
+                anomaly_map: None,
                 score: FrameScore {
                     index: 7,
                     frame: 3,

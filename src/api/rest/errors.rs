@@ -113,6 +113,22 @@ fn status_of(e: &SessionError) -> StatusCode {
         E::NoOpen | E::TooOld { .. } | E::Idle { .. } => StatusCode::REQUEST_TIMEOUT,
         E::Damaged { .. } => StatusCode::UNPROCESSABLE_ENTITY,
         E::Buffer { .. } | E::Internal(_) => StatusCode::INTERNAL_SERVER_ERROR,
+        E::UnknownSession { .. } | E::UnknownAlarm { .. } => StatusCode::NOT_FOUND,
+        E::AlarmMarked { .. } => StatusCode::CONFLICT,
+        E::BadNote { .. } => StatusCode::BAD_REQUEST,
+        E::Store { source } => store_status(source),
+    }
+}
+
+/// The status of a data-directory error.
+fn store_status(e: &StoreError) -> StatusCode {
+    match e.kind() {
+        StoreErrorKind::NotFound => StatusCode::NOT_FOUND,
+        StoreErrorKind::BadRequest => StatusCode::BAD_REQUEST,
+        StoreErrorKind::TooLarge => StatusCode::PAYLOAD_TOO_LARGE,
+        StoreErrorKind::Conflict => StatusCode::CONFLICT,
+        StoreErrorKind::StorageFull => StatusCode::INSUFFICIENT_STORAGE,
+        StoreErrorKind::Internal => StatusCode::INTERNAL_SERVER_ERROR,
     }
 }
 
@@ -124,15 +140,7 @@ impl From<SessionError> for ApiError {
 
 impl From<StoreError> for ApiError {
     fn from(e: StoreError) -> Self {
-        let status = match e.kind() {
-            StoreErrorKind::NotFound => StatusCode::NOT_FOUND,
-            StoreErrorKind::BadRequest => StatusCode::BAD_REQUEST,
-            StoreErrorKind::TooLarge => StatusCode::PAYLOAD_TOO_LARGE,
-            StoreErrorKind::Conflict => StatusCode::CONFLICT,
-            StoreErrorKind::StorageFull => StatusCode::INSUFFICIENT_STORAGE,
-            StoreErrorKind::Internal => StatusCode::INTERNAL_SERVER_ERROR,
-        };
-        Self::new(status, e.to_string())
+        Self::new(store_status(&e), e.to_string())
     }
 }
 

@@ -5,8 +5,11 @@
 //! from that list (the access check is a layer of each route) and `GET /openapi.json`
 //! describes the same routes (a test keeps the two equal). `/healthz`, `/readyz`, `/v2`,
 //! `/v2/health/*`, `/v2/models/*/ready`, `/v2/models/*/versions/*/ready`, `/metrics` and
-//! `/openapi.json` are open (probes and scrapers); the rest needs a bearer token when tokens are configured: `robot` for
-//! scoring and reading lists, `admin` for everything that changes state.
+//! `/openapi.json` are open (probes and scrapers), and so is the live view's static page
+//! `/ui` (it holds no data: it asks for a token and reads everything through the API);
+//! the rest needs a bearer token when tokens are configured: `viewer` for the live view's
+//! data (sessions' timelines, alarms), `robot` for scoring, reading lists and marking
+//! false alarms, `admin` for everything else that changes state.
 //!
 //! One module per resource: [`health`] (probes, metrics, the API description), `kserve`
 //! (KServe v2 server and model metadata),
@@ -24,10 +27,12 @@ mod episodes;
 pub mod errors;
 mod health;
 mod kserve;
+mod live;
 mod models;
 mod profiles;
 mod robots;
 mod sessions;
+mod ui;
 
 pub(crate) use calibration::parse_calibrate_request;
 pub use episodes::score_json;
@@ -54,8 +59,10 @@ pub fn authorize(shared: &Shared, headers: &HeaderMap, role: Role) -> Result<Rol
 /// Who may call a route.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Access {
-    /// Anyone (probes, scrapers, the API description).
+    /// Anyone (probes, scrapers, the API description, the live view's static page).
     Open,
+    /// A viewer, robot or admin token (read only: the live view's data).
+    Viewer,
     /// A robot or admin token.
     Robot,
     /// An admin token.
@@ -107,6 +114,18 @@ pub const ROUTES: &[(&str, &str, Access)] = &[
     ("GET", "/v1/jobs", Access::Admin),
     ("GET", "/v1/jobs/{id}", Access::Admin),
     ("DELETE", "/v1/jobs/{id}", Access::Admin),
+    ("GET", "/ui", Access::Open),
+    ("GET", "/ui/{asset}", Access::Open),
+    ("GET", "/v1/whoami", Access::Viewer),
+    ("GET", "/v1/live", Access::Viewer),
+    ("GET", "/v1/alarms", Access::Viewer),
+    ("GET", "/v1/alarms/{id}", Access::Viewer),
+    ("GET", "/v1/alarms/{id}/thumbnail", Access::Viewer),
+    ("POST", "/v1/alarms/{id}/false-alarm", Access::Robot),
+    ("GET", "/v1/sessions/{id}/alarms", Access::Viewer),
+    ("GET", "/v1/sessions/{id}/timeline", Access::Viewer),
+    ("GET", "/v1/sessions/{id}/frame", Access::Viewer),
+    ("GET", "/v1/sessions/{id}/map", Access::Viewer),
 ];
 
 /// The OpenAPI 3.0 description served at `/openapi.json`.
@@ -147,6 +166,18 @@ pub fn handler(method: &str, path: &str) -> Option<MethodRouter<Arc<Shared>>> {
         ("GET", "/v1/jobs") => get(calibration::list_jobs),
         ("GET", "/v1/jobs/{id}") => get(calibration::get_job),
         ("DELETE", "/v1/jobs/{id}") => delete(calibration::delete_job),
+        ("GET", "/ui") => get(ui::index),
+        ("GET", "/ui/{asset}") => get(ui::asset),
+        ("GET", "/v1/whoami") => get(live::whoami),
+        ("GET", "/v1/live") => get(live::live),
+        ("GET", "/v1/alarms") => get(live::list_alarms),
+        ("GET", "/v1/alarms/{id}") => get(live::get_alarm),
+        ("GET", "/v1/alarms/{id}/thumbnail") => get(live::alarm_thumbnail),
+        ("POST", "/v1/alarms/{id}/false-alarm") => post(live::mark_alarm),
+        ("GET", "/v1/sessions/{id}/alarms") => get(live::session_alarms),
+        ("GET", "/v1/sessions/{id}/timeline") => get(live::timeline),
+        ("GET", "/v1/sessions/{id}/frame") => get(live::latest_frame),
+        ("GET", "/v1/sessions/{id}/map") => get(live::latest_map),
         _ => return None,
     })
 }
@@ -160,6 +191,7 @@ async fn require(
 ) -> Response {
     let role = match access {
         Access::Open => return next.run(req).await,
+        Access::Viewer => Role::Viewer,
         Access::Robot => Role::Robot,
         Access::Admin => Role::Admin,
     };
@@ -237,6 +269,7 @@ mod tests {
                     .map(|r| r.2);
                 let expected = match access {
                     Some(Access::Open) => None,
+                    Some(Access::Viewer) => Some("viewer"),
                     Some(Access::Robot) => Some("robot"),
                     Some(Access::Admin) => Some("admin"),
                     None => panic!("{method} {path} is described but not routed"),

@@ -48,6 +48,10 @@ pub struct Args {
     /// No live progress table: one line per finished episode.
     #[arg(long)]
     pub quiet: bool,
+    /// Keep the server and its live view (`/ui`) up after the report, replaying the
+    /// episodes at their recorded rate until Ctrl-C (prints the page's URL).
+    #[arg(long, conflicts_with = "vision")]
+    pub serve: bool,
     /// Run the vision-core demo instead (TV-L1 and registration on synthetic pairs).
     #[arg(long)]
     pub vision: bool,
@@ -80,6 +84,7 @@ pub fn run(settings: &Settings, args: Args) -> Result<()> {
         robots: args.robots,
         speed: args.speed,
         quiet: args.quiet,
+        serve: args.serve,
     };
     super::async_runtime()?.block_on(demo(settings, opts))
 }
@@ -99,6 +104,8 @@ struct DemoOptions {
     pub speed: Option<f64>,
     /// No live progress table (one line per finished episode instead).
     pub quiet: bool,
+    /// Keep serving after the report (see [`Args::serve`]).
+    pub serve: bool,
 }
 
 /// Live state of one robot, for the progress table.
@@ -195,18 +202,8 @@ async fn demo(settings: &Settings, opts: DemoOptions) -> Result<()> {
         )
     });
 
-    let mut recordings = Vec::new();
-    for path in &episode_paths {
-        let name = path
-            .file_stem()
-            .map(|s| s.to_string_lossy().into_owned())
-            .unwrap_or_default();
-        let labels =
-            Labels::load_for(path).with_context(|| format!("labels of {}", path.display()))?;
-        let rec = record(path, &setup.episode)
-            .with_context(|| format!("cannot read episode {}", path.display()))?;
-        recordings.push((name, labels, rec));
-    }
+    let recordings = read_recordings(&episode_paths, &setup.episode)?;
+    let episode_config = setup.episode.clone();
 
     // The server: loopback, ephemeral port, gRPC and REST on one port, a throw-away data
     // directory, the profile preloaded.
@@ -242,11 +239,19 @@ async fn demo(settings: &Settings, opts: DemoOptions) -> Result<()> {
     )
     .await?;
 
+    let again = opts.serve;
     let result = stream_all(&client, &profile_name, recordings, &opts, queue_depth).await;
-    let stop = shutdown(server).await;
+    let serving = match (again, &result) {
+        (true, Ok(_)) => Some(server),
+        _ => {
+            let stop = shutdown(server).await;
+            if result.is_ok() {
+                stop?;
+            }
+            None
+        }
+    };
     let streamed = result?;
-    stop?;
-
     let report_path = write_report(
         &opts.out,
         &profile_path,
@@ -258,7 +263,54 @@ async fn demo(settings: &Settings, opts: DemoOptions) -> Result<()> {
         started.elapsed(),
     )?;
     println!("report: {}", report_path.display());
-    Ok(())
+    let Some(server) = serving else {
+        return Ok(());
+    };
+    // --serve: the page stays up and the robots keep coming (at their recorded rate).
+    println!(
+        "live view: http://{}/ui (the episodes replay at their recorded rate; Ctrl-C stops)",
+        server.rest_addr
+    );
+    let replay = DemoOptions {
+        speed: Some(1.0),
+        quiet: true,
+        ..opts
+    };
+    let looped = async {
+        loop {
+            let round = read_recordings(&episode_paths, &episode_config)?;
+            stream_all(&client, &profile_name, round, &replay, queue_depth).await?;
+        }
+        // Only errors leave the loop: the type of what the block returns.
+        #[allow(unreachable_code)]
+        Ok::<(), anyhow::Error>(())
+    };
+    let ended: Result<()> = tokio::select! {
+        r = looped => r,
+        _ = tokio::signal::ctrl_c() => Ok(()),
+    };
+    shutdown(server).await?;
+    ended
+}
+
+/// The episodes as recordings, with their names and labels.
+fn read_recordings(
+    paths: &[PathBuf],
+    config: &vamos::episode::EpisodeConfig,
+) -> Result<Vec<(String, Option<Labels>, Recording)>> {
+    let mut recordings = Vec::new();
+    for path in paths {
+        let name = path
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let labels =
+            Labels::load_for(path).with_context(|| format!("labels of {}", path.display()))?;
+        let rec = record(path, config)
+            .with_context(|| format!("cannot read episode {}", path.display()))?;
+        recordings.push((name, labels, rec));
+    }
+    Ok(recordings)
 }
 
 async fn shutdown(server: RunningServer) -> Result<()> {
@@ -333,6 +385,7 @@ async fn stream_all(
                 // The session id seeds the predictor: the same as `vamos score` uses for
                 // this episode, so the demo's scores equal offline scoring's.
                 session_id: name.clone(),
+                anomaly_maps: true,
             };
             let mut sent_at: BTreeMap<i64, Instant> = BTreeMap::new();
             let mut latencies_s = Vec::new();
@@ -367,6 +420,7 @@ async fn stream_all(
                                 p.dropped = e.count;
                             }
                         }
+                        Update::Alarm(_) => {}
                     }
                 })
                 .await;

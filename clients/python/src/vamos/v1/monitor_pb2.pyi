@@ -33,18 +33,20 @@ class StreamRequest(_message.Message):
     def __init__(self, open: _Optional[_Union[OpenSession, _Mapping]] = ..., image: _Optional[_Union[Image, _Mapping]] = ..., joints: _Optional[_Union[JointState, _Mapping]] = ..., phase: _Optional[_Union[PhaseMarker, _Mapping]] = ...) -> None: ...
 
 class OpenSession(_message.Message):
-    __slots__ = ("robot_id", "profile", "camera_info", "task", "session_id")
+    __slots__ = ("robot_id", "profile", "camera_info", "task", "session_id", "anomaly_maps")
     ROBOT_ID_FIELD_NUMBER: _ClassVar[int]
     PROFILE_FIELD_NUMBER: _ClassVar[int]
     CAMERA_INFO_FIELD_NUMBER: _ClassVar[int]
     TASK_FIELD_NUMBER: _ClassVar[int]
     SESSION_ID_FIELD_NUMBER: _ClassVar[int]
+    ANOMALY_MAPS_FIELD_NUMBER: _ClassVar[int]
     robot_id: str
     profile: str
     camera_info: CameraInfo
     task: str
     session_id: str
-    def __init__(self, robot_id: _Optional[str] = ..., profile: _Optional[str] = ..., camera_info: _Optional[_Union[CameraInfo, _Mapping]] = ..., task: _Optional[str] = ..., session_id: _Optional[str] = ...) -> None: ...
+    anomaly_maps: bool
+    def __init__(self, robot_id: _Optional[str] = ..., profile: _Optional[str] = ..., camera_info: _Optional[_Union[CameraInfo, _Mapping]] = ..., task: _Optional[str] = ..., session_id: _Optional[str] = ..., anomaly_maps: _Optional[bool] = ...) -> None: ...
 
 class CameraInfo(_message.Message):
     __slots__ = ("width", "height", "fx", "fy", "cx", "cy")
@@ -103,15 +105,17 @@ class PhaseMarker(_message.Message):
     def __init__(self, stamp_ns: _Optional[int] = ..., phase: _Optional[str] = ...) -> None: ...
 
 class StreamResponse(_message.Message):
-    __slots__ = ("score", "event")
+    __slots__ = ("score", "event", "alarm")
     SCORE_FIELD_NUMBER: _ClassVar[int]
     EVENT_FIELD_NUMBER: _ClassVar[int]
+    ALARM_FIELD_NUMBER: _ClassVar[int]
     score: FrameScore
     event: SessionEvent
-    def __init__(self, score: _Optional[_Union[FrameScore, _Mapping]] = ..., event: _Optional[_Union[SessionEvent, _Mapping]] = ...) -> None: ...
+    alarm: AlarmEvent
+    def __init__(self, score: _Optional[_Union[FrameScore, _Mapping]] = ..., event: _Optional[_Union[SessionEvent, _Mapping]] = ..., alarm: _Optional[_Union[AlarmEvent, _Mapping]] = ...) -> None: ...
 
 class FrameScore(_message.Message):
-    __slots__ = ("stamp_ns", "index", "frame", "score", "e_c", "e_b", "e_o", "anomaly", "detector", "warming_up", "latency_s", "compute_s", "e_r")
+    __slots__ = ("stamp_ns", "index", "frame", "score", "e_c", "e_b", "e_o", "anomaly", "detector", "warming_up", "latency_s", "compute_s", "e_r", "anomaly_map")
     STAMP_NS_FIELD_NUMBER: _ClassVar[int]
     INDEX_FIELD_NUMBER: _ClassVar[int]
     FRAME_FIELD_NUMBER: _ClassVar[int]
@@ -125,6 +129,7 @@ class FrameScore(_message.Message):
     LATENCY_S_FIELD_NUMBER: _ClassVar[int]
     COMPUTE_S_FIELD_NUMBER: _ClassVar[int]
     E_R_FIELD_NUMBER: _ClassVar[int]
+    ANOMALY_MAP_FIELD_NUMBER: _ClassVar[int]
     stamp_ns: int
     index: int
     frame: int
@@ -138,7 +143,64 @@ class FrameScore(_message.Message):
     latency_s: float
     compute_s: float
     e_r: float
-    def __init__(self, stamp_ns: _Optional[int] = ..., index: _Optional[int] = ..., frame: _Optional[int] = ..., score: _Optional[float] = ..., e_c: _Optional[float] = ..., e_b: _Optional[float] = ..., e_o: _Optional[float] = ..., anomaly: _Optional[bool] = ..., detector: _Optional[_Union[Detector, str]] = ..., warming_up: _Optional[bool] = ..., latency_s: _Optional[float] = ..., compute_s: _Optional[float] = ..., e_r: _Optional[float] = ...) -> None: ...
+    anomaly_map: bytes
+    def __init__(self, stamp_ns: _Optional[int] = ..., index: _Optional[int] = ..., frame: _Optional[int] = ..., score: _Optional[float] = ..., e_c: _Optional[float] = ..., e_b: _Optional[float] = ..., e_o: _Optional[float] = ..., anomaly: _Optional[bool] = ..., detector: _Optional[_Union[Detector, str]] = ..., warming_up: _Optional[bool] = ..., latency_s: _Optional[float] = ..., compute_s: _Optional[float] = ..., e_r: _Optional[float] = ..., anomaly_map: _Optional[bytes] = ...) -> None: ...
+
+class AlarmComponents(_message.Message):
+    __slots__ = ("stamp_ns", "score", "e_c", "e_b", "e_o", "e_r")
+    STAMP_NS_FIELD_NUMBER: _ClassVar[int]
+    SCORE_FIELD_NUMBER: _ClassVar[int]
+    E_C_FIELD_NUMBER: _ClassVar[int]
+    E_B_FIELD_NUMBER: _ClassVar[int]
+    E_O_FIELD_NUMBER: _ClassVar[int]
+    E_R_FIELD_NUMBER: _ClassVar[int]
+    stamp_ns: int
+    score: float
+    e_c: float
+    e_b: float
+    e_o: float
+    e_r: float
+    def __init__(self, stamp_ns: _Optional[int] = ..., score: _Optional[float] = ..., e_c: _Optional[float] = ..., e_b: _Optional[float] = ..., e_o: _Optional[float] = ..., e_r: _Optional[float] = ...) -> None: ...
+
+class AlarmEvent(_message.Message):
+    __slots__ = ("edge", "alarm_id", "session_id", "detector", "detectors", "start_frame", "end_frame", "end_stamp_ns", "frames_flagged", "alarm_threshold", "e_c_threshold", "e_b_threshold", "start", "peak")
+    class Edge(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
+        __slots__ = ()
+        EDGE_UNSPECIFIED: _ClassVar[AlarmEvent.Edge]
+        EDGE_STARTED: _ClassVar[AlarmEvent.Edge]
+        EDGE_ENDED: _ClassVar[AlarmEvent.Edge]
+    EDGE_UNSPECIFIED: AlarmEvent.Edge
+    EDGE_STARTED: AlarmEvent.Edge
+    EDGE_ENDED: AlarmEvent.Edge
+    EDGE_FIELD_NUMBER: _ClassVar[int]
+    ALARM_ID_FIELD_NUMBER: _ClassVar[int]
+    SESSION_ID_FIELD_NUMBER: _ClassVar[int]
+    DETECTOR_FIELD_NUMBER: _ClassVar[int]
+    DETECTORS_FIELD_NUMBER: _ClassVar[int]
+    START_FRAME_FIELD_NUMBER: _ClassVar[int]
+    END_FRAME_FIELD_NUMBER: _ClassVar[int]
+    END_STAMP_NS_FIELD_NUMBER: _ClassVar[int]
+    FRAMES_FLAGGED_FIELD_NUMBER: _ClassVar[int]
+    ALARM_THRESHOLD_FIELD_NUMBER: _ClassVar[int]
+    E_C_THRESHOLD_FIELD_NUMBER: _ClassVar[int]
+    E_B_THRESHOLD_FIELD_NUMBER: _ClassVar[int]
+    START_FIELD_NUMBER: _ClassVar[int]
+    PEAK_FIELD_NUMBER: _ClassVar[int]
+    edge: AlarmEvent.Edge
+    alarm_id: str
+    session_id: str
+    detector: Detector
+    detectors: _containers.RepeatedScalarFieldContainer[Detector]
+    start_frame: int
+    end_frame: int
+    end_stamp_ns: int
+    frames_flagged: int
+    alarm_threshold: float
+    e_c_threshold: float
+    e_b_threshold: float
+    start: AlarmComponents
+    peak: AlarmComponents
+    def __init__(self, edge: _Optional[_Union[AlarmEvent.Edge, str]] = ..., alarm_id: _Optional[str] = ..., session_id: _Optional[str] = ..., detector: _Optional[_Union[Detector, str]] = ..., detectors: _Optional[_Iterable[_Union[Detector, str]]] = ..., start_frame: _Optional[int] = ..., end_frame: _Optional[int] = ..., end_stamp_ns: _Optional[int] = ..., frames_flagged: _Optional[int] = ..., alarm_threshold: _Optional[float] = ..., e_c_threshold: _Optional[float] = ..., e_b_threshold: _Optional[float] = ..., start: _Optional[_Union[AlarmComponents, _Mapping]] = ..., peak: _Optional[_Union[AlarmComponents, _Mapping]] = ...) -> None: ...
 
 class SessionEvent(_message.Message):
     __slots__ = ("kind", "session_id", "detail", "stamp_ns", "count")

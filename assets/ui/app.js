@@ -1,0 +1,388 @@
+// vamos live view: plain JavaScript, no build step. Everything it shows comes from the
+// token-checked API; the token lives in this tab's sessionStorage and travels only in the
+// Authorization header (the live stream is read with fetch, as EventSource cannot send
+// headers). Text from the server is only ever set as textContent.
+'use strict';
+
+const TOKEN_KEY = 'vamos-token';
+const MAX_POINTS = 600;
+const DETECTORS = [
+  { key: 'score', label: 'fused score', thr: 'alarm', color: '#1d232a' },
+  { key: 'e_c', label: 'e_c camera motion (px)', thr: 'e_c', color: '#1565c0' },
+  { key: 'e_b', label: 'e_b body motion (px)', thr: 'e_b', color: '#6a1b9a' },
+  { key: 'e_o', label: 'e_o flow prediction', thr: null, color: '#ef6c00' },
+  { key: 'e_r', label: 'e_r scene residual', thr: null, color: '#00897b' },
+];
+
+const state = {
+  role: null,
+  selected: null,
+  points: [],
+  thresholds: {},
+  alarms: [],
+  abort: null,
+  lastImages: 0,
+  retry: null,
+};
+
+const $ = (id) => document.getElementById(id);
+
+function token() { return sessionStorage.getItem(TOKEN_KEY) || ''; }
+
+function headers() {
+  const t = token();
+  return t ? { Authorization: 'Bearer ' + t } : {};
+}
+
+function say(text) { $('message').textContent = text || ''; }
+
+function el(tag, text, cls) {
+  const e = document.createElement(tag);
+  if (text !== undefined && text !== null) e.textContent = String(text);
+  if (cls) e.className = cls;
+  return e;
+}
+
+async function api(path, opts = {}) {
+  const r = await fetch(path, { ...opts, headers: { ...headers(), ...(opts.headers || {}) } });
+  if (!r.ok) {
+    let msg = r.status + ' ' + r.statusText;
+    try { const j = await r.json(); if (j.error) msg = j.error; } catch (e) { /* not JSON */ }
+    const err = new Error(msg);
+    err.status = r.status;
+    throw err;
+  }
+  return r;
+}
+
+const fmt = (v, d = 3) => (v === null || v === undefined ? '-' : Number(v).toPrecision(d));
+
+// --- sign-in -------------------------------------------------------------------------
+
+async function signIn() {
+  try {
+    const who = await (await api('/v1/whoami')).json();
+    state.role = who.role;
+    $('role').textContent = 'role: ' + who.role;
+    $('role').className = 'pill ok';
+    say('');
+    connect();
+    loadSide();
+  } catch (e) {
+    state.role = null;
+    $('role').textContent = 'not signed in';
+    $('role').className = 'pill bad';
+    say(e.status === 401 || e.status === 403
+      ? 'This server needs a token: enter a viewer, robot or admin token (' + e.message + ').'
+      : 'Cannot reach the server: ' + e.message);
+    disconnect();
+  }
+}
+
+$('login').addEventListener('submit', (ev) => {
+  ev.preventDefault();
+  const t = $('token').value.trim();
+  if (t) sessionStorage.setItem(TOKEN_KEY, t); else sessionStorage.removeItem(TOKEN_KEY);
+  $('token').value = '';
+  signIn();
+});
+
+$('signout').addEventListener('click', () => {
+  sessionStorage.removeItem(TOKEN_KEY);
+  disconnect();
+  state.role = null;
+  $('role').textContent = 'not signed in';
+  $('role').className = 'pill';
+  $('sessions').querySelector('tbody').replaceChildren();
+});
+
+// --- the live stream (server-sent events over fetch) -----------------------------------
+
+function disconnect() {
+  if (state.abort) state.abort.abort();
+  state.abort = null;
+  clearTimeout(state.retry);
+  $('conn').textContent = 'offline';
+  $('conn').className = 'pill';
+}
+
+function connect() {
+  disconnect();
+  const ctrl = new AbortController();
+  state.abort = ctrl;
+  const q = state.selected ? '?session=' + encodeURIComponent(state.selected) : '';
+  readStream('/v1/live' + q, ctrl).catch((e) => {
+    if (ctrl.signal.aborted) return;
+    $('conn').textContent = 'reconnecting';
+    $('conn').className = 'pill bad';
+    if (e.status === 401 || e.status === 403) { signIn(); return; }
+    say('Live stream lost (' + e.message + '); reconnecting.');
+    state.retry = setTimeout(connect, 1500);
+  });
+}
+
+async function readStream(path, ctrl) {
+  const r = await api(path, { signal: ctrl.signal, headers: { Accept: 'text/event-stream' } });
+  $('conn').textContent = 'live';
+  $('conn').className = 'pill ok';
+  const reader = r.body.getReader();
+  const dec = new TextDecoder();
+  let buf = '';
+  for (;;) {
+    const { value, done } = await reader.read();
+    if (done) throw new Error('the server ended the stream');
+    buf += dec.decode(value, { stream: true });
+    let i;
+    while ((i = buf.indexOf('\n\n')) >= 0) {
+      const block = buf.slice(0, i);
+      buf = buf.slice(i + 2);
+      let name = 'message';
+      const data = [];
+      for (const line of block.split('\n')) {
+        if (line.startsWith('event:')) name = line.slice(6).trim();
+        else if (line.startsWith('data:')) data.push(line.slice(5).replace(/^ /, ''));
+      }
+      if (data.length) onEvent(name, JSON.parse(data.join('\n')));
+    }
+  }
+}
+
+function onEvent(name, data) {
+  if (name === 'sessions') renderSessions(data.sessions);
+  else if (name === 'timeline') onTimeline(data);
+  else if (name === 'alarms') renderAlarms(data.alarms);
+  else if (name === 'gone') {
+    say(data.error);
+    $('detail').hidden = true;
+    $('selected-title').textContent = 'Session ' + data.session + ' is not open';
+    state.selected = null;
+    connect();
+  }
+}
+
+// --- sessions ------------------------------------------------------------------------
+
+function renderSessions(list) {
+  const body = $('sessions').querySelector('tbody');
+  const rows = list.map(({ summary: s, last_alarm: a }) => {
+    const tr = el('tr');
+    tr.dataset.id = s.id;
+    if (s.alarm_on) tr.classList.add('alarm');
+    if (s.id === state.selected) tr.classList.add('selected');
+    const cells = [s.id, s.robot_id || '-', s.profile, s.model,
+      s.frame_rate_hz ? s.frame_rate_hz.toFixed(1) : '-',
+      s.latency_s !== null && s.latency_s !== undefined ? (1000 * s.latency_s).toFixed(0) + ' ms' : '-',
+      s.alarm_on ? s.state + ', ALARM' : s.state, s.frames_scored,
+      a ? a.detector + ' @ frame ' + a.start_frame : '-'];
+    for (const c of cells) tr.appendChild(el('td', c));
+    tr.addEventListener('click', () => select(s.id));
+    return tr;
+  });
+  body.replaceChildren(...rows);
+  $('no-sessions').hidden = list.length > 0;
+}
+
+function select(id) {
+  state.selected = id;
+  state.points = [];
+  state.lastImages = 0;
+  $('detail').hidden = false;
+  $('selected-title').textContent = 'Session ' + id;
+  $('timeline').dataset.points = '0';
+  $('overlay').dataset.frame = '0';
+  $('overlay').dataset.map = '0';
+  say('');
+  connect();
+}
+
+// --- timeline ------------------------------------------------------------------------
+
+function onTimeline(data) {
+  state.thresholds = data.thresholds || {};
+  for (const p of data.points) state.points.push(p);
+  if (state.points.length > MAX_POINTS) state.points.splice(0, state.points.length - MAX_POINTS);
+  drawTimeline();
+  const now = Date.now();
+  if (data.points.length && now - state.lastImages > 700) {
+    state.lastImages = now;
+    drawImages(state.selected);
+  }
+}
+
+function drawTimeline() {
+  const c = $('timeline');
+  const g = c.getContext('2d');
+  const pts = state.points;
+  g.clearRect(0, 0, c.width, c.height);
+  const rows = DETECTORS.filter((d) => d.key === 'score' || pts.some((p) => p[d.key] !== null && p[d.key] !== undefined));
+  const h = c.height / rows.length;
+  const x0 = 8;
+  const w = c.width - 16;
+  const n = Math.max(pts.length, 2);
+  const xOf = (i) => x0 + (w * i) / (n - 1);
+  rows.forEach((d, r) => {
+    const top = r * h + 16;
+    const ph = h - 24;
+    const thr = d.thr ? state.thresholds[d.thr] : null;
+    const vals = pts.map((p) => p[d.key]).filter((v) => v !== null && v !== undefined);
+    let max = Math.max(1e-9, ...vals, thr !== null && thr !== undefined ? thr * 1.5 : 0);
+    // Trigger-band scores (1e6 and above) would flatten the plot: cap the axis.
+    if (d.key === 'score' && thr && max > thr * 4) max = thr * 4;
+    const yOf = (v) => top + ph - ph * Math.min(v / max, 1);
+    // Warm-up greyed, alarms shaded.
+    pts.forEach((p, i) => {
+      if (p.warming_up) { g.fillStyle = 'rgba(0,0,0,0.07)'; g.fillRect(xOf(i) - 1, top, w / n + 1, ph); }
+      if (p.alarm) { g.fillStyle = 'rgba(198,40,40,0.12)'; g.fillRect(xOf(i) - 1, top, w / n + 1, ph); }
+    });
+    g.fillStyle = '#56606b';
+    g.font = '11px system-ui';
+    const last = vals.length ? vals[vals.length - 1] : null;
+    g.fillText(d.label + '  ' + fmt(last) + (thr ? '  (threshold ' + fmt(thr) + ')' : ''), x0, top - 4);
+    if (thr !== null && thr !== undefined) {
+      g.strokeStyle = '#c62828';
+      g.setLineDash([5, 4]);
+      g.beginPath(); g.moveTo(x0, yOf(thr)); g.lineTo(x0 + w, yOf(thr)); g.stroke();
+      g.setLineDash([]);
+    }
+    g.strokeStyle = d.color;
+    g.lineWidth = 1.5;
+    g.beginPath();
+    let pen = false;
+    pts.forEach((p, i) => {
+      const v = p[d.key];
+      if (v === null || v === undefined) { pen = false; return; }
+      if (pen) g.lineTo(xOf(i), yOf(v)); else g.moveTo(xOf(i), yOf(v));
+      pen = true;
+    });
+    g.stroke();
+    g.lineWidth = 1;
+  });
+  c.dataset.points = String(pts.length);
+}
+
+// --- latest frame with the anomaly map -------------------------------------------------
+
+async function bitmap(path) {
+  const r = await api(path);
+  return createImageBitmap(await r.blob());
+}
+
+async function drawImages(id) {
+  const c = $('overlay');
+  const g = c.getContext('2d');
+  try {
+    const frame = await bitmap('/v1/sessions/' + encodeURIComponent(id) + '/frame');
+    if (id !== state.selected) return;
+    c.width = frame.width;
+    c.height = frame.height;
+    g.drawImage(frame, 0, 0);
+    c.dataset.frame = String(Number(c.dataset.frame) + 1);
+  } catch (e) { return; }
+  let map;
+  try { map = await bitmap('/v1/sessions/' + encodeURIComponent(id) + '/map'); } catch (e) { return; }
+  if (id !== state.selected) return;
+  // Gray map -> red with alpha = value, scaled over the frame.
+  const m = document.createElement('canvas');
+  m.width = map.width;
+  m.height = map.height;
+  const mg = m.getContext('2d');
+  mg.drawImage(map, 0, 0);
+  const img = mg.getImageData(0, 0, m.width, m.height);
+  for (let i = 0; i < img.data.length; i += 4) {
+    const v = img.data[i];
+    img.data[i] = 255; img.data[i + 1] = 0; img.data[i + 2] = 0; img.data[i + 3] = Math.round(v * 0.7);
+  }
+  mg.putImageData(img, 0, 0);
+  g.imageSmoothingEnabled = true;
+  g.drawImage(m, 0, 0, c.width, c.height);
+  c.dataset.map = String(Number(c.dataset.map) + 1);
+}
+
+// --- alarms --------------------------------------------------------------------------
+
+const thumbs = new Map();
+
+async function thumb(img, id) {
+  if (thumbs.has(id)) { img.src = thumbs.get(id); return; }
+  try {
+    const url = URL.createObjectURL(await (await api('/v1/alarms/' + encodeURIComponent(id) + '/thumbnail')).blob());
+    thumbs.set(id, url);
+    img.src = url;
+  } catch (e) { img.alt = 'no thumbnail'; }
+}
+
+function renderAlarms(alarms) {
+  const key = JSON.stringify(alarms.map((a) => [a.id, a.end_frame, !!a.false_alarm, a.frames_flagged]));
+  if (key === state.alarmsKey) return;
+  state.alarmsKey = key;
+  const ul = $('alarms');
+  const items = alarms.map((a) => {
+    const li = el('li');
+    li.dataset.id = a.id;
+    if (a.false_alarm) li.classList.add('marked');
+    const img = el('img');
+    img.alt = 'frame at the alarm start';
+    thumb(img, a.id);
+    li.appendChild(img);
+    const facts = el('div', null, 'facts');
+    facts.appendChild(el('strong', a.detector + (a.detectors.length > 1 ? ' (+' + a.detectors.slice(1).join(', ') + ')' : '')));
+    facts.appendChild(el('div', 'frames ' + a.start_frame + ' - ' + (a.end_frame ?? 'on') + ', ' + a.frames_flagged + ' flagged'));
+    const t = a.thresholds;
+    facts.appendChild(el('div', 'at start: score ' + fmt(a.start.score) + ' (threshold ' + fmt(t.alarm) + '), e_c ' + fmt(a.start.e_c) +
+      ' (' + fmt(t.e_c) + '), e_b ' + fmt(a.start.e_b) + ' (' + fmt(t.e_b) + '), e_o ' + fmt(a.start.e_o) + ', e_r ' + fmt(a.start.e_r)));
+    facts.appendChild(el('div', a.false_alarm ? 'marked as a false alarm (' + a.false_alarm.by_role + ')' : a.id, 'muted'));
+    li.appendChild(facts);
+    const b = el('button', a.false_alarm ? 'False alarm' : 'Mark false alarm', 'mark');
+    b.disabled = !!a.false_alarm || state.role === 'viewer';
+    if (state.role === 'viewer') b.title = 'a viewer token cannot mark alarms';
+    b.addEventListener('click', () => mark(a.id, b));
+    li.appendChild(b);
+    return li;
+  });
+  ul.replaceChildren(...items);
+}
+
+async function mark(id, button) {
+  button.disabled = true;
+  try {
+    await api('/v1/alarms/' + encodeURIComponent(id) + '/false-alarm', {
+      method: 'POST', headers: { 'Content-Type': 'application/json' }, body: JSON.stringify({ note: 'marked on the live view' }),
+    });
+    say('Alarm ' + id + ' marked as a false alarm.');
+    state.alarmsKey = null;
+    loadSide();
+  } catch (e) {
+    say('Not marked: ' + e.message);
+    button.disabled = false;
+  }
+}
+
+// --- jobs, profiles, marked alarms ------------------------------------------------------
+
+async function loadSide() {
+  try {
+    const jobs = (await (await api('/v1/jobs')).json()).jobs || [];
+    const ul = el('ul');
+    for (const j of jobs.slice(-10).reverse()) {
+      const thr = j.calibration && j.calibration.alarm_thresholds ? ' alarm ' + fmt(j.calibration.alarm_thresholds.conformal) : '';
+      ul.appendChild(el('li', '#' + j.id + ' ' + j.profile + ': ' + j.state + thr + (j.error ? ' (' + j.error + ')' : '')));
+    }
+    $('jobs').replaceChildren(jobs.length ? ul : el('span', 'No calibration job.'));
+  } catch (e) { $('jobs').textContent = e.status === 403 ? 'Calibration jobs need an admin token.' : e.message; }
+  try {
+    const profiles = (await (await api('/v1/profiles')).json()).profiles || [];
+    const ul = el('ul');
+    for (const p of profiles) ul.appendChild(el('li', (p.name || p) + (p.alarm_threshold !== undefined ? ': alarm threshold ' + fmt(p.alarm_threshold) : '')));
+    $('profiles').replaceChildren(profiles.length ? ul : el('span', 'No profile.'));
+  } catch (e) { $('profiles').textContent = e.status === 403 ? 'Profiles need a robot or admin token.' : e.message; }
+  try {
+    const marked = (await (await api('/v1/alarms?marked=true')).json()).alarms || [];
+    const ul = el('ul');
+    for (const a of marked.slice(-10).reverse()) ul.appendChild(el('li', a.id + ' ' + a.profile + ' ' + a.detector + ' (' + a.false_alarm.by_role + ')'));
+    $('marked').replaceChildren(marked.length ? ul : el('span', 'None yet.'));
+  } catch (e) { $('marked').textContent = e.message; }
+}
+
+signIn();
+// Jobs, profiles and marked alarms change rarely: refreshed every 10 s while signed in.
+setInterval(() => { if (state.role) loadSide(); }, 10000);

@@ -1,0 +1,360 @@
+//! The live view's data: alarms (list, one, the frame thumbnail at its start, marking a
+//! false alarm), a session's timeline, latest frame and anomaly map, the caller's role,
+//! and `GET /v1/live`, a server-sent-event stream of the session list (and, with
+//! `?session=ID`, that session's new timeline points and alarms) every half second.
+//!
+//! Authentication is the REST one: a bearer token in the `authorization` header, so the
+//! page reads the event stream with `fetch` (a streamed body), not `EventSource` (which
+//! cannot send headers); no token ever travels in a URL.
+
+use super::errors::ApiError;
+use crate::api::auth::Role;
+use crate::api::state::Shared;
+use crate::session::SessionError;
+use crate::session::alarms::mark_false_alarm;
+use axum::Json;
+use axum::extract::{Path, Query, State};
+use axum::http::{HeaderMap, header};
+use axum::response::sse::{Event, KeepAlive, Sse};
+use axum::response::{IntoResponse, Response};
+use futures_util::stream::Stream;
+use serde::Deserialize;
+use serde_json::json;
+use std::convert::Infallible;
+use std::sync::Arc;
+use std::time::Duration;
+
+/// How often `GET /v1/live` sends.
+const LIVE_PERIOD: Duration = Duration::from_millis(500);
+
+/// `?session=&marked=&profile=` of the alarm list.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct AlarmQuery {
+    session: Option<String>,
+    #[serde(default)]
+    marked: bool,
+    profile: Option<String>,
+}
+
+/// `GET /v1/alarms`: the recent alarms (newest first), or with `marked=true` the stored
+/// false alarms (oldest mark first), of a session / profile when given.
+pub(super) async fn list_alarms(
+    State(s): State<Arc<Shared>>,
+    Query(q): Query<AlarmQuery>,
+) -> Result<Response, ApiError> {
+    if q.marked {
+        let store = s.store.clone();
+        let profile = q.profile.clone();
+        let marked = tokio::task::spawn_blocking(move || store.marked_alarms(profile.as_deref()))
+            .await
+            .map_err(ApiError::internal)??;
+        let marked: Vec<_> = marked
+            .into_iter()
+            .filter(|a| q.session.as_ref().is_none_or(|x| &a.session_id == x))
+            .collect();
+        return Ok(Json(json!({ "alarms": marked })).into_response());
+    }
+    let alarms: Vec<_> = s
+        .hub
+        .alarms
+        .list(q.session.as_deref())
+        .into_iter()
+        .filter(|a| q.profile.as_ref().is_none_or(|p| &a.profile == p))
+        .collect();
+    Ok(Json(json!({ "alarms": alarms })).into_response())
+}
+
+/// `GET /v1/alarms/{id}`: a recent alarm, else a stored (marked) one.
+pub(super) async fn get_alarm(
+    State(s): State<Arc<Shared>>,
+    Path(id): Path<String>,
+) -> Result<Response, ApiError> {
+    if let Some(a) = s.hub.alarms.get(&id) {
+        return Ok(Json(a).into_response());
+    }
+    let store = s.store.clone();
+    let key = id.clone();
+    match tokio::task::spawn_blocking(move || store.marked_alarm(&key))
+        .await
+        .map_err(ApiError::internal)??
+    {
+        Some(a) => Ok(Json(a).into_response()),
+        None => Err(SessionError::UnknownAlarm { id }.into()),
+    }
+}
+
+fn png(bytes: Vec<u8>) -> Response {
+    (
+        [
+            (header::CONTENT_TYPE, "image/png"),
+            (header::CACHE_CONTROL, "no-store"),
+        ],
+        bytes,
+    )
+        .into_response()
+}
+
+/// `GET /v1/alarms/{id}/thumbnail`: the frame at the alarm's start (PNG, gray).
+pub(super) async fn alarm_thumbnail(
+    State(s): State<Arc<Shared>>,
+    Path(id): Path<String>,
+) -> Result<Response, ApiError> {
+    match s.hub.alarms.thumbnail(&id) {
+        Some(p) => Ok(png(p)),
+        None => Err(ApiError::not_found(format!(
+            "no thumbnail of alarm {id:?} (unknown, older than the recent alarms, or the \
+             server restarted)"
+        ))),
+    }
+}
+
+/// The body of a false-alarm mark (optional).
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct MarkBody {
+    #[serde(default)]
+    note: String,
+}
+
+/// `POST /v1/alarms/{id}/false-alarm`: marks the alarm as a false alarm (robot or admin
+/// token; a viewer's is refused before this runs) and stores it.
+pub(super) async fn mark_alarm(
+    State(s): State<Arc<Shared>>,
+    Path(id): Path<String>,
+    headers: HeaderMap,
+    body: axum::body::Bytes,
+) -> Result<Response, ApiError> {
+    let role = super::authorize(&s, &headers, Role::Robot)?;
+    let mark: MarkBody = if body.iter().all(u8::is_ascii_whitespace) {
+        MarkBody::default()
+    } else {
+        serde_json::from_slice(&body).map_err(|e| ApiError::bad_request(format!("body: {e}")))?
+    };
+    let by_role = match role {
+        Role::Admin => "admin",
+        Role::Robot => "robot",
+        Role::Viewer => "viewer",
+    };
+    let shared = s.clone();
+    let alarm = tokio::task::spawn_blocking(move || {
+        mark_false_alarm(&shared.hub, &shared.store, &id, by_role, &mark.note)
+    })
+    .await
+    .map_err(ApiError::internal)??;
+    Ok(Json(alarm).into_response())
+}
+
+fn open_session(s: &Shared, id: &str) -> Result<Arc<crate::session::Session>, ApiError> {
+    s.hub
+        .session(id)
+        .ok_or_else(|| SessionError::UnknownSession { id: id.into() }.into())
+}
+
+/// `GET /v1/sessions/{id}/alarms`: the session's recent alarms, newest first.
+pub(super) async fn session_alarms(
+    State(s): State<Arc<Shared>>,
+    Path(id): Path<String>,
+) -> Result<Response, ApiError> {
+    let alarms = s.hub.alarms.list(Some(&id));
+    if alarms.is_empty() {
+        // An unknown session is a 404; an open one without alarms an empty list.
+        open_session(&s, &id)?;
+    }
+    Ok(Json(json!({ "alarms": alarms })).into_response())
+}
+
+/// `?after=N` of a timeline.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct TimelineQuery {
+    after: Option<u64>,
+}
+
+/// `GET /v1/sessions/{id}/timeline`: the kept timeline points (after frame `after`),
+/// the thresholds in force and the session's summary.
+pub(super) async fn timeline(
+    State(s): State<Arc<Shared>>,
+    Path(id): Path<String>,
+    Query(q): Query<TimelineQuery>,
+) -> Result<Response, ApiError> {
+    let session = open_session(&s, &id)?;
+    let points = session.timeline(q.after);
+    Ok(Json(timeline_json(&session, &points)).into_response())
+}
+
+fn timeline_json(
+    session: &crate::session::Session,
+    points: &[crate::session::live::FramePoint],
+) -> serde_json::Value {
+    let profile = session.profile();
+    let p = &profile.setup.profile;
+    let t = p.thresholds();
+    let finite = |v: Option<f64>| v.filter(|x| x.is_finite());
+    json!({
+        "session": session.summary(),
+        "thresholds": {
+            "alarm": finite(Some(p.alarm_threshold())),
+            "e_c": finite(t.e_c),
+            "e_b": finite(t.e_b),
+        },
+        "points": points,
+    })
+}
+
+/// `GET /v1/sessions/{id}/frame`: the latest frame, shrunk (PNG, gray).
+pub(super) async fn latest_frame(
+    State(s): State<Arc<Shared>>,
+    Path(id): Path<String>,
+) -> Result<Response, ApiError> {
+    let session = open_session(&s, &id)?;
+    match session.latest_images().0 {
+        Some(p) => Ok(png(p)),
+        None => Err(ApiError::not_found(format!(
+            "session {id:?} has no scored frame yet"
+        ))),
+    }
+}
+
+/// `GET /v1/sessions/{id}/map`: the latest anomaly map (PNG, gray, 0 = nominal).
+pub(super) async fn latest_map(
+    State(s): State<Arc<Shared>>,
+    Path(id): Path<String>,
+) -> Result<Response, ApiError> {
+    let session = open_session(&s, &id)?;
+    match session.latest_images().1 {
+        Some(p) => Ok(png(p)),
+        None => Err(ApiError::not_found(format!(
+            "session {id:?} has no anomaly map (open it with anomaly_maps, or calibrate \
+             its profile's scene residual)"
+        ))),
+    }
+}
+
+/// `GET /v1/whoami`: the caller's role (the page shows what it may do).
+pub(super) async fn whoami(
+    State(s): State<Arc<Shared>>,
+    headers: HeaderMap,
+) -> Result<Response, ApiError> {
+    let role = super::authorize(&s, &headers, Role::Viewer)?;
+    let name = match role {
+        Role::Admin => "admin",
+        Role::Robot => "robot",
+        Role::Viewer => "viewer",
+    };
+    Ok(Json(json!({ "role": name, "tokens": s.tokens.enabled() })).into_response())
+}
+
+/// `?session=ID` of the live stream.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct LiveQuery {
+    session: Option<String>,
+}
+
+struct LiveState {
+    shared: Arc<Shared>,
+    session: Option<String>,
+    after: Option<u64>,
+    stop: tokio::sync::watch::Receiver<bool>,
+    first: bool,
+}
+
+/// `GET /v1/live`: with `Accept: text/event-stream`, server-sent events every half
+/// second: `sessions` (the list, with each one's last alarm), and with `?session=ID`
+/// `timeline` (new points, thresholds) and `alarms` (that session's), or `gone` once
+/// the session is not open (ended, or the server restarted: a stale page learns it
+/// here); the stream ends when the server stops. Any other `Accept`: one JSON snapshot
+/// of the same (`{"sessions": .., "timeline": .., "alarms": .., "gone": ..}`).
+pub(super) async fn live(
+    State(s): State<Arc<Shared>>,
+    Query(q): Query<LiveQuery>,
+    headers: HeaderMap,
+) -> Response {
+    let wants_stream = headers
+        .get(header::ACCEPT)
+        .and_then(|v| v.to_str().ok())
+        .is_some_and(|v| v.contains("text/event-stream"));
+    if !wants_stream {
+        let mut st = LiveState {
+            stop: s.stop.subscribe(),
+            shared: s,
+            session: q.session,
+            after: None,
+            first: true,
+        };
+        let mut snapshot = serde_json::Map::new();
+        for (name, data) in live_events(&mut st) {
+            snapshot.insert(name.to_string(), data);
+        }
+        return Json(snapshot).into_response();
+    }
+    live_stream(s, q.session).into_response()
+}
+
+fn live_stream(
+    s: Arc<Shared>,
+    session: Option<String>,
+) -> Sse<impl Stream<Item = Result<Event, Infallible>>> {
+    let state = LiveState {
+        stop: s.stop.subscribe(),
+        shared: s,
+        session,
+        after: None,
+        first: true,
+    };
+    let stream = futures_util::stream::unfold(state, |mut st| async move {
+        if !st.first {
+            tokio::select! {
+                _ = tokio::time::sleep(LIVE_PERIOD) => {}
+                _ = st.stop.changed() => {}
+            }
+        }
+        st.first = false;
+        if *st.stop.borrow() {
+            return None;
+        }
+        let events: Vec<Event> = live_events(&mut st)
+            .into_iter()
+            .map(|(name, data)| Event::default().event(name).data(data.to_string()))
+            .collect();
+        Some((futures_util::stream::iter(events.into_iter().map(Ok)), st))
+    });
+    use futures_util::StreamExt;
+    Sse::new(stream.flatten()).keep_alive(KeepAlive::default())
+}
+
+/// The events of one round, as `(name, data)`.
+fn live_events(st: &mut LiveState) -> Vec<(&'static str, serde_json::Value)> {
+    let s = &st.shared;
+    let sessions: Vec<serde_json::Value> = s
+        .hub
+        .sessions()
+        .into_iter()
+        .map(|summary| {
+            let last = s.hub.alarms.list(Some(&summary.id)).into_iter().next();
+            json!({ "summary": summary, "last_alarm": last })
+        })
+        .collect();
+    let mut out = vec![("sessions", json!({ "sessions": sessions }))];
+    if let Some(id) = &st.session {
+        match s.hub.session(id) {
+            Some(session) => {
+                let points = session.timeline(st.after);
+                out.push(("timeline", timeline_json(&session, &points)));
+                if let Some(last) = points.last() {
+                    st.after = Some(last.frame);
+                }
+                out.push(("alarms", json!({ "alarms": s.hub.alarms.list(Some(id)) })));
+            }
+            None => out.push((
+                "gone",
+                json!({
+                    "session": id,
+                    "error": SessionError::UnknownSession { id: id.clone() }.to_string(),
+                }),
+            )),
+        }
+    }
+    out
+}
