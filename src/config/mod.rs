@@ -30,8 +30,10 @@ pub const CONFIG_ENV: &str = "VAMOS_CONFIG";
 /// `VAMOS_*` variables that are not settings keys: the settings file, the cache folder and
 /// Python interpreter of the ONNX Runtime look-up (`model::runtime`), test and bench knobs
 /// (`VAMOS_SKIP_*`, `VAMOS_BENCH_*`, `VAMOS_BIN`: the binary the Python tests run,
-/// `VAMOS_REQUIRE_GPU_TESTS`: the wgpu tests fail instead of skipping without an adapter), and
-/// the service's plain tokens (`VAMOS_ADMIN_TOKEN`, `VAMOS_ROBOT_TOKEN`).
+/// `VAMOS_REQUIRE_*`: a test that needs something fails instead of skipping without it, e.g.
+/// `VAMOS_REQUIRE_GPU_TESTS` (a wgpu adapter) and `VAMOS_REQUIRE_BROWSER_TESTS` (chromium)),
+/// and the service's plain tokens (`VAMOS_ADMIN_TOKEN`, `VAMOS_ROBOT_TOKEN`,
+/// `VAMOS_VIEWER_TOKEN`).
 pub fn is_reserved_env(name: &str) -> bool {
     matches!(
         name,
@@ -39,11 +41,12 @@ pub fn is_reserved_env(name: &str) -> bool {
             | "VAMOS_CACHE_DIR"
             | "VAMOS_PYTHON"
             | "VAMOS_BIN"
-            | "VAMOS_REQUIRE_GPU_TESTS"
             | "VAMOS_ADMIN_TOKEN"
             | "VAMOS_ROBOT_TOKEN"
+            | "VAMOS_VIEWER_TOKEN"
             | "VAMOS_LOADGEN_TOKEN"
     ) || name.starts_with("VAMOS_SKIP_")
+        || name.starts_with("VAMOS_REQUIRE_")
         || name.starts_with("VAMOS_BENCH_")
 }
 
@@ -202,6 +205,8 @@ mod tests {
                 ("VAMOS_CACHE_DIR", "/tmp/ignored"),
                 ("VAMOS_BENCH_MODEL", "ignored"),
                 ("VAMOS_REQUIRE_GPU_TESTS", "1"),
+                ("VAMOS_REQUIRE_BROWSER_TESTS", "1"),
+                ("VAMOS_VIEWER_TOKEN", "v"),
                 ("OTHER", "x"),
             ]),
         )

@@ -173,6 +173,9 @@ pub struct FrameScore {
     /// its per-cell statistics on); row-major, `scene_grid` cells.
     #[serde(skip)]
     pub scene_cells: Option<Vec<f32>>,
+    /// Seconds since the stream's first image (the phase the scene statistics use).
+    #[serde(skip)]
+    pub phase_s: f64,
     /// `(columns, rows)` of `scene_cells`.
     #[serde(skip)]
     pub scene_grid: (usize, usize),
@@ -519,6 +522,7 @@ impl Scorer {
                 heatmap: None,
                 scene_cells: None,
                 scene_grid: (0, 0),
+                phase_s: phase_s(first_ns, input.stamp_ns),
             }));
         };
         timings.front_end = processed.timings;
@@ -662,6 +666,7 @@ impl Scorer {
             heatmap,
             scene_cells,
             scene_grid,
+            phase_s: phase_s(first_ns, input.stamp_ns),
         }))
     }
 

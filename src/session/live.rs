@@ -97,8 +97,10 @@ fn to_u8(values: impl Iterator<Item = f64>, full_scale: f64) -> Vec<u8> {
 /// The anomaly map of `score` (see the module docs), `None` when the scorer gave none.
 pub fn anomaly_map(score: &FrameScore, thresholds: &Thresholds, alarm: f64) -> Option<Thumb> {
     let (columns, rows) = score.scene_grid;
-    if let (Some(cells), Some(stats)) = (&score.scene_cells, &thresholds.scene)
-        && stats.columns == columns
+    if let (Some(cells), Some(stats)) = (
+        &score.scene_cells,
+        thresholds.scene.as_ref().map(|s| s.at(Some(score.phase_s))),
+    ) && stats.columns == columns
         && stats.rows == rows
         && cells.len() == columns * rows
         && stats.location.len() == cells.len()
@@ -262,6 +264,7 @@ mod tests {
             heatmap: None,
             scene_cells: None,
             scene_grid: (0, 0),
+            phase_s: 0.0,
         }
     }
 
@@ -287,6 +290,7 @@ mod tests {
                 location: vec![1.0, 1.0, 1.0],
                 spread: vec![1.0, 1.0, 1.0],
                 maps: 10,
+                phases: None,
             }),
             ..Thresholds::default()
         };

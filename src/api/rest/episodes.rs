@@ -244,6 +244,7 @@ mod tests {
                     heatmap: None,
                     scene_cells: None,
                     scene_grid: (0, 0),
+                    phase_s: 0.0,
                 },
                 latency_s: 0.02,
                 compute_s: 0.01,
