@@ -12,7 +12,8 @@ use vamos::episode::Labels;
 use vamos::eval::plot::{PlotOptions, plot_episode, plot_pr, plot_roc};
 use vamos::eval::{AblationTable, AucPair, FusionLevel};
 use vamos::eval::{
-    ScoredFrame, Thresholds, average_precision, evaluate, fuse, pr_curve, roc_auc, roc_curve,
+    RocPoint, ScoredFrame, Thresholds, average_precision, evaluate, frames_by_type, fuse, pr_curve,
+    roc_auc, roc_curve,
 };
 use vamos::model::FlowModel;
 use vamos::pipeline::FlowVariant;
@@ -292,6 +293,21 @@ pub fn write_plots(
             &options,
         )?;
         written.extend([roc_path, pr_path]);
+        // One ROC curve per anomaly type: its episodes' frames pooled with every nominal
+        // episode's, as in the report's per-type AUCs; "all frames" for reference.
+        let by_type = frames_by_type(frames);
+        let typed: Vec<(String, Vec<RocPoint>, Option<f64>)> = by_type
+            .iter()
+            .filter_map(|(kind, (s, l))| Some((kind.clone(), roc_curve(s, l)?, roc_auc(s, l))))
+            .collect();
+        if !typed.is_empty() {
+            let mut curves: Vec<(&str, &[RocPoint], Option<f64>)> =
+                vec![("all frames", &roc, roc_auc(&scores, &labels))];
+            curves.extend(typed.iter().map(|(k, c, a)| (k.as_str(), c.as_slice(), *a)));
+            let path = dir.join("roc_per_type.png");
+            plot_roc(&path, &curves, &options)?;
+            written.push(path);
+        }
     }
     Ok(written)
 }

@@ -278,6 +278,42 @@ pub struct EvalReport {
     pub per_type: BTreeMap<String, TypeReport>,
 }
 
+/// Per anomaly type, the scores and labels of that type's episodes pooled with every
+/// nominal episode's frames (the selection behind [`EvalReport::per_type`] and the per-type
+/// ROC curves), keyed by type in name order.
+pub fn frames_by_type(frames: &[ScoredFrame]) -> BTreeMap<String, (Vec<f64>, Vec<bool>)> {
+    // Episode name -> its type (an episode with an anomalous frame) or None (nominal), as
+    // in [`episode_outcomes`].
+    let mut kind_of: BTreeMap<&str, Option<String>> = BTreeMap::new();
+    for f in frames {
+        let kind = kind_of.entry(f.episode.as_str()).or_default();
+        if f.anomalous && kind.is_none() {
+            *kind = Some(
+                frames
+                    .iter()
+                    .filter(|g| g.episode == f.episode)
+                    .find_map(|g| g.anomaly_type.clone())
+                    .unwrap_or_else(|| UNTYPED_ANOMALY.to_string()),
+            );
+        }
+    }
+    let mut by_type: BTreeMap<String, (Vec<f64>, Vec<bool>)> = kind_of
+        .values()
+        .flatten()
+        .map(|k| (k.clone(), (Vec::new(), Vec::new())))
+        .collect();
+    for f in frames {
+        let episode_kind = kind_of.get(f.episode.as_str()).and_then(Option::as_deref);
+        for (kind, (scores, labels)) in by_type.iter_mut() {
+            if episode_kind.is_none_or(|k| k == kind) {
+                scores.push(f.score);
+                labels.push(f.anomalous);
+            }
+        }
+    }
+    by_type
+}
+
 /// Evaluate scored frames at `threshold`: pooled frame-level AUCs, episode false alarms,
 /// detection rate and delay, and the same per anomaly type (see the module doc).
 pub fn evaluate(frames: &[ScoredFrame], threshold: f64) -> EvalReport {
@@ -287,26 +323,9 @@ pub fn evaluate(frames: &[ScoredFrame], threshold: f64) -> EvalReport {
     let anomalous: Vec<&EpisodeOutcome> = outcomes.iter().filter(|o| o.anomalous).collect();
     let overall = detection(anomalous.iter().copied());
 
-    // Episode name -> its type (anomalous) or None (nominal).
-    let kind_of: BTreeMap<&str, Option<&str>> = outcomes
-        .iter()
-        .map(|o| (o.episode.as_str(), o.anomaly_type.as_deref()))
-        .collect();
     let mut per_type = BTreeMap::new();
-    let kinds: std::collections::BTreeSet<&str> = anomalous
-        .iter()
-        .filter_map(|o| o.anomaly_type.as_deref())
-        .collect();
-    for kind in kinds {
-        let mut type_scores = Vec::new();
-        let mut type_labels = Vec::new();
-        for f in frames {
-            let episode_kind = kind_of.get(f.episode.as_str()).copied().flatten();
-            if episode_kind.is_none_or(|k| k == kind) {
-                type_scores.push(f.score);
-                type_labels.push(f.anomalous);
-            }
-        }
+    for (kind, (type_scores, type_labels)) in frames_by_type(frames) {
+        let kind = kind.as_str();
         let of_kind = || {
             anomalous
                 .iter()
@@ -479,6 +498,14 @@ mod tests {
         let labels: Vec<bool> = pool.iter().map(|f| f.anomalous).collect();
         assert_eq!(slip.auc_roc, roc_auc(&scores, &labels));
         assert_eq!(slip.auc_pr, average_precision(&scores, &labels));
+        // The per-type ROC curves select the same frames.
+        // (Bit patterns, since the pool holds a NaN score.)
+        let by_type = frames_by_type(&frames);
+        let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&by_type["slip"].0), bits(&scores));
+        assert_eq!(by_type["slip"].1, labels);
+        let keys: Vec<&str> = by_type.keys().map(String::as_str).collect();
+        assert_eq!(keys, ["collision", "slip", UNTYPED_ANOMALY]);
         // Slip frames 0.3 and 0.2 (anomalous) against 9 negatives: 0.1 x4, 0.2 x2, 0.3,
         // 0.6, NaN (= inf). By hand 0.3 beats 6 and ties 1 (6.5), 0.2 beats 4 and ties 2
         // (5): AUC = 11.5 / 18.

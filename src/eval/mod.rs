@@ -27,7 +27,7 @@ pub use calibrate::{
 };
 pub use episodes::{
     EpisodeOutcome, EvalReport, TypeReport, UNTYPED_ANOMALY, episode_false_alarm_rate,
-    episode_outcomes, evaluate, pre_onset_false_alarm_rate,
+    episode_outcomes, evaluate, frames_by_type, pre_onset_false_alarm_rate,
 };
 pub use fuse::{
     Components, Detector, Fused, Fusion, RATIO_CAP, TRIGGER_BASE, Thresholds, UNTRIGGERED_MAX,

@@ -61,13 +61,17 @@ fn the_demo_streams_the_bundled_episodes_and_writes_its_report() {
             "{name}"
         );
     }
-    for plot in ["roc.png", "pr.png"] {
+    for plot in ["roc.png", "pr.png", "roc_per_type.png"] {
         let bytes = std::fs::read(out_dir.join("plots").join(plot)).unwrap();
         assert!(bytes.starts_with(b"\x89PNG"), "{plot}");
     }
     let md = std::fs::read_to_string(&report_md).unwrap();
     assert!(md.contains("| frame-level AUC-ROC |"), "{md}");
     assert!(md.contains("![ROC](plots/roc.png)"));
+    assert!(
+        md.contains("![ROC per type](plots/roc_per_type.png)"),
+        "{md}"
+    );
 
     // A second run reuses the unpacked assets and gives the same scores (the pipeline
     // is deterministic for a given session).

@@ -256,7 +256,12 @@ fn score_calibrate_eval_on_simulated_episodes() {
     let push = &report["per_type"]["external_push"];
     assert_eq!(push["detection_rate"], 1.0);
     assert!(push["auc_roc"].as_f64().unwrap() > 0.8, "{push}");
-    for png in ["roc.png", "pr.png", "test_0001_external_push.png"] {
+    for png in [
+        "roc.png",
+        "pr.png",
+        "roc_per_type.png",
+        "test_0001_external_push.png",
+    ] {
         let img = image::open(dir.join("plots").join(png)).unwrap();
         assert!(img.width() >= 64 && img.height() >= 64);
     }

@@ -202,6 +202,12 @@ pub(super) fn write_report(
     if plots_dir.join("roc.png").is_file() {
         md.push_str("![ROC](plots/roc.png) ![PR](plots/pr.png)\n\n");
     }
+    if plots_dir.join("roc_per_type.png").is_file() {
+        md.push_str(
+            "ROC per anomaly type (each type's episodes with every nominal one):\n\n\
+             ![ROC per type](plots/roc_per_type.png)\n\n",
+        );
+    }
     md.push_str(
         "Score timelines (log scale; anomalous intervals shaded, the alarm threshold \
          dashed):\n\n",
