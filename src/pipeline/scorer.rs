@@ -311,7 +311,7 @@ impl Scorer {
         let predictor = match model {
             Some(model) if config.detectors.flow => {
                 let manifest = model.manifest();
-                if !same_variant(manifest.flow_variant, config.frames.variant) {
+                if manifest.flow_variant != config.frames.variant {
                     tracing::warn!(
                         model = ?manifest.flow_variant,
                         pipeline = %config.frames.variant,
@@ -744,19 +744,6 @@ impl BodyState {
                 })?;
         Ok((links, camera_from_base))
     }
-}
-
-/// Whether the model was trained on the flow variant the pipeline computes.
-fn same_variant(model: crate::model::FlowVariant, pipeline: super::FlowVariant) -> bool {
-    use super::FlowVariant as P;
-    use crate::model::FlowVariant as M;
-    matches!(
-        (model, pipeline),
-        (M::Plain, P::Plain)
-            | (M::Registered, P::Registered)
-            | (M::Masked, P::Masked)
-            | (M::MaskedRegistered, P::MaskedRegistered)
-    )
 }
 
 fn micros(start: Instant) -> u64 {
