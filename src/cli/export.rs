@@ -374,7 +374,9 @@ fn export_episode(
 }
 
 /// Folders that hold `.mcap` files expand into them (sorted); other paths pass through
-/// (an image folder, a bag).
+/// (an image folder, a bag). Not [`vamos::episode::files::expand_episodes`]: that one
+/// refuses a folder without `.mcap` files, which is what an image-sequence episode is
+/// here; the listing itself is the shared [`mcap_files_in`].
 fn expand_bags(paths: &[PathBuf]) -> Result<Vec<PathBuf>> {
     let mut out = Vec::new();
     for p in paths {

@@ -5,8 +5,8 @@
 //! 8-bit colour goes through [`gray_from_rgb`] (ITU-R BT.601 luma on 0..=255), 8-bit gray
 //! is exact, 16-bit gray (`mono16`, `16UC1`) is scaled by 255/65535, `32FC1` is taken as
 //! is (NaN and infinities become 0). A JPEG or PNG file with more than 8 bits of colour
-//! is converted in floating point with the same BT.601 weights (as
-//! [`GrayImage::load`] reads such files).
+//! (or alpha) is converted by [`GrayImage::from_unit_rgb`], the same BT.601 formula on
+//! 0..=1 floats (as [`GrayImage::load`] reads colour files).
 
 use super::ros::{MAX_IMAGE_SIDE, MessageError, check_image_size};
 use crate::vision::GrayImage;
@@ -333,13 +333,9 @@ impl<'a> EncodedImage<'a> {
                 return gray_from_rgb(rgb.as_raw(), w, h)
                     .map_err(|e| self.decode_error(e.to_string()));
             }
-            // More than 8 bits (or alpha): the same weights in floating point.
-            let data = img
-                .to_rgb32f()
-                .pixels()
-                .map(|p| 255.0 * (0.299 * p[0] + 0.587 * p[1] + 0.114 * p[2]))
-                .collect();
-            return GrayImage::new(w, h, data).map_err(|e| self.decode_error(e.to_string()));
+            // More than 8 bits (or alpha): the same formula on 0..=1 floats.
+            return GrayImage::from_unit_rgb(w, h, img.to_rgb32f().as_raw())
+                .map_err(|e| self.decode_error(e.to_string()));
         }
         let data = match img.as_luma8() {
             Some(l8) => l8.as_raw().iter().map(|&v| f32::from(v)).collect(),

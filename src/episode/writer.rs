@@ -7,6 +7,7 @@
 
 use super::EpisodeError;
 use super::bag::{EpisodeInfo, SourceMessage};
+use super::image::Encoding;
 use super::ros::{self, Header, ImageMsg, schema};
 use std::collections::{BTreeMap, HashMap};
 use std::fs::File;
@@ -218,12 +219,10 @@ impl ScoreBagWriter {
                 encoding,
                 data,
             } => {
-                let bpp = match encoding {
-                    "rgb8" | "bgr8" => 3,
-                    "rgba8" | "bgra8" | "32FC1" => 4,
-                    "mono8" | "8UC1" => 1,
-                    "mono16" | "16UC1" => 2,
-                    other => return Err(self.err(format!("unknown image encoding {other:?}"))),
+                // The one encoding table (any letter case); files have no row size.
+                let Some(bpp) = Encoding::from_name(encoding).and_then(Encoding::bytes_per_pixel)
+                else {
+                    return Err(self.err(format!("unknown image encoding {encoding:?}")));
                 };
                 let step = width as usize * bpp;
                 if data.len() != step * height as usize {

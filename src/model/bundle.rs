@@ -12,8 +12,10 @@ use super::ModelError;
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 use std::collections::BTreeMap;
+use std::fmt;
 use std::io::{Read, Seek};
 use std::path::Path;
+use std::str::FromStr;
 
 /// The newest bundle `format_version` this code reads.
 pub const FORMAT_VERSION: u64 = 1;
@@ -30,18 +32,76 @@ pub const MAX_MANIFEST_BYTES: u64 = 1 << 20;
 /// Largest accepted ONNX member, bytes (the paper's network is ~15 MB of weights).
 pub const MAX_ONNX_BYTES: u64 = 512 << 20;
 
-/// Which flow the network was trained on (REFERENCE.md section 3).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+/// Which flow the network sees (REFERENCE.md section 3; masked was best in the paper):
+/// the manifest's `flow_variant` (what a bundle was trained on) and the pipeline's
+/// `frames.variant` (what the front end computes). One type for both, so they compare with
+/// `==`; the names are the same in manifests, profiles and settings.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum FlowVariant {
-    /// Raw flow.
+    /// The observed flow as is.
+    #[default]
     Plain,
-    /// Flow after removing the camera motion.
+    /// The observed flow minus the registered camera motion.
     Registered,
-    /// Robot-body pixels set to zero flow.
+    /// Zero flow on the robot body (target frame's mask).
     Masked,
     /// Both.
     MaskedRegistered,
+}
+
+impl FlowVariant {
+    /// All variants, in the paper's order.
+    pub const ALL: [FlowVariant; 4] = [
+        Self::Plain,
+        Self::Registered,
+        Self::Masked,
+        Self::MaskedRegistered,
+    ];
+
+    /// The name used in files and settings.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Plain => "plain",
+            Self::Registered => "registered",
+            Self::Masked => "masked",
+            Self::MaskedRegistered => "masked_registered",
+        }
+    }
+
+    /// Whether the robot body is masked out.
+    pub fn is_masked(self) -> bool {
+        matches!(self, Self::Masked | Self::MaskedRegistered)
+    }
+
+    /// Whether camera motion is removed.
+    pub fn is_registered(self) -> bool {
+        matches!(self, Self::Registered | Self::MaskedRegistered)
+    }
+}
+
+impl fmt::Display for FlowVariant {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl FromStr for FlowVariant {
+    type Err = UnknownFlowVariant;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        Self::ALL
+            .into_iter()
+            .find(|v| v.name() == s)
+            .ok_or_else(|| UnknownFlowVariant { name: s.into() })
+    }
+}
+
+/// A name that is not a [`FlowVariant`].
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("unknown flow variant {name:?} (expected plain, registered, masked or masked_registered)")]
+pub struct UnknownFlowVariant {
+    /// The name given.
+    pub name: String,
 }
 
 /// `architecture`: the network's shape (informational except `latent_dim` and
@@ -367,6 +427,17 @@ fn read_member<R: Read + Seek>(
 mod tests {
     use super::*;
     use std::io::Write;
+
+    #[test]
+    fn variant_names_round_trip() {
+        for v in FlowVariant::ALL {
+            assert_eq!(v.name().parse::<FlowVariant>().unwrap(), v);
+        }
+        assert!(matches!(
+            "masked+registered".parse::<FlowVariant>(),
+            Err(UnknownFlowVariant { .. })
+        ));
+    }
 
     pub(crate) fn fixture(name: &str) -> std::path::PathBuf {
         Path::new(env!("CARGO_MANIFEST_DIR"))

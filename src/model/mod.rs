@@ -21,7 +21,7 @@ pub mod predictor;
 pub mod rng;
 pub mod runtime;
 
-pub use bundle::{Bundle, FlowVariant, Manifest};
+pub use bundle::{Bundle, FlowVariant, Manifest, UnknownFlowVariant};
 pub use network::{EncoderOutput, FlowModel, LoadOptions, ModelDims, ModelSlot};
 pub use predictor::{BatchItem, FlowScore, Prediction, Predictor, PredictorParams, push_batch};
 pub use runtime::RuntimeError;

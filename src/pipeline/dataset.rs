@@ -1,7 +1,7 @@
 //! The training dataset `vamos export-dataset` writes (format: `docs/model-bundle.md`):
 //! one `<episode>.npy` (float32 `[T, 2, S, S]`) per episode and a `manifest.json`.
 
-use super::frames::FlowVariant;
+use crate::model::FlowVariant;
 use crate::vision::preprocess::NetworkInputParams;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};

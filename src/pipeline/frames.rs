@@ -12,6 +12,7 @@
 //!    mask of this (the target) frame; then the network input (`network_input`) and, for
 //!    masked variants, which of its 64x64 pixels are valid (`network_mask`).
 
+use crate::model::FlowVariant;
 use crate::vision::flow::{FlowError, FlowEstimator, FlowParams};
 use crate::vision::preprocess::{
     NetworkInputParams, PreprocessError, ResizeFilter, equalize_histogram, network_input,
@@ -23,83 +24,12 @@ use crate::vision::registration::{
 use crate::vision::synthetic::similarity_forward;
 use crate::vision::{FlowField, GrayImage};
 use serde::{Deserialize, Serialize};
-use std::fmt;
-use std::str::FromStr;
 use std::time::Instant;
-
-/// Which flow the predictor sees (REFERENCE.md section 3; masked was best in the paper).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum FlowVariant {
-    /// The observed flow as is.
-    #[default]
-    Plain,
-    /// The observed flow minus the registered camera motion.
-    Registered,
-    /// Zero flow on the robot body (target frame's mask).
-    Masked,
-    /// Both.
-    MaskedRegistered,
-}
-
-impl FlowVariant {
-    /// All variants, in the paper's order.
-    pub const ALL: [FlowVariant; 4] = [
-        Self::Plain,
-        Self::Registered,
-        Self::Masked,
-        Self::MaskedRegistered,
-    ];
-
-    /// The name used in files and settings.
-    pub fn name(self) -> &'static str {
-        match self {
-            Self::Plain => "plain",
-            Self::Registered => "registered",
-            Self::Masked => "masked",
-            Self::MaskedRegistered => "masked_registered",
-        }
-    }
-
-    /// Whether the robot body is masked out.
-    pub fn is_masked(self) -> bool {
-        matches!(self, Self::Masked | Self::MaskedRegistered)
-    }
-
-    /// Whether camera motion is removed.
-    pub fn is_registered(self) -> bool {
-        matches!(self, Self::Registered | Self::MaskedRegistered)
-    }
-}
-
-impl fmt::Display for FlowVariant {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(self.name())
-    }
-}
-
-impl FromStr for FlowVariant {
-    type Err = PipelineError;
-    fn from_str(s: &str) -> Result<Self, Self::Err> {
-        Self::ALL
-            .into_iter()
-            .find(|v| v.name() == s)
-            .ok_or_else(|| PipelineError::UnknownVariant { name: s.into() })
-    }
-}
 
 /// Errors of the front end. Each names the failing stage; the processor's state is left as
 /// it was before the failing push (a bad frame loses nothing that came before).
 #[derive(Debug, thiserror::Error)]
 pub enum PipelineError {
-    /// A flow variant name that does not exist.
-    #[error(
-        "unknown flow variant {name:?} (expected plain, registered, masked or masked_registered)"
-    )]
-    UnknownVariant {
-        /// The name given.
-        name: String,
-    },
     /// A parameter is out of range.
     #[error("pipeline parameter {name} is invalid: {reason}")]
     InvalidParams {
@@ -443,17 +373,6 @@ mod tests {
                 "{w}x{h}"
             );
         }
-    }
-
-    #[test]
-    fn variant_names_round_trip() {
-        for v in FlowVariant::ALL {
-            assert_eq!(v.name().parse::<FlowVariant>().unwrap(), v);
-        }
-        assert!(matches!(
-            "masked+registered".parse::<FlowVariant>(),
-            Err(PipelineError::UnknownVariant { .. })
-        ));
     }
 
     #[test]

@@ -21,9 +21,11 @@ pub mod profile;
 pub mod residual;
 pub mod scorer;
 
+// The flow variant is the model's type (a bundle's manifest names the one it was trained
+// on); the pipeline computes it.
+pub use crate::model::FlowVariant;
 pub use frames::{
-    FlowVariant, FrameProcessor, FrameProcessorParams, FrontEndTimings, PipelineError,
-    ProcessedFrame,
+    FrameProcessor, FrameProcessorParams, FrontEndTimings, PipelineError, ProcessedFrame,
 };
 pub use profile::{AlarmRule, Calibration, Profile, ProfileError, ProfileFile, ThresholdOverrides};
 pub use scorer::{

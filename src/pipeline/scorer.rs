@@ -35,10 +35,15 @@ use crate::eval::{Components, Detector, Pooling, Thresholds, Window, fuse_frame,
 use crate::model::predictor::{Prediction, Predictor, PredictorParams};
 use crate::model::{FlowModel, ModelError};
 use crate::robot::camera_motion::{
-    Depth, camera_motion_error, expected_camera_motion, expected_image_flow, similarity_flow,
+    CameraMotionError, Depth, camera_motion_error, expected_camera_motion, expected_image_flow,
+    similarity_flow,
 };
-use crate::robot::render::{BodyRenderer, RenderConfig, RenderFrame, RenderOutput, RobotView};
-use crate::robot::{CameraMount, Intrinsics, JointMapper, Robot};
+use crate::robot::render::{
+    BodyRenderer, RenderConfig, RenderError, RenderFrame, RenderOutput, RobotView,
+};
+use crate::robot::{
+    BodyMotionError, CameraMount, Intrinsics, IntrinsicsError, JointMapper, Robot, RobotError,
+};
 use crate::vision::flow::FlowParams;
 use crate::vision::preprocess::NetworkInputParams;
 use crate::vision::registration::RegistrationParams;
@@ -54,9 +59,37 @@ pub enum ScorerError {
     /// The visual front end failed.
     #[error(transparent)]
     Frame(#[from] PipelineError),
-    /// Kinematics, the camera or rendering failed.
+    /// Joint mapping or forward kinematics refused the joint states.
     #[error("robot: {0}")]
-    Robot(String),
+    Robot(#[from] RobotError),
+    /// The kinematics gave no pose for the camera's link.
+    #[error("robot: the camera link (link {link}) has no pose among the {poses} link poses")]
+    CameraPose {
+        /// The camera's link index.
+        link: usize,
+        /// Link poses the kinematics returned.
+        poses: usize,
+    },
+    /// The intrinsics cannot be scaled to the processing resolution.
+    #[error("robot: camera intrinsics at {width}x{height}: {source}")]
+    Intrinsics {
+        /// Processing width, pixels.
+        width: usize,
+        /// Processing height, pixels.
+        height: usize,
+        /// Why.
+        #[source]
+        source: IntrinsicsError,
+    },
+    /// The body renderer could not be made, prepared or run.
+    #[error("robot: render: {0}")]
+    Render(#[from] RenderError),
+    /// The expected camera (or static scene) motion from two camera poses.
+    #[error("robot: camera motion: {0}")]
+    CameraMotion(#[from] CameraMotionError),
+    /// The median body-motion error `e_b`.
+    #[error("robot: body motion: {0}")]
+    BodyMotion(#[from] BodyMotionError),
     /// The flow predictor failed.
     #[error("flow predictor: {0}")]
     Model(#[from] ModelError),
@@ -278,7 +311,7 @@ impl Scorer {
         let predictor = match model {
             Some(model) if config.detectors.flow => {
                 let manifest = model.manifest();
-                if !same_variant(manifest.flow_variant, config.frames.variant) {
+                if manifest.flow_variant != config.frames.variant {
                     tracing::warn!(
                         model = ?manifest.flow_variant,
                         pipeline = %config.frames.variant,
@@ -299,8 +332,7 @@ impl Scorer {
         };
         let body = match robot {
             Some(setup) => {
-                let mut renderer = crate::robot::render::create_renderer(&render)
-                    .map_err(|e| ScorerError::Robot(e.to_string()))?;
+                let mut renderer = crate::robot::render::create_renderer(&render)?;
                 // The robot's own meshes are used in place; a copy only with attachments.
                 let with_attachments;
                 let meshes = if config.attach.is_empty() {
@@ -310,9 +342,7 @@ impl Scorer {
                         super::attach::meshes_with_attachments(&setup.robot, &config.attach).0;
                     with_attachments.as_slice()
                 };
-                renderer
-                    .prepare(meshes)
-                    .map_err(|e| ScorerError::Robot(e.to_string()))?;
+                renderer.prepare(meshes)?;
                 Some(BodyState {
                     mapper: setup.robot.joint_mapper(),
                     setup,
@@ -442,9 +472,13 @@ impl Scorer {
         if let (Some(body), Some((links, camera_from_base))) = (&mut self.body, &pose) {
             let k = input.intrinsics.or(body.setup.intrinsics.as_ref());
             if let Some(k) = k {
-                let k = k
-                    .scaled_to(w as u32, h as u32)
-                    .map_err(|e| ScorerError::Robot(e.to_string()))?;
+                let k =
+                    k.scaled_to(w as u32, h as u32)
+                        .map_err(|source| ScorerError::Intrinsics {
+                            width: w,
+                            height: h,
+                            source,
+                        })?;
                 let previous = body
                     .previous
                     .as_ref()
@@ -452,20 +486,18 @@ impl Scorer {
                         camera_from_base: *camera_from_base,
                         base_from_link: links,
                     });
-                body.renderer
-                    .render(
-                        &RenderFrame {
-                            intrinsics: &k,
-                            current: RobotView {
-                                camera_from_base: *camera_from_base,
-                                base_from_link: links,
-                            },
-                            previous,
-                            shade: false,
+                body.renderer.render(
+                    &RenderFrame {
+                        intrinsics: &k,
+                        current: RobotView {
+                            camera_from_base: *camera_from_base,
+                            base_from_link: links,
                         },
-                        &mut body.out,
-                    )
-                    .map_err(|e| ScorerError::Robot(e.to_string()))?;
+                        previous,
+                        shade: false,
+                    },
+                    &mut body.out,
+                )?;
                 intrinsics = Some(k);
             }
         }
@@ -536,8 +568,7 @@ impl Scorer {
                     k,
                     Depth::Assumed,
                     &self.config.camera_motion,
-                )
-                .map_err(|e| ScorerError::Robot(e.to_string()))?;
+                )?;
                 let e = camera_motion_error(
                     &expected.transform,
                     &processed.registration.transform,
@@ -558,8 +589,7 @@ impl Scorer {
                             &body.out.flow,
                             &processed.flow,
                             &body.out.mask,
-                        )
-                        .map_err(|e| ScorerError::Robot(e.to_string()))?;
+                        )?;
                         m.body_visible.then_some(m.e_b_px)
                     }
                     BodyError::Quantile => residual::body_residual(
@@ -586,8 +616,7 @@ impl Scorer {
                     k,
                     self.config.camera_motion.assumed_depth_m,
                     &mut self.expected_flow,
-                )
-                .map_err(|e| ScorerError::Robot(e.to_string()))?,
+                )?,
                 _ => similarity_flow(
                     &processed.registration.transform,
                     w,
@@ -703,36 +732,18 @@ impl BodyState {
         &mut self,
         joints: JointInput<'_>,
     ) -> Result<(Vec<Isometry3<f64>>, Isometry3<f64>), ScorerError> {
-        let q = self
-            .mapper
-            .map(joints.names, joints.positions)
-            .map_err(|e| ScorerError::Robot(e.to_string()))?
-            .positions;
-        let links = self
-            .setup
-            .robot
-            .forward(&q)
-            .map_err(|e| ScorerError::Robot(e.to_string()))?;
-        let camera_from_base = self
-            .setup
-            .mount
-            .camera_from_base(&links)
-            .ok_or_else(|| ScorerError::Robot("the camera link has no pose".into()))?;
+        let q = self.mapper.map(joints.names, joints.positions)?.positions;
+        let links = self.setup.robot.forward(&q)?;
+        let camera_from_base =
+            self.setup
+                .mount
+                .camera_from_base(&links)
+                .ok_or(ScorerError::CameraPose {
+                    link: self.setup.mount.link,
+                    poses: links.len(),
+                })?;
         Ok((links, camera_from_base))
     }
-}
-
-/// Whether the model was trained on the flow variant the pipeline computes.
-fn same_variant(model: crate::model::FlowVariant, pipeline: super::FlowVariant) -> bool {
-    use super::FlowVariant as P;
-    use crate::model::FlowVariant as M;
-    matches!(
-        (model, pipeline),
-        (M::Plain, P::Plain)
-            | (M::Registered, P::Registered)
-            | (M::Masked, P::Masked)
-            | (M::MaskedRegistered, P::MaskedRegistered)
-    )
 }
 
 fn micros(start: Instant) -> u64 {

@@ -9,6 +9,15 @@
 
 use std::path::Path;
 
+/// ITU-R BT.601 luma of one RGB pixel, in the unit of its channels: vamos's one gray
+/// formula. [`crate::vision::preprocess::gray_from_rgb`] applies it to 8-bit values
+/// (0..=255 in, 0..=255 out), [`GrayImage::from_unit_rgb`] to 0..=1 floats (scaled to
+/// 0..=255 afterwards).
+#[inline]
+pub fn gray_from_rgb_pixel([r, g, b]: [f32; 3]) -> f32 {
+    0.299 * r + 0.587 * g + 0.114 * b
+}
+
 /// Errors of image construction, validation and file I/O.
 #[derive(Debug, thiserror::Error)]
 pub enum ImageError {
@@ -169,6 +178,28 @@ impl GrayImage {
         Ok(())
     }
 
+    /// Gray (ITU-R BT.601 luma, 0..=255) from interleaved RGB floats in 0..=1, as `image`
+    /// decodes files with more than 8 bits or with alpha (`to_rgb32f`): `255 *`
+    /// [`gray_from_rgb_pixel`]. On 8-bit values divided by 255 this can differ from
+    /// [`crate::vision::preprocess::gray_from_rgb`] in the last bits (the scaling rounds),
+    /// so each caller keeps the path it had and results stay bit for bit as they were.
+    pub fn from_unit_rgb(width: usize, height: usize, rgb: &[f32]) -> Result<Self, ImageError> {
+        let expected = 3 * width * height;
+        if rgb.len() != expected {
+            return Err(ImageError::BufferSize {
+                width,
+                height,
+                expected,
+                actual: rgb.len(),
+            });
+        }
+        let data = rgb
+            .chunks_exact(3)
+            .map(|p| 255.0 * gray_from_rgb_pixel([p[0], p[1], p[2]]))
+            .collect();
+        Self::new(width, height, data)
+    }
+
     /// Reads any PNG/JPEG file as gray (ITU-R BT.601 luma, 0..=255; 16-bit files scaled).
     pub fn load(path: &Path) -> Result<Self, ImageError> {
         let img = image::open(path).map_err(|e| ImageError::Read {
@@ -176,19 +207,18 @@ impl GrayImage {
             reason: e.to_string(),
         })?;
         let (w, h) = (img.width() as usize, img.height() as usize);
-        let data = if img.color().has_color() {
-            img.to_rgb32f()
-                .pixels()
-                .map(|p| 255.0 * (0.299 * p[0] + 0.587 * p[1] + 0.114 * p[2]))
-                .collect()
+        let out = if img.color().has_color() {
+            // Colour files, 8-bit ones included, go through 0..=1 floats (as they always
+            // have: gray_from_rgb on the 8-bit values could differ in the last bit).
+            Self::from_unit_rgb(w, h, img.to_rgb32f().as_raw())?
         } else {
             // Gray files keep their exact values (8-bit: integers 0..=255).
-            match img.as_luma8() {
+            let data = match img.as_luma8() {
                 Some(l8) => l8.as_raw().iter().map(|&v| v as f32).collect(),
                 None => img.to_luma32f().pixels().map(|p| 255.0 * p[0]).collect(),
-            }
+            };
+            Self::new(w, h, data)?
         };
-        let out = Self::new(w, h, data)?;
         out.validate()?;
         Ok(out)
     }

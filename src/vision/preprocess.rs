@@ -9,7 +9,7 @@
 //!
 //! Imports only [`super::image`].
 
-use super::image::{FlowField, GrayImage, ImageError};
+use super::image::{FlowField, GrayImage, ImageError, gray_from_rgb_pixel};
 use serde::{Deserialize, Serialize};
 
 /// Errors of the preprocessing helpers.
@@ -60,7 +60,8 @@ pub enum PreprocessError {
     Image(#[from] ImageError),
 }
 
-/// Gray (ITU-R BT.601 luma, 0..=255) from interleaved 8-bit RGB.
+/// Gray (ITU-R BT.601 luma, 0..=255) from interleaved 8-bit RGB: [`gray_from_rgb_pixel`]
+/// on each pixel's values.
 pub fn gray_from_rgb(
     rgb: &[u8],
     width: usize,
@@ -77,7 +78,7 @@ pub fn gray_from_rgb(
     }
     let data = rgb
         .chunks_exact(3)
-        .map(|p| 0.299 * p[0] as f32 + 0.587 * p[1] as f32 + 0.114 * p[2] as f32)
+        .map(|p| gray_from_rgb_pixel([p[0], p[1], p[2]].map(f32::from)))
         .collect();
     Ok(GrayImage::new(width, height, data)?)
 }
@@ -502,6 +503,29 @@ mod tests {
         assert!(row[first_valid..].iter().all(|&v| v));
         assert!(valid.chunks(64).all(|r| r == row.as_slice()));
         assert!(network_mask(&excluded[1..], w, h, &NetworkInputParams::default()).is_err());
+    }
+
+    #[test]
+    fn one_gray_formula_keeps_both_roundings_bit_for_bit() {
+        // The two expressions the callers wrote out before they shared
+        // gray_from_rgb_pixel: on 8-bit values, and on 0..=1 floats scaled by 255.
+        for r in (0..=255u8).step_by(3) {
+            for g in (0..=255u8).step_by(5) {
+                for b in (0..=255u8).step_by(7) {
+                    let old_u8 = 0.299 * r as f32 + 0.587 * g as f32 + 0.114 * b as f32;
+                    let got = gray_from_rgb(&[r, g, b], 1, 1).unwrap().data()[0];
+                    assert_eq!(got.to_bits(), old_u8.to_bits(), "{r} {g} {b}");
+                    let unit = [r, g, b].map(|v| f32::from(v) / 255.0);
+                    let old_unit = 255.0 * (0.299 * unit[0] + 0.587 * unit[1] + 0.114 * unit[2]);
+                    let got = GrayImage::from_unit_rgb(1, 1, &unit).unwrap().data()[0];
+                    assert_eq!(got.to_bits(), old_unit.to_bits(), "{r} {g} {b}");
+                }
+            }
+        }
+        assert!(matches!(
+            GrayImage::from_unit_rgb(2, 2, &[0.0; 11]),
+            Err(ImageError::BufferSize { expected: 12, .. })
+        ));
     }
 
     #[test]
