@@ -17,8 +17,8 @@ use super::offline::EpisodeScores;
 use super::profile::Calibration;
 use super::scorer::{FrameScore, phase_s};
 use crate::eval::{
-    CellStats, Components, NominalScales, Pooling, Thresholds, Window, conformal_threshold,
-    fuse_frame, max_threshold, pool_cells,
+    CellStats, Components, NominalScales, Pooling, TRIGGER_BASE, Thresholds, Window,
+    conformal_threshold, fuse_frame, max_threshold, pool_cells,
 };
 use std::path::{Path, PathBuf};
 use std::time::{SystemTime, UNIX_EPOCH};
@@ -147,6 +147,16 @@ pub fn calibrate<E>(
                         episodes_beyond_max(alpha)
                     ));
                 }
+                if c.threshold >= TRIGGER_BASE {
+                    notes.push(format!(
+                        "the conformal threshold ({:.6e}) lies above {TRIGGER_BASE:e}: held-out \
+                         nominal episodes passed the training e_c/e_b maxima, so under the \
+                         paper's fusion no frame below those maxima can ever alarm (e_o can \
+                         never raise one); more or more varied training episodes, or \
+                         fusion = \"calibrated\", avoid it",
+                        c.threshold
+                    ));
+                }
                 Some(c)
             }
             Err(e) => {
@@ -214,6 +224,100 @@ fn stem(p: &Path) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::eval::Fusion;
+    use crate::pipeline::scorer::StageTimings;
+
+    /// An episode of frames with these `e_c` values and nothing else.
+    fn episode(name: &str, e_c: &[f64]) -> EpisodeScores {
+        let frames = e_c
+            .iter()
+            .enumerate()
+            .map(|(i, &e)| FrameScore {
+                index: i as u64,
+                frame: i as u64,
+                stamp_ns: i as i64 * 100_000_000,
+                score: 0.0,
+                e_c: Some(e),
+                e_b: None,
+                e_o: Some(0.01),
+                e_r: None,
+                anomaly: false,
+                triggered: None,
+                warming_up: false,
+                best_offset: None,
+                registration_confidence: None,
+                body_pixels: 0,
+                timings: StageTimings::default(),
+                heatmap: None,
+                scene_cells: None,
+                phase_s: 0.0,
+                scene_grid: (0, 0),
+            })
+            .collect();
+        EpisodeScores {
+            name: name.into(),
+            frames,
+            frame_errors: Vec::new(),
+            damage: None,
+            no_joint_states: false,
+            joint_gaps: Vec::new(),
+            labels: None,
+            info: None,
+        }
+    }
+
+    /// Held-out nominal runs past the training maximum of `e_c` put the paper-fusion
+    /// conformal threshold above 1e6, where `e_o` can never alarm: calibration says so.
+    #[test]
+    fn a_conformal_threshold_above_the_trigger_base_is_reported() {
+        let pipeline = PipelineConfig {
+            fusion: Fusion::Paper,
+            ..PipelineConfig::default()
+        };
+        let run = |held_e_c: f64| {
+            calibrate(
+                &[PathBuf::from("train.mcap")],
+                &[PathBuf::from("a.mcap"), PathBuf::from("b.mcap")],
+                0.5,
+                Some("sha".into()),
+                &pipeline,
+                |paths, t: Thresholds| -> Result<Vec<EpisodeScores>, String> {
+                    Ok(paths
+                        .iter()
+                        .map(|p| {
+                            let mut e = episode(&stem(p), &[1.0, 2.0, held_e_c.min(2.0)]);
+                            if t.e_c.is_some() {
+                                // Held-out: scored with the thresholds, as the scorer does.
+                                e = episode(&stem(p), &[1.0, held_e_c]);
+                                for f in &mut e.frames {
+                                    let c = Components {
+                                        e_c: f.e_c,
+                                        e_b: None,
+                                        e_r: None,
+                                        e_o: f.e_o,
+                                    };
+                                    f.score = fuse_frame(&c, &t, Fusion::Paper).score;
+                                }
+                            }
+                            e
+                        })
+                        .collect())
+                },
+            )
+            .unwrap()
+        };
+        let above = run(3.0);
+        let c = above.calibration.conformal.as_ref().unwrap();
+        assert!(c.threshold >= TRIGGER_BASE, "{}", c.threshold);
+        assert!(
+            above.notes.iter().any(|n| n.contains("can ever alarm")),
+            "{:?}",
+            above.notes
+        );
+        let below = run(1.5);
+        assert!(below.calibration.conformal.unwrap().threshold < TRIGGER_BASE);
+        assert!(!below.notes.iter().any(|n| n.contains("can ever alarm")));
+    }
 
     #[test]
     fn held_out_episodes_beyond_the_maximum() {
