@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -109,8 +110,14 @@ class FitConfig:
     batch_size: int = 128
     #: Adam learning rate.
     learning_rate: float = 1e-4
-    #: Weight of KL(posterior || prior) in the loss.
+    #: Weight of KL(posterior || prior) in the loss (reached after ``kl_warmup_epochs``).
     beta: float = 10.0
+    #: Free bits, nats per latent dimension (0: off): the loss uses, per latent dimension,
+    #: ``max(batch-mean KL of that dimension, free_bits)`` (see :mod:`vamos.train.losses`).
+    free_bits: float = 0.0
+    #: KL annealing: the KL weight of epoch ``k`` (1-based) is ``beta * min(1, (k - 1) / W)``
+    #: with ``W = kl_warmup_epochs`` (0: off, ``beta`` from the first epoch).
+    kl_warmup_epochs: int = 0
     #: Coefficient of the weight-norm regulariser (see :func:`vamos.train.losses.weight_norm`).
     weight_decay: float = 1e-5
     #: Smallest past offset ``A`` (processed flow frames).
@@ -153,6 +160,13 @@ class FitConfig:
             raise ConfigError("beta", f"must be >= 0, got {self.beta}")
         if not self.weight_decay >= 0:
             raise ConfigError("weight_decay", f"must be >= 0, got {self.weight_decay}")
+        if (isinstance(self.free_bits, bool) or not isinstance(self.free_bits, (int, float))
+                or not math.isfinite(self.free_bits) or self.free_bits < 0):
+            raise ConfigError("free_bits", f"must be a finite number >= 0 (nats per latent dimension), "
+                                           f"got {self.free_bits!r}")
+        if (isinstance(self.kl_warmup_epochs, bool) or not isinstance(self.kl_warmup_epochs, int)
+                or self.kl_warmup_epochs < 0):
+            raise ConfigError("kl_warmup_epochs", f"must be an integer >= 0, got {self.kl_warmup_epochs!r}")
         if self.a < 1:
             raise ConfigError("a", f"must be >= 1, got {self.a}")
         if self.b < 0:
@@ -165,3 +179,14 @@ class FitConfig:
             raise ConfigError("threads", f"must be >= 1, got {self.threads}")
         if self.keep_every < 0:
             raise ConfigError("keep_every", f"must be >= 0, got {self.keep_every}")
+
+    def effective_beta(self, epoch: int) -> float:
+        """KL weight of 1-based ``epoch``: ``beta * min(1, (epoch - 1) / kl_warmup_epochs)``.
+
+        Without warm-up (``kl_warmup_epochs = 0``) it is ``beta`` in every epoch; with ``W``
+        warm-up epochs it is 0 in epoch 1, ``beta / W`` in epoch 2, ... and ``beta`` from
+        epoch ``W + 1`` on.
+        """
+        if self.kl_warmup_epochs <= 0:
+            return float(self.beta)
+        return float(self.beta) * min(1.0, (epoch - 1) / self.kl_warmup_epochs)
