@@ -8,7 +8,7 @@ import numpy as np
 import torch
 
 from vamos.train.config import ModelConfig
-from vamos.train.losses import kl_diagonal_gaussians, training_loss, weight_norm
+from vamos.train.losses import free_bits_kl, kl_diagonal_gaussians, training_loss, weight_norm
 from vamos.train.model import ProbabilisticUNet
 
 
@@ -80,3 +80,50 @@ def test_total_loss_combines_pieces() -> None:
     want = mse + 10.0 * float(kl_rows.mean()) + 1e-5 * float(weight_norm(model))
     assert abs(float(terms.total) - want) < 1e-5
     torch.set_grad_enabled(True)
+
+
+def test_free_bits_floors_each_dimension_of_the_batch_mean() -> None:
+    # Per-row, per-dimension KLs of a batch of two; batch means per dimension: 0.03, 0.4, 0.0.
+    kl = torch.tensor([[0.02, 0.5, 0.0], [0.04, 0.3, 0.0]])
+    assert abs(float(free_bits_kl(kl, 0.0)) - 0.43) < 1e-6  # off: the plain KL
+    assert abs(float(free_bits_kl(kl, 0.1)) - (0.1 + 0.4 + 0.1)) < 1e-6
+    assert abs(float(free_bits_kl(kl, 0.5)) - (0.5 + 0.5 + 0.5)) < 1e-6
+    # The floor applies to the batch mean, not to each row: 0.35 > 0.3 for row 2 alone.
+    assert abs(float(free_bits_kl(kl, 0.35)) - (0.35 + 0.4 + 0.35)) < 1e-6
+
+
+def _v(t: torch.Tensor) -> float:
+    return float(t.detach())
+
+
+def _fixed_latents(model: ProbabilisticUNet, posterior_mu: list[float]) -> None:
+    """Prior N(0, 1) and posterior N(posterior_mu, 1) for every input (1x1 conv weights 0)."""
+    latent = model.config.latent_dim
+    with torch.no_grad():
+        for net, mu in ((model.prior, [0.0] * latent), (model.posterior, posterior_mu)):
+            net.to_params.weight.zero_()
+            net.to_params.bias.copy_(torch.tensor(mu + [0.0] * latent))
+
+
+def test_free_bits_in_the_training_loss_hand_computed() -> None:
+    torch.manual_seed(0)
+    model = ProbabilisticUNet(ModelConfig(filters=(4, 8), latent_dim=3, input_size=16))
+    # KL per dimension of N(mu, 1) || N(0, 1) is mu^2 / 2: 0.005, 0.5, 0.
+    _fixed_latents(model, [0.1, 1.0, 0.0])
+    past, target = torch.rand(2, 2, 16, 16) - 0.5, torch.rand(2, 2, 16, 16) - 0.5
+    eps = torch.randn(2, 3)
+    plain = training_loss(model, past, target, eps, beta=10.0, weight_decay=1e-5)
+    floored = training_loss(model, past, target, eps, beta=10.0, weight_decay=1e-5, free_bits=0.1)
+    reg = float(weight_norm(model).detach())
+    for terms in (plain, floored):
+        assert abs(_v(terms.kl) - 0.505) < 1e-6  # the true KL, whatever free_bits is
+    assert abs(_v(plain.kl_term) - 0.505) < 1e-6
+    assert abs(_v(floored.kl_term) - (0.1 + 0.5 + 0.1)) < 1e-6
+    assert _v(floored.mse) == _v(plain.mse)
+    assert abs(_v(floored.total) - (_v(floored.mse) + 10.0 * 0.7 + 1e-5 * reg)) < 1e-5
+    assert abs(_v(plain.total) - (_v(plain.mse) + 10.0 * 0.505 + 1e-5 * reg)) < 1e-5
+    # Below the floor a dimension's KL has no gradient; above it, d(mu^2 / 2)/d mu = mu.
+    grad = torch.autograd.grad(floored.kl_term, model.posterior.to_params.bias)[0]
+    assert torch.allclose(grad[:3], torch.tensor([0.0, 1.0, 0.0]), atol=1e-6)
+    grad = torch.autograd.grad(plain.kl_term, model.posterior.to_params.bias)[0]
+    assert torch.allclose(grad[:3], torch.tensor([0.1, 1.0, 0.0]), atol=1e-6)

@@ -76,6 +76,12 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--batch-size", type=int, default=128, help="pairs per step (default %(default)s)")
     g.add_argument("--lr", type=float, default=1e-4, help="Adam learning rate")
     g.add_argument("--beta", type=float, default=10.0, help="weight of KL(posterior || prior)")
+    g.add_argument("--free-bits", type=float, default=0.0,
+                   help="free bits, nats per latent dimension: the loss uses max(KL of the dimension, "
+                        "this) per dimension, against posterior collapse (default 0: off; e.g. 0.1)")
+    g.add_argument("--kl-warmup-epochs", type=int, default=0,
+                   help="KL annealing: the KL weight ramps linearly from 0 to --beta over this many "
+                        "epochs (default 0: off)")
     g.add_argument("--weight-decay", type=float, default=1e-5,
                    help="coefficient of the prior/posterior/fcomb weight-norm term")
     g.add_argument("--a", type=int, default=5, help="smallest past offset A (flow frames)")
@@ -147,17 +153,19 @@ def _print_diffs(diffs: dict[str, float] | None) -> None:
 def _cmd_fit(args: argparse.Namespace) -> int:
     from vamos.train.data import load_dataset
 
-    load_dataset(args.dataset)  # fail fast on a bad dataset, before importing torch
-    from vamos.train.trainer import fit
-
     cfg = FitConfig(
         dataset_dir=args.dataset, run_dir=args.output, model=_model_config(args),
         epochs=args.epochs, batch_size=args.batch_size, learning_rate=args.lr, beta=args.beta,
+        free_bits=args.free_bits, kl_warmup_epochs=args.kl_warmup_epochs,
         weight_decay=args.weight_decay, a=args.a, b=args.b, m=args.m, val_fraction=args.val_fraction,
         val_episodes=args.val_episodes, train_episodes=args.train_episodes, seed=args.seed,
         device=args.device, threads=args.threads, name=args.name, keep_every=args.keep_every,
         progress=not args.no_progress, channels_last=args.channels_last,
     )
+    cfg.validate()  # fail fast on bad settings and a bad dataset, before importing torch
+    load_dataset(args.dataset)
+    from vamos.train.trainer import fit
+
     result = fit(cfg, resume=args.resume)
     print(f"wrote {result.bundle}")
     return 0

@@ -3,10 +3,16 @@
 A run folder holds::
 
     config.json            the effective configuration
-    log.jsonl              one JSON object per epoch (train/validation total, mse, kl, reg)
-    checkpoints/last.pt    model, optimiser, RNG states, epoch, history (every epoch)
+    log.jsonl              one JSON object per epoch (train/validation total, mse, kl, reg; beta)
+    checkpoints/last.pt    model, optimiser, RNG states, epoch, history (every epoch),
+                           after the last epoch also the collapse check
     checkpoints/epoch_NNNN.pt  copies every ``keep_every`` epochs (if asked)
-    model.vamos            the exported bundle (after the last epoch)
+    model.vamos            the exported bundle (after the last epoch); its manifest's
+                           ``training`` object (the run's summary) has the collapse check
+
+After the last epoch :func:`vamos.train.collapse.collapse_check` measures KL and the
+spread of the prior's samples on the validation pairs (the training pairs without a
+validation split), prints them and warns when the posterior has collapsed.
 
 Reproducibility: weights are initialised from ``seed``; epoch ``e``'s sample order and
 offsets come from ``numpy.random.default_rng([seed, e, 1])`` and its latent noise from a
@@ -22,6 +28,7 @@ import json
 import math
 import os
 import random
+import sys
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -31,6 +38,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from vamos.train.collapse import collapse_check, collapse_summary, collapse_warning
 from vamos.train.config import ConfigError, FitConfig, ModelConfig
 from vamos.train.data import PairSampler, load_dataset, split_episodes
 from vamos.train.export import BundleInfo, export_bundle, verify_bundle
@@ -121,8 +129,11 @@ def run_epoch(
     desc: str = "",
     progress: bool = False,
     channels_last: bool = False,
+    free_bits: float = 0.0,
 ) -> EpochLosses:
     """One pass over the sampler's plan; trains if ``optimizer`` is given, else evaluates.
+
+    ``total`` is the loss optimised (with ``free_bits``' floored KL term); ``kl`` the true KL.
 
     Training shuffles and draws ``z`` from the posterior with noise from ``generator``;
     evaluation keeps the target order (``n`` still drawn from ``rng``).
@@ -142,7 +153,7 @@ def run_epoch(
                 past = past.contiguous(memory_format=torch.channels_last)
                 target = target.contiguous(memory_format=torch.channels_last)
             eps = torch.randn(past.shape[0], model.config.latent_dim, generator=generator).to(device)
-            terms = training_loss(model, past, target, eps, beta, weight_decay)
+            terms = training_loss(model, past, target, eps, beta, weight_decay, free_bits)
             if optimizer is not None:
                 optimizer.zero_grad(set_to_none=True)
                 terms.total.backward()
@@ -225,11 +236,14 @@ def bundle_info_from_checkpoint(ckpt: dict[str, Any], name: str | None = None) -
             "batch_size": fit["batch_size"],
             "learning_rate": fit["learning_rate"],
             "beta": fit["beta"],
+            "free_bits": fit.get("free_bits", 0.0),
+            "kl_warmup_epochs": fit.get("kl_warmup_epochs", 0),
             "weight_decay": fit["weight_decay"],
             "seed": fit["seed"],
             "final_train_loss": final("train"),
             "final_validation_loss": final("validation"),
             "dataset": str(ds["path"]),
+            **({"collapse_check": ckpt["collapse_check"]} if ckpt.get("collapse_check") is not None else {}),
         },
     )
 
@@ -260,6 +274,8 @@ class FitResult:
     manifest: dict[str, Any]
     #: The trained model (on the training device).
     model: ProbabilisticUNet
+    #: The collapse check after the last epoch (:meth:`vamos.train.collapse.CollapseCheck.to_dict`).
+    collapse: dict[str, Any] | None = None
 
 
 def _losses_record(losses: EpochLosses) -> dict[str, Any] | None:
@@ -349,22 +365,24 @@ def fit(cfg: FitConfig, resume: bool = False, export: bool = True) -> FitResult:
     epochs = tqdm(range(start_epoch, cfg.epochs), desc="epochs", disable=not cfg.progress, unit="epoch")
     for epoch in epochs:
         started = time.perf_counter()
+        beta = cfg.effective_beta(epoch + 1)
         rng, generator = _epoch_rngs(cfg.seed, epoch, 1)
-        train = run_epoch(model, train_sampler, rng, generator, cfg.batch_size, cfg.beta, cfg.weight_decay,
+        train = run_epoch(model, train_sampler, rng, generator, cfg.batch_size, beta, cfg.weight_decay,
                           device, optimizer, desc=f"train {epoch + 1}", progress=cfg.progress,
-                          channels_last=channels_last)
+                          channels_last=channels_last, free_bits=cfg.free_bits)
         val_rng, val_generator = _epoch_rngs(cfg.seed, 0, 2)  # same draws every epoch
-        val = run_epoch(model, val_sampler, val_rng, val_generator, cfg.batch_size, cfg.beta,
+        val = run_epoch(model, val_sampler, val_rng, val_generator, cfg.batch_size, beta,
                         cfg.weight_decay, device, None, desc=f"val {epoch + 1}", progress=cfg.progress,
-                        channels_last=channels_last)
-        record = {"epoch": epoch + 1, "train": _losses_record(train), "validation": _losses_record(val),
-                  "seconds": round(time.perf_counter() - started, 3)}
+                        channels_last=channels_last, free_bits=cfg.free_bits)
+        record = {"epoch": epoch + 1, "beta": beta, "train": _losses_record(train),
+                  "validation": _losses_record(val), "seconds": round(time.perf_counter() - started, 3)}
         history.append(record)
         with log_path.open("a", encoding="utf-8") as log:
             log.write(json.dumps(record) + "\n")
         val_text = f"val {val.total:.5g} (mse {val.mse:.4g}, kl {val.kl:.4g})" if val.samples else "no validation"
+        beta_text = f", beta {beta:.4g}" if cfg.kl_warmup_epochs else ""
         epochs.write(f"epoch {epoch + 1}/{cfg.epochs}: train {train.total:.5g} "
-                     f"(mse {train.mse:.4g}, kl {train.kl:.4g}, reg {train.reg:.4g}), {val_text}")
+                     f"(mse {train.mse:.4g}, kl {train.kl:.4g}, reg {train.reg:.4g}), {val_text}{beta_text}")
         ckpt_out = {
             "format": CHECKPOINT_FORMAT,
             "version": CHECKPOINT_VERSION,
@@ -381,10 +399,30 @@ def fit(cfg: FitConfig, resume: bool = False, export: bool = True) -> FitResult:
         if cfg.keep_every and (epoch + 1) % cfg.keep_every == 0:
             _atomic_torch_save(ckpt_out, run_dir / "checkpoints" / f"epoch_{epoch + 1:04d}.pt")
 
+    collapse = _collapse_check(cfg, model, train_sampler, val_sampler, device, channels_last)
+    final = load_checkpoint(last_path)
+    final["collapse_check"] = collapse
+    _atomic_torch_save(final, last_path)
+
     bundle_path = run_dir / "model.vamos"
     manifest: dict[str, Any] = {}
     if export:
         manifest, diffs = export_checkpoint(last_path, bundle_path, cfg.name)
         print(f"exported {bundle_path}; onnxruntime vs torch max abs diff: "
               + ", ".join(f"{k} {v:.2g}" for k, v in (diffs or {}).items()))
-    return FitResult(bundle=bundle_path, history=history, manifest=manifest, model=model)
+    return FitResult(bundle=bundle_path, history=history, manifest=manifest, model=model, collapse=collapse)
+
+
+def _collapse_check(cfg: FitConfig, model: ProbabilisticUNet, train_sampler: PairSampler,
+                    val_sampler: PairSampler, device: torch.device, channels_last: bool) -> dict[str, Any]:
+    """Run the collapse check on the validation pairs (else the training pairs), print the
+    numbers (stdout) and a warning when collapsed (stderr); the check as a plain dict."""
+    split, sampler = ("validation", val_sampler) if len(val_sampler) else ("train", train_sampler)
+    rng, generator = _epoch_rngs(cfg.seed, 0, 2)  # the validation's pairs: its kl is the last epoch's
+    check = collapse_check(model, sampler, rng, generator, max(cfg.m, 2), cfg.batch_size, device, split,
+                           channels_last=channels_last)
+    print(collapse_summary(check))
+    warning = collapse_warning(check)
+    if warning is not None:
+        print(warning, file=sys.stderr)
+    return check.to_dict()
