@@ -70,6 +70,17 @@ pub struct Setup {
 }
 
 impl Setup {
+    /// The alarm threshold and each detector's own threshold in force (the profile's
+    /// thresholds under its fusion, resolved on whether it has a flow model).
+    pub fn detector_thresholds(&self) -> crate::eval::DetectorThresholds {
+        crate::eval::DetectorThresholds::new(
+            &self.profile.thresholds(),
+            self.profile.alarm_threshold(),
+            self.config.fusion,
+            self.model.is_some(),
+        )
+    }
+
     /// Reads the profile file at `path` and loads its robot, camera and model.
     pub fn load(settings: &Settings, path: &std::path::Path) -> Result<Self, SetupError> {
         Self::from_profile(settings, Profile::load(path)?)

@@ -10,8 +10,8 @@ const DETECTORS = [
   { key: 'score', label: 'fused score', thr: 'alarm', color: '#1d232a' },
   { key: 'e_c', label: 'e_c camera motion (px)', thr: 'e_c', color: '#1565c0' },
   { key: 'e_b', label: 'e_b body motion (px)', thr: 'e_b', color: '#6a1b9a' },
-  { key: 'e_o', label: 'e_o flow prediction', thr: null, color: '#ef6c00' },
-  { key: 'e_r', label: 'e_r scene residual', thr: null, color: '#00897b' },
+  { key: 'e_o', label: 'e_o flow prediction', thr: 'e_o', color: '#ef6c00' },
+  { key: 'e_r', label: 'e_r scene residual', thr: 'e_r', color: '#00897b' },
 ];
 
 const state = {
@@ -329,7 +329,8 @@ function renderAlarms(alarms) {
     facts.appendChild(el('div', 'frames ' + a.start_frame + ' - ' + (a.end_frame ?? 'on') + ', ' + a.frames_flagged + ' flagged'));
     const t = a.thresholds;
     facts.appendChild(el('div', 'at start: score ' + fmt(a.start.score) + ' (threshold ' + fmt(t.alarm) + '), e_c ' + fmt(a.start.e_c) +
-      ' (' + fmt(t.e_c) + '), e_b ' + fmt(a.start.e_b) + ' (' + fmt(t.e_b) + '), e_o ' + fmt(a.start.e_o) + ', e_r ' + fmt(a.start.e_r)));
+      ' (' + fmt(t.e_c) + '), e_b ' + fmt(a.start.e_b) + ' (' + fmt(t.e_b) + '), e_o ' + fmt(a.start.e_o) + ' (' + fmt(t.e_o) + '), e_r ' +
+      fmt(a.start.e_r) + ' (' + fmt(t.e_r) + ')'));
     facts.appendChild(el('div', a.false_alarm ? 'marked as a false alarm (' + a.false_alarm.by_role + ')' : a.id, 'muted'));
     li.appendChild(facts);
     const b = el('button', a.false_alarm ? 'False alarm' : 'Mark false alarm', 'mark');
@@ -365,14 +366,26 @@ async function loadSide() {
     const ul = el('ul');
     for (const j of jobs.slice(-10).reverse()) {
       const thr = j.calibration && j.calibration.alarm_thresholds ? ' alarm ' + fmt(j.calibration.alarm_thresholds.conformal) : '';
-      ul.appendChild(el('li', '#' + j.id + ' ' + j.profile + ': ' + j.state + thr + (j.error ? ' (' + j.error + ')' : '')));
+      const kind = j.proposal ? ' recalibration' : '';
+      const li = el('li', '#' + j.id + ' ' + j.profile + kind + ': ' + j.state + (j.proposal ? '' : thr) + (j.error ? ' (' + j.error + ')' : ''));
+      if (j.proposal && j.state === 'succeeded') li.appendChild(proposal(j));
+      ul.appendChild(li);
     }
     $('jobs').replaceChildren(jobs.length ? ul : el('span', 'No calibration job.'));
   } catch (e) { $('jobs').textContent = e.status === 403 ? 'Calibration jobs need an admin token.' : e.message; }
   try {
     const profiles = (await (await api('/v1/profiles')).json()).profiles || [];
     const ul = el('ul');
-    for (const p of profiles) ul.appendChild(el('li', (p.name || p) + (p.alarm_threshold !== undefined ? ': alarm threshold ' + fmt(p.alarm_threshold) : '')));
+    // Each profile's nominal set: the recorded sessions of its false alarms.
+    const nominal = await Promise.all(profiles.map((p) => (p.name
+      ? api('/v1/profiles/' + encodeURIComponent(p.name) + '/nominal').then((r) => r.json()).then((b) => b.episodes.length, () => null)
+      : null)));
+    profiles.forEach((p, i) => {
+      const count = nominal[i] === null ? '' : ', ' + nominal[i] + ' nominal episode(s) from false alarms';
+      const li = el('li', (p.name || p) + (p.alarm_threshold !== undefined ? ': alarm threshold ' + fmt(p.alarm_threshold) : '') + count);
+      if (state.role === 'admin' && p.name && nominal[i]) li.appendChild(recalibrateButton(p.name));
+      ul.appendChild(li);
+    });
     $('profiles').replaceChildren(profiles.length ? ul : el('span', 'No profile.'));
   } catch (e) { $('profiles').textContent = e.status === 403 ? 'Profiles need a robot or admin token.' : e.message; }
   try {
@@ -381,6 +394,49 @@ async function loadSide() {
     for (const a of marked.slice(-10).reverse()) ul.appendChild(el('li', a.id + ' ' + a.profile + ' ' + a.detector + ' (' + a.false_alarm.by_role + ')'));
     $('marked').replaceChildren(marked.length ? ul : el('span', 'None yet.'));
   } catch (e) { $('marked').textContent = e.message; }
+}
+
+// A recalibration's proposal: each threshold now and proposed, the episodes' largest
+// scores before and after, and (admin, not applied yet) the button that applies it.
+function proposal(j) {
+  const p = j.proposal;
+  const box = el('div', null, 'proposal');
+  const rows = ['alarm', 'e_c', 'e_b', 'e_o', 'e_r']
+    .filter((k) => p.current[k] !== null || p.proposed[k] !== null)
+    .map((k) => k + ' ' + fmt(p.current[k]) + ' \u2192 ' + fmt(p.proposed[k]));
+  box.appendChild(el('div', 'thresholds: ' + rows.join(', ')));
+  box.appendChild(el('div', p.episodes.length + ' nominal episode(s), largest score ' +
+    p.episodes.map((e) => fmt(e.max_score_before) + ' \u2192 ' + fmt(e.max_score_after)).join(', '), 'muted'));
+  if (p.applied_unix_s) {
+    box.appendChild(el('div', 'applied', 'muted'));
+  } else if (state.role === 'admin') {
+    const b = el('button', 'Apply', 'apply');
+    b.addEventListener('click', async () => {
+      b.disabled = true;
+      try {
+        await api('/v1/jobs/' + j.id + '/apply', { method: 'POST' });
+        say('Job ' + j.id + "'s thresholds applied to " + j.profile + '.');
+        loadSide();
+      } catch (e) { say('Not applied: ' + e.message); b.disabled = false; }
+    });
+    box.appendChild(b);
+  }
+  return box;
+}
+
+// Starts a recalibration of a profile from its nominal set (its false alarms' sessions).
+function recalibrateButton(name) {
+  const b = el('button', 'Recalibrate from false alarms', 'recalibrate');
+  b.addEventListener('click', async () => {
+    b.disabled = true;
+    try {
+      const r = await (await api('/v1/profiles/' + encodeURIComponent(name) + '/recalibrate', { method: 'POST' })).json();
+      say('Recalibration job ' + r.job + ' started for ' + name + ': its proposal shows under Calibration jobs.');
+      loadSide();
+    } catch (e) { say('Not started: ' + e.message); }
+    b.disabled = false;
+  });
+  return b;
 }
 
 signIn();

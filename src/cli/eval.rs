@@ -107,11 +107,11 @@ pub fn run(settings: &Settings, opts: Args) -> Result<()> {
     }
     if let Some(dir) = &opts.plots {
         write_plots(dir, &timelines(&results), &frames, alarm)?;
+        let series: Vec<DetectorSeries<'_>> = results.iter().map(DetectorSeries::from).collect();
         write_detector_plots(
             dir,
-            &results,
-            &setup.profile.thresholds(),
-            alarm,
+            &series,
+            &setup.detector_thresholds(),
             setup.profile.file.alarm_events.unwrap_or_default(),
         )?;
         eprintln!("plots in {}", dir.display());
@@ -125,15 +125,83 @@ pub fn run(settings: &Settings, opts: Args) -> Result<()> {
     Ok(())
 }
 
+/// One frame's values for the detector plots and the first-alarm frame.
+#[derive(Debug, Clone, Copy)]
+pub struct DetectorPoint {
+    /// Image stamp, nanoseconds.
+    pub stamp_ns: i64,
+    /// Fused score.
+    pub score: f64,
+    /// Camera-motion error.
+    pub e_c: Option<f64>,
+    /// Body-motion error.
+    pub e_b: Option<f64>,
+    /// Flow-prediction error.
+    pub e_o: Option<f64>,
+    /// Scene residual.
+    pub e_r: Option<f64>,
+    /// The flow predictor is still warming up.
+    pub warming_up: bool,
+    /// The frame is flagged (`score >= alarm threshold`).
+    pub anomaly: bool,
+}
+
+impl From<&vamos::pipeline::FrameScore> for DetectorPoint {
+    fn from(f: &vamos::pipeline::FrameScore) -> Self {
+        Self {
+            stamp_ns: f.stamp_ns,
+            score: f.score,
+            e_c: f.e_c,
+            e_b: f.e_b,
+            e_o: f.e_o,
+            e_r: f.e_r,
+            warming_up: f.warming_up,
+            anomaly: f.anomaly,
+        }
+    }
+}
+
+/// One episode's frames for [`write_detector_plots`], whatever scored them.
+pub struct DetectorSeries<'a> {
+    /// Episode name (the plot's file stem).
+    pub name: &'a str,
+    /// Its labels, if any.
+    pub labels: Option<&'a Labels>,
+    /// Its scored frames, in order.
+    pub points: Vec<DetectorPoint>,
+}
+
+impl<'a> From<&'a EpisodeScores> for DetectorSeries<'a> {
+    fn from(e: &'a EpisodeScores) -> Self {
+        Self {
+            name: &e.name,
+            labels: e.labels.as_ref(),
+            points: e.frames.iter().map(DetectorPoint::from).collect(),
+        }
+    }
+}
+
+/// Index of the frame where the first alarm starts: the debounced start under `rule`,
+/// as the service reports it.
+pub fn first_alarm(
+    points: &[DetectorPoint],
+    rule: vamos::eval::alarm::Debounce,
+) -> Result<Option<usize>> {
+    Ok(
+        vamos::eval::alarm::alarm_intervals(points.iter().map(|p| p.anomaly), rule)?
+            .first()
+            .map(|(start, _)| *start),
+    )
+}
+
 /// Writes `<episode>.detectors.png` for every scored episode: the fused score (log axis,
 /// the alarm threshold) above each detector's value against its own threshold, the flow
 /// predictor's warm-up greyed, the labelled intervals shaded, and the first alarm (the
 /// debounced start, as the service reports it) marked. Returns the files written.
 pub fn write_detector_plots(
     dir: &Path,
-    results: &[EpisodeScores],
-    thresholds: &vamos::eval::Thresholds,
-    alarm: f64,
+    episodes: &[DetectorSeries<'_>],
+    thresholds: &vamos::eval::DetectorThresholds,
     rule: vamos::eval::alarm::Debounce,
 ) -> Result<Vec<PathBuf>> {
     use vamos::eval::detector_plot::{Panel, plot_detectors};
@@ -144,14 +212,14 @@ pub fn write_detector_plots(
         log_y: false,
     };
     let mut written = Vec::new();
-    for e in results {
-        let Some(t0) = e.frames.first().map(|f| f.stamp_ns) else {
+    for e in episodes {
+        let Some(t0) = e.points.first().map(|f| f.stamp_ns) else {
             continue;
         };
         let s = |ns: i64| (ns - t0) as f64 / 1e9;
-        let stamps: Vec<f64> = e.frames.iter().map(|f| s(f.stamp_ns)).collect();
-        let series = |get: fn(&vamos::pipeline::FrameScore) -> Option<f64>| -> Vec<f64> {
-            e.frames
+        let stamps: Vec<f64> = e.points.iter().map(|f| s(f.stamp_ns)).collect();
+        let series = |get: fn(&DetectorPoint) -> Option<f64>| -> Vec<f64> {
+            e.points
                 .iter()
                 .map(|f| get(f).unwrap_or(f64::NAN))
                 .collect()
@@ -163,53 +231,48 @@ pub fn write_detector_plots(
             series(|f| f.e_o),
             series(|f| f.e_r),
         );
-        let warming: Vec<bool> = e.frames.iter().map(|f| f.warming_up).collect();
-        let first_alarm =
-            vamos::eval::alarm::alarm_intervals(e.frames.iter().map(|f| f.anomaly), rule)?
-                .first()
-                .and_then(|(start, _)| stamps.get(*start).copied());
+        let warming: Vec<bool> = e.points.iter().map(|f| f.warming_up).collect();
+        let first_alarm = first_alarm(&e.points, rule)?.and_then(|i| stamps.get(i).copied());
         let intervals: Vec<(f64, f64)> = e
             .labels
-            .as_ref()
             .map(|l| l.intervals_ns.iter().map(|[a, b]| (s(*a), s(*b))).collect())
             .unwrap_or_default();
-        let finite = |v: Option<f64>| v.filter(|x| x.is_finite());
         let panels = [
             Panel {
                 label: "fused score",
                 values: &score,
-                threshold: finite(Some(alarm)),
+                threshold: thresholds.alarm,
                 log_y: true,
             },
             Panel {
                 label: "e_c camera (px)",
                 values: &e_c,
-                threshold: finite(thresholds.e_c),
+                threshold: thresholds.e_c,
                 log_y: false,
             },
             Panel {
                 label: "e_b body (px)",
                 values: &e_b,
-                threshold: finite(thresholds.e_b),
+                threshold: thresholds.e_b,
                 log_y: false,
             },
             Panel {
                 label: "e_o flow",
                 values: &e_o,
-                threshold: None,
+                threshold: thresholds.e_o,
                 log_y: false,
             },
             Panel {
                 label: "e_r scene",
                 values: &e_r,
-                threshold: None,
+                threshold: thresholds.e_r,
                 log_y: false,
             },
         ];
         let path = dir.join(format!("{}.detectors.png", e.name));
         plot_detectors(
             &path,
-            &e.name,
+            e.name,
             &stamps,
             &panels,
             &warming,

@@ -152,7 +152,7 @@ fn write_outputs(
     } else {
         None
     };
-    let mut thresholds_json = Some(thresholds_json(&run.thresholds, run.alarm_threshold));
+    let mut thresholds_json = Some(serde_json::to_string(&scorer.detector_thresholds())?);
     let scores = score_episode::<anyhow::Error>(scorer, episode, |frame, score| {
         seen(frame);
         serde_json::to_writer(&mut lines, score)?;
@@ -168,18 +168,6 @@ fn write_outputs(
         bag.finish()?;
     }
     Ok(scores)
-}
-
-/// The thresholds in force as the JSON of a scored bag's `/vamos/thresholds`
-/// (`null`: none).
-pub fn thresholds_json(t: &Thresholds, alarm: f64) -> String {
-    let finite = |v: Option<f64>| v.filter(|x| x.is_finite());
-    serde_json::json!({
-        "alarm": finite(Some(alarm)),
-        "e_c": finite(t.e_c),
-        "e_b": finite(t.e_b),
-    })
-    .to_string()
 }
 
 /// The score topics of one frame, beside a copy of its image.
@@ -198,6 +186,7 @@ fn write_frame(
             e_c: s.e_c,
             e_b: s.e_b,
             e_o: s.e_o,
+            e_r: s.e_r,
             heatmap: s.heatmap.as_deref(),
             anomaly_map: map.map(|m| (m.width as u32, m.height as u32, m.pixels.as_slice())),
             thresholds_json: thresholds_json.as_deref(),

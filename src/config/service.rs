@@ -146,6 +146,16 @@ pub struct ServiceConfig {
     /// (a tenth of it, at most 1 s, while more than three quarters of the connections
     /// are in use).
     pub header_timeout_s: f64,
+    /// Record each live session's input (gray images, joint positions, camera) in the
+    /// data directory's `recordings/`, so that a session with a false alarm can join its
+    /// profile's nominal set.
+    pub record_sessions: bool,
+    /// Disk all recordings may take together, MiB (the oldest ones not kept for a nominal
+    /// set are removed to make room).
+    pub recordings_disk_mb: u64,
+    /// Most raw bytes one session records, MiB; the rest of a longer session is not
+    /// recorded.
+    pub max_recording_mb: u64,
 }
 
 impl Default for ServiceConfig {
@@ -185,6 +195,9 @@ impl Default for ServiceConfig {
             max_upload_disk_mb: 32 << 10,
             max_connections: 0,
             header_timeout_s: 10.0,
+            record_sessions: true,
+            recordings_disk_mb: 2048,
+            max_recording_mb: 256,
         }
     }
 }

@@ -140,6 +140,14 @@ pub fn interpolate_rows(stamps_ns: &[i64], rows: &[f64], n: usize, stamp_ns: i64
         };
     }
     let (t0, t1) = (s[after - 1], s[after]);
+    if t1 == stamp_ns {
+        // A sample at the stamp: its positions exactly (interpolating would round).
+        return JointSample {
+            positions: row(after).to_vec(),
+            gap_ns: 0,
+            extrapolated: false,
+        };
+    }
     let w = (stamp_ns - t0) as f64 / (t1 - t0) as f64;
     let positions = row(after - 1)
         .iter()

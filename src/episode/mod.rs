@@ -43,7 +43,7 @@ pub mod writer;
 
 pub use bag::{
     ChosenTopics, EpisodeConfig, EpisodeFrame, EpisodeInfo, EpisodeTopics, Frames, JointStateAt,
-    McapEpisode, SourceMessage, TopicInfo,
+    McapEpisode, SourceMessage, TopicInfo, decompress_zstd_into, is_zstd_file,
 };
 pub use folder::{EpisodeError, ImageSequence, SequenceFrame};
 pub use joints::{JointSample, JointTrack, interpolate_rows};

@@ -339,6 +339,41 @@ impl CameraInfoMsg {
         })
     }
 
+    /// A distortion-free pinhole camera info of `k` (`K` and `P` from it, `R` the
+    /// identity), stamped `stamp_ns` in frame `frame_id`.
+    pub fn from_intrinsics(stamp_ns: i64, frame_id: &str, k: &Intrinsics) -> Self {
+        Self {
+            header: Header::from_stamp_ns(stamp_ns, frame_id),
+            height: k.height,
+            width: k.width,
+            distortion_model: "plumb_bob".into(),
+            d: vec![0.0; 5],
+            k: [k.fx, 0.0, k.cx, 0.0, k.fy, k.cy, 0.0, 0.0, 1.0],
+            r: [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
+            p: [
+                k.fx, 0.0, k.cx, 0.0, 0.0, k.fy, k.cy, 0.0, 0.0, 0.0, 1.0, 0.0,
+            ],
+        }
+    }
+
+    /// Encodes the message (binning 0, an empty ROI).
+    pub fn encode(&self) -> Vec<u8> {
+        let mut w = CdrWriter::new();
+        self.header.write(&mut w);
+        w.u32(self.height);
+        w.u32(self.width);
+        w.string(&self.distortion_model);
+        w.f64_seq(&self.d);
+        w.f64_array(&self.k);
+        w.f64_array(&self.r);
+        w.f64_array(&self.p);
+        for _ in 0..6 {
+            w.u32(0); // binning_x, binning_y, roi.{x_offset, y_offset, height, width}
+        }
+        w.bool(false); // roi.do_rectify
+        w.into_bytes()
+    }
+
     /// Pinhole intrinsics from `K`, `width` and `height`.
     pub fn intrinsics(&self) -> Result<Intrinsics, MessageError> {
         Ok(Intrinsics::from_k(self.width, self.height, &self.k)?)

@@ -46,6 +46,8 @@ pub struct ScoreTopics<'a> {
     pub e_b: Option<f64>,
     /// Flow-prediction error (`/vamos/e_o`), when defined.
     pub e_o: Option<f64>,
+    /// Scene-motion residual (`/vamos/e_r`), when defined.
+    pub e_r: Option<f64>,
     /// Square squared-error map of the best prediction (`/vamos/heatmap`), when kept.
     pub heatmap: Option<&'a [f32]>,
     /// The frame's anomaly map `(width, height, mono8 pixels)` (`/vamos/anomaly_map`,
@@ -247,6 +249,49 @@ impl ScoreBagWriter {
         }
     }
 
+    /// Writes a message already encoded (CDR) of ROS 2 type `schema_name` on `topic` at
+    /// log time `stamp_ns`.
+    pub fn write_cdr(
+        &mut self,
+        topic: &str,
+        schema_name: &str,
+        stamp_ns: i64,
+        cdr: &[u8],
+    ) -> Result<(), EpisodeError> {
+        let id = self.ros_channel(topic, schema_name)?;
+        self.write(id, stamp_u64(stamp_ns), cdr)
+    }
+
+    /// Writes a `sensor_msgs/msg/JointState` of positions only, stamped `stamp_ns`.
+    pub fn write_joint_state(
+        &mut self,
+        topic: &str,
+        stamp_ns: i64,
+        names: &[String],
+        positions: &[f64],
+    ) -> Result<(), EpisodeError> {
+        let msg = ros::JointStateMsg {
+            header: Header::from_stamp_ns(stamp_ns, ""),
+            name: names.to_vec(),
+            position: positions.to_vec(),
+            velocity: Vec::new(),
+            effort: Vec::new(),
+        };
+        let id = self.ros_channel(topic, schema::JOINT_STATE)?;
+        self.write(id, stamp_u64(stamp_ns), &msg.encode())
+    }
+
+    /// Writes a `sensor_msgs/msg/CameraInfo`.
+    pub fn write_camera_info(
+        &mut self,
+        topic: &str,
+        msg: &ros::CameraInfoMsg,
+    ) -> Result<(), EpisodeError> {
+        let id = self.ros_channel(topic, schema::CAMERA_INFO)?;
+        let stamp = msg.header.stamp_ns();
+        self.write(id, stamp_u64(stamp), &msg.encode())
+    }
+
     /// Writes a `std_msgs/msg/Float64`.
     pub fn write_f64(
         &mut self,
@@ -344,6 +389,7 @@ impl ScoreBagWriter {
             ("/vamos/e_c", s.e_c),
             ("/vamos/e_b", s.e_b),
             ("/vamos/e_o", s.e_o),
+            ("/vamos/e_r", s.e_r),
         ] {
             if let Some(v) = v {
                 self.write_f64(topic, t, v)?;

@@ -33,7 +33,7 @@ pub fn max_threshold(values: &[f64]) -> Option<f64> {
 }
 
 /// A conformal threshold on the fused score with its guarantees.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ConformalThreshold {
     /// Alarm when `score >= threshold`: the next float above `order_statistic`.
@@ -55,6 +55,11 @@ pub struct ConformalThreshold {
     pub confidence: f64,
     /// Share of the calibration episodes whose maximum reaches the threshold.
     pub calibration_false_alarm_rate: f64,
+    /// The calibration episodes' maxima (sorted), kept so that the threshold can be
+    /// recomputed when episodes judged nominal join them (absent in calibrations made
+    /// before they were kept).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub episode_maxima: Vec<f64>,
 }
 
 /// The split-conformal rank k = ceil((n + 1)(1 - alpha)), 1-based; may exceed n.
@@ -136,6 +141,7 @@ pub fn conformal_threshold(
         marginal_false_alarm_bound: 1.0 - rank_k as f64 / (n as f64 + 1.0),
         confidence,
         calibration_false_alarm_rate: alarms as f64 / n as f64,
+        episode_maxima: sorted,
     })
 }
 

@@ -27,7 +27,7 @@
 //! the top of the untriggered band. A NaN threshold never triggers; a threshold <= 0
 //! triggers with ratio 1.
 
-use super::nominal::{CellStats, NominalScales};
+use super::nominal::{CellStats, NominalScales, Scale};
 use serde::{Deserialize, Serialize};
 
 /// Lower edge of the triggered band: every triggered score is at least this plus 1
@@ -116,6 +116,66 @@ impl Thresholds {
             e_c,
             e_b,
             ..Thresholds::default()
+        }
+    }
+}
+
+/// Each detector's own alarm threshold, in the detector's own units: the value at which
+/// it alone makes a frame's fused score reach the alarm threshold `alarm` (`None`: it
+/// cannot, or does not enter the fusion). For plots and the live view, which draw each
+/// detector against its own line, and for the alarm records.
+///
+/// - paper fusion: `e_c` and `e_b` at their thresholds; `e_o` at `alarm` itself (its
+///   score is `e_o`) unless `alarm` lies above [`UNTRIGGERED_MAX`] (then only `e_c`/`e_b`
+///   can alarm); `e_r` does not enter;
+/// - calibrated fusion: each detector where its calibrated score `(e - location) / spread`
+///   reaches `alarm`, i.e. `location + alarm * spread` (its raw value when it has no
+///   nominal scale), unless `alarm` lies above [`RATIO_CAP`].
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DetectorThresholds {
+    /// The fused-score alarm threshold.
+    pub alarm: Option<f64>,
+    /// e_c, pixels.
+    pub e_c: Option<f64>,
+    /// e_b, pixels.
+    pub e_b: Option<f64>,
+    /// e_o, the flow prediction error.
+    #[serde(default)]
+    pub e_o: Option<f64>,
+    /// e_r, the scene residual.
+    #[serde(default)]
+    pub e_r: Option<f64>,
+}
+
+impl DetectorThresholds {
+    /// The thresholds of `thresholds` and `alarm` under `fusion` (resolved here with
+    /// `flow_model`, as the scorer resolves it). Every value is finite or `None`.
+    pub fn new(thresholds: &Thresholds, alarm: f64, fusion: Fusion, flow_model: bool) -> Self {
+        let finite = |v: Option<f64>| v.filter(|x| x.is_finite());
+        let alarm = finite(Some(alarm));
+        match fusion.resolve(flow_model) {
+            Fusion::Paper | Fusion::Auto => DetectorThresholds {
+                alarm,
+                e_c: finite(thresholds.e_c),
+                e_b: finite(thresholds.e_b),
+                e_o: alarm.filter(|a| *a <= UNTRIGGERED_MAX),
+                e_r: None,
+            },
+            Fusion::Calibrated => {
+                let scales = thresholds.scales.unwrap_or_default();
+                let raw = |scale: Option<Scale>| {
+                    let a = alarm.filter(|a| a.abs() <= RATIO_CAP)?;
+                    finite(Some(scale.map_or(a, |s| s.location + a * s.spread)))
+                };
+                DetectorThresholds {
+                    alarm,
+                    e_c: raw(scales.e_c),
+                    e_b: raw(scales.e_b),
+                    e_o: raw(scales.e_o),
+                    e_r: raw(scales.e_r),
+                }
+            }
         }
     }
 }
@@ -288,6 +348,62 @@ pub fn fuse(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn each_detector_alone_at_its_own_threshold_reaches_the_alarm() {
+        let scale = |location, spread| Some(Scale { location, spread });
+        let t = Thresholds {
+            e_c: Some(2.0),
+            e_b: Some(3.0),
+            scales: Some(NominalScales {
+                e_c: scale(0.5, 1.0),
+                e_b: scale(1.0, 2.0),
+                e_r: scale(0.2, 0.1),
+                e_o: None,
+            }),
+            scene: None,
+        };
+        let none = Components {
+            e_c: None,
+            e_b: None,
+            e_r: None,
+            e_o: None,
+        };
+        // Calibrated: location + alarm * spread, the raw value without a scale.
+        let d = DetectorThresholds::new(&t, 1.5, Fusion::Calibrated, false);
+        assert_eq!((d.alarm, d.e_c, d.e_b), (Some(1.5), Some(2.0), Some(4.0)));
+        assert!((d.e_r.unwrap() - 0.35).abs() < 1e-12 && d.e_o == Some(1.5));
+        for (c, name) in [
+            (Components { e_c: d.e_c, ..none }, "e_c"),
+            (Components { e_b: d.e_b, ..none }, "e_b"),
+            (Components { e_r: d.e_r, ..none }, "e_r"),
+            (Components { e_o: d.e_o, ..none }, "e_o"),
+        ] {
+            let score = fuse_frame(&c, &t, Fusion::Calibrated).score;
+            assert!((score - 1.5).abs() < 1e-12, "{name}: {score}");
+        }
+        // Paper (and auto with a model): e_c/e_b at their thresholds, e_o at the alarm.
+        for d in [
+            DetectorThresholds::new(&t, 0.02, Fusion::Paper, false),
+            DetectorThresholds::new(&t, 0.02, Fusion::Auto, true),
+        ] {
+            assert_eq!(
+                (d.e_c, d.e_b, d.e_o, d.e_r),
+                (Some(2.0), Some(3.0), Some(0.02), None)
+            );
+            let c = Components { e_o: d.e_o, ..none };
+            assert_eq!(fuse_frame(&c, &t, Fusion::Paper).score, 0.02);
+        }
+        // Auto without a model is calibrated; an alarm out of reach gives no line.
+        assert_eq!(
+            DetectorThresholds::new(&t, 1.5, Fusion::Auto, false),
+            DetectorThresholds::new(&t, 1.5, Fusion::Calibrated, false)
+        );
+        let high = DetectorThresholds::new(&t, TRIGGER_BASE + 1.0, Fusion::Paper, true);
+        assert_eq!((high.e_o, high.e_c), (None, Some(2.0)));
+        let never = DetectorThresholds::new(&t, f64::INFINITY, Fusion::Calibrated, false);
+        assert_eq!(never, DetectorThresholds::default());
+    }
     use proptest::prelude::*;
 
     const T: Thresholds = Thresholds {

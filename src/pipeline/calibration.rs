@@ -180,6 +180,142 @@ pub fn calibrate<E>(
     Ok(CalibrationOutcome { calibration, notes })
 }
 
+/// What [`revise`] proposes.
+#[derive(Debug, Clone)]
+pub struct Revision {
+    /// The revised calibration (created now).
+    pub calibration: Calibration,
+    /// Each nominal episode: its name and largest fused score under the calibration it
+    /// was scored with and under the revised one.
+    pub episodes: Vec<(String, f64, f64)>,
+    /// What changed and why, in words.
+    pub notes: Vec<String>,
+}
+
+/// Revises `calibration` with `nominal` episodes, scored with it, that an operator judged
+/// nominal (their alarms were false alarms), for a profile with `pipeline` (its fusion
+/// resolved on `flow_model`):
+///
+/// 1. `e_c` and `e_b` thresholds are the paper's nominal maxima: where these episodes
+///    reach them, they are raised just above these episodes' maxima;
+/// 2. each episode's largest fused score is recomputed from its frames' detector values
+///    with the revised thresholds, the same fusion and temporal window as the scorer's;
+/// 3. the `max` alarm threshold (`score_max`) is raised to the largest of them; the
+///    conformal threshold is recomputed, at the same alpha, over the held-out maxima the
+///    calibration kept together with these episodes' (held-out nominal episodes like
+///    them); a calibration that kept none has its threshold raised just above these
+///    episodes' largest maximum (the guarantee then no longer holds as stated: noted).
+///
+/// The scene statistics and nominal scales are left as they are (training statistics).
+pub fn revise(
+    calibration: &Calibration,
+    pipeline: &PipelineConfig,
+    flow_model: bool,
+    nominal: &[EpisodeScores],
+) -> Revision {
+    let fusion = pipeline.fusion.resolve(flow_model);
+    let mut notes = Vec::new();
+    let mut revised = calibration.clone();
+    let component_max = |get: fn(&FrameScore) -> Option<f64>| {
+        max_threshold(
+            &nominal
+                .iter()
+                .flat_map(|e| e.frames.iter().filter_map(get))
+                .collect::<Vec<_>>(),
+        )
+    };
+    for (name, current, seen) in [
+        ("e_c", &mut revised.thresholds.e_c, component_max(|f| f.e_c)),
+        ("e_b", &mut revised.thresholds.e_b, component_max(|f| f.e_b)),
+    ] {
+        // Just above the episodes' maximum: none of their frames fires it.
+        if let (Some(t), Some(m)) = (current.as_mut(), seen.map(f64::next_up))
+            && m > *t
+        {
+            notes.push(format!(
+                "{name} threshold {t:.6} -> {m:.6} (just above the episodes' maximum)"
+            ));
+            *t = m;
+        }
+    }
+    let mut window = Window::new(pipeline.temporal_window);
+    let episodes: Vec<(String, f64, f64)> = nominal
+        .iter()
+        .map(|e| {
+            window.clear();
+            let after = e
+                .frames
+                .iter()
+                .map(|f| {
+                    let c = Components {
+                        e_c: f.e_c,
+                        e_b: f.e_b,
+                        e_r: f.e_r,
+                        e_o: f.e_o,
+                    };
+                    window
+                        .push(fuse_frame(&c, &revised.thresholds, fusion))
+                        .score
+                })
+                .fold(0.0, f64::max);
+            (e.name.clone(), episode_max(e), after)
+        })
+        .collect();
+    let largest = episodes
+        .iter()
+        .map(|e| e.2)
+        .fold(f64::NEG_INFINITY, f64::max);
+    if largest > revised.score_max {
+        notes.push(format!(
+            "max alarm threshold {:.6} -> {:.6}",
+            revised.score_max, largest
+        ));
+        revised.score_max = largest;
+    }
+    if let Some(c) = calibration.conformal.as_ref() {
+        let maxima: Vec<f64> = episodes.iter().map(|e| e.2).collect();
+        if c.episode_maxima.is_empty() {
+            if largest >= c.threshold {
+                let mut raised = c.clone();
+                raised.order_statistic = largest;
+                raised.threshold = largest.next_up();
+                notes.push(format!(
+                    "conformal threshold {:.6} -> {:.6}: raised above these episodes, as the \
+                     calibration kept no held-out maxima to recompute it from (its stated \
+                     guarantee no longer holds as computed; recalibrate from episodes to \
+                     restore it)",
+                    c.threshold, raised.threshold
+                ));
+                revised.conformal = Some(raised);
+            }
+        } else {
+            let all: Vec<f64> = c.episode_maxima.iter().copied().chain(maxima).collect();
+            match conformal_threshold(&all, c.alpha) {
+                Ok(new) => {
+                    notes.push(format!(
+                        "conformal threshold {:.6} -> {:.6} over {} held-out episodes ({} \
+                         before, alpha {})",
+                        c.threshold, new.threshold, new.n, c.n, c.alpha
+                    ));
+                    revised.conformal = Some(new);
+                }
+                Err(e) => notes.push(format!("conformal threshold kept: {e}")),
+            }
+        }
+    }
+    revised
+        .calibration_episodes
+        .extend(episodes.iter().map(|e| e.0.clone()));
+    revised.created_unix_s = SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map_or(0, |d| d.as_secs());
+    Revision {
+        calibration: revised,
+        episodes,
+        notes,
+    }
+}
+
 /// Per-cell statistics of the scene residual from the training frames' cell maps (all of
 /// one grid); `None`, with a note, when there are none or too few.
 /// With `phase_window_s > 0`, per phase window as well (`phases`: each frame's seconds
@@ -317,6 +453,79 @@ mod tests {
         let below = run(1.5);
         assert!(below.calibration.conformal.unwrap().threshold < TRIGGER_BASE);
         assert!(!below.notes.iter().any(|n| n.contains("can ever alarm")));
+    }
+
+    /// Frames fused as the scorer fuses them under paper fusion with `t`.
+    fn scored(mut e: EpisodeScores, t: &Thresholds) -> EpisodeScores {
+        for f in &mut e.frames {
+            let c = Components {
+                e_c: f.e_c,
+                e_b: None,
+                e_r: None,
+                e_o: f.e_o,
+            };
+            f.score = fuse_frame(&c, t, Fusion::Paper).score;
+        }
+        e
+    }
+
+    #[test]
+    fn a_revision_takes_the_nominal_episodes_in_and_leaves_no_frame_of_them_alarming() {
+        let pipeline = PipelineConfig {
+            fusion: Fusion::Paper,
+            ..PipelineConfig::default()
+        };
+        let conformal = conformal_threshold(&[0.01, 0.02, 0.03], 0.5).unwrap();
+        assert_eq!(conformal.episode_maxima, vec![0.01, 0.02, 0.03]);
+        let current = Calibration {
+            created_unix_s: 1,
+            model_sha256: Some("sha".into()),
+            training_episodes: vec!["t".into()],
+            calibration_episodes: vec!["a".into(), "b".into(), "c".into()],
+            training_frames: 3,
+            thresholds: Thresholds::paper(Some(2.0), None),
+            score_max: 0.02,
+            conformal: Some(conformal),
+        };
+        // A run whose e_c passed the threshold (a false alarm of the camera detector).
+        let run = scored(episode("run", &[1.0, 2.5, 1.5]), &current.thresholds);
+        assert!(run.frames[1].score >= TRIGGER_BASE);
+        let r = revise(&current, &pipeline, true, std::slice::from_ref(&run));
+        let t = r.calibration.thresholds.e_c.unwrap();
+        assert_eq!(t, 2.5f64.next_up());
+        assert_eq!(r.episodes.len(), 1);
+        let (name, before, after) = &r.episodes[0];
+        assert_eq!((name.as_str(), *before), ("run", run.frames[1].score));
+        assert_eq!(*after, 0.01, "no frame triggers now: the score is e_o");
+        // Conformal over the kept maxima and the run's: n = 4, alpha 0.5, k = 3.
+        let c = r.calibration.conformal.as_ref().unwrap();
+        assert_eq!((c.n, c.rank_k, c.order_statistic), (4, 3, 0.02));
+        assert!(r.calibration.score_max >= 0.02);
+        assert!(r.calibration.created_unix_s > 1);
+        assert_eq!(r.calibration.calibration_episodes.len(), 4);
+        // Re-fused with the revision, none of the run's frames reaches the new threshold.
+        let again = scored(episode("run", &[1.0, 2.5, 1.5]), &r.calibration.thresholds);
+        assert!(again.frames.iter().all(|f| f.score < c.threshold));
+        // A calibration that kept no maxima: the threshold is raised above the run.
+        let mut old = current.clone();
+        if let Some(c) = old.conformal.as_mut() {
+            c.episode_maxima.clear();
+        }
+        let high = scored(episode("run", &[1.0, 1.9]), &old.thresholds);
+        let mut hot = high.clone();
+        for f in &mut hot.frames {
+            f.e_o = Some(0.5);
+            f.score = 0.5;
+        }
+        let r = revise(&old, &pipeline, true, &[hot]);
+        let c = r.calibration.conformal.unwrap();
+        assert_eq!(c.threshold, 0.5f64.next_up());
+        assert!(
+            r.notes.iter().any(|n| n.contains("no longer holds")),
+            "{:?}",
+            r.notes
+        );
+        assert_eq!(r.calibration.score_max, 0.5);
     }
 
     #[test]

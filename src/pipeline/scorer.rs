@@ -374,6 +374,17 @@ impl Scorer {
         })
     }
 
+    /// The alarm threshold and each detector's own threshold this scorer alarms with
+    /// (its thresholds under its fusion, resolved on whether it has a predictor).
+    pub fn detector_thresholds(&self) -> crate::eval::DetectorThresholds {
+        crate::eval::DetectorThresholds::new(
+            &self.thresholds,
+            self.alarm_threshold,
+            self.config.fusion,
+            self.predictor.is_some(),
+        )
+    }
+
     /// The pipeline parameters.
     pub fn config(&self) -> &PipelineConfig {
         &self.config

@@ -56,6 +56,12 @@ impl RunningServer {
         let hub = self.shared.hub.clone();
         let grace = Duration::from_secs_f64(self.shared.settings.service.shutdown_grace_s.max(0.0));
         let _ = tokio::task::spawn_blocking(move || hub.shutdown(grace)).await;
+        // Calibration jobs stop before their next episode; they hold the data directory.
+        let jobs = self.shared.jobs.clone();
+        let stopped = tokio::task::spawn_blocking(move || jobs.stop_all(grace)).await;
+        if !matches!(stopped, Ok(true)) {
+            tracing::warn!("a calibration job was still running at shutdown");
+        }
         let _ = self.transport_stop.send(true);
         for t in self.tasks {
             match t.await {

@@ -14,9 +14,7 @@ use super::live::Thumb;
 use super::state::{Session, lock};
 use crate::eval::alarm::{Debounce, Debouncer, Edge};
 use crate::pipeline::FrameScore;
-use crate::store::{
-    AlarmComponents, AlarmRecord, AlarmThresholds, FalseAlarmMark, Store, StoreError,
-};
+use crate::store::{AlarmComponents, AlarmRecord, FalseAlarmMark, Store, StoreError};
 use std::collections::{HashMap, VecDeque};
 use std::sync::Mutex;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -182,8 +180,6 @@ impl Hub {
         match (edge, tracker.current.clone()) {
             (Edge::Start, _) => {
                 let profile = s.profile();
-                let p = &profile.setup.profile;
-                let t = p.thresholds();
                 let detector = fired.map_or("flow", detector_name).to_string();
                 let alarm = AlarmRecord {
                     id: self.alarms.new_id(),
@@ -198,14 +194,11 @@ impl Hub {
                     frames_flagged: u64::from(score.anomaly),
                     detectors: vec![detector.clone()],
                     detector,
-                    thresholds: AlarmThresholds {
-                        alarm: finite(Some(p.alarm_threshold())),
-                        e_c: finite(t.e_c),
-                        e_b: finite(t.e_b),
-                    },
+                    thresholds: profile.setup.detector_thresholds(),
                     start: components(score),
                     peak: components(score),
                     false_alarm: None,
+                    recording: lock(&s.recorder).as_ref().map(|r| r.file_name()),
                 };
                 tracker.current = Some(alarm.id.clone());
                 drop(tracker);
@@ -281,12 +274,26 @@ pub fn mark_false_alarm(
         by_role: by_role.into(),
         note: note.trim().into(),
     });
+    // The session's recording is kept: the episode joins the profile's nominal set.
+    if let Some(file) = alarm.recording.clone() {
+        match super::recording::keep(&hub.recordings_dir(), &file) {
+            Ok(true) => {}
+            Ok(false) => alarm.recording = None, // removed to make room meanwhile
+            Err(e) => {
+                tracing::warn!(alarm = %id, "cannot keep the session's recording: {e}");
+                alarm.recording = None;
+            }
+        }
+    }
     store.put_marked_alarm(&alarm).map_err(store_error)?;
-    let mark = alarm.false_alarm.clone();
+    let (mark, recording) = (alarm.false_alarm.clone(), alarm.recording.clone());
     // The live record now carries the mark too (the stored one is the record of it).
     let updated = hub
         .alarms
-        .update(id, |a| a.false_alarm = mark)
+        .update(id, |a| {
+            a.false_alarm = mark;
+            a.recording = recording;
+        })
         .unwrap_or(alarm);
     tracing::info!(alarm = %id, profile = %updated.profile, role = by_role, "alarm marked as a false alarm");
     Ok(updated)
@@ -301,6 +308,7 @@ fn store_error(source: StoreError) -> SessionError {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::store::AlarmThresholds;
 
     fn record(id: &str, session: &str) -> AlarmRecord {
         AlarmRecord {
@@ -320,6 +328,7 @@ mod tests {
             start: AlarmComponents::default(),
             peak: AlarmComponents::default(),
             false_alarm: None,
+            recording: None,
         }
     }
 

@@ -180,6 +180,11 @@ impl UploadTicket {
         }
         Ok(())
     }
+
+    /// Makes the disk the ticket holds exactly `total` bytes (a file replaced by another).
+    pub fn holds(&mut self, total: u64) -> Result<(), UploadRefused> {
+        Ok(self.disk.resize(total)?)
+    }
 }
 
 impl Uploads {

@@ -52,6 +52,36 @@ pub struct Hub {
 }
 
 impl Hub {
+    /// The folder of session recordings ([`super::recording`]).
+    pub fn recordings_dir(&self) -> std::path::PathBuf {
+        self.config.data_dir.join(super::recording::DIR)
+    }
+
+    /// A recorder for session `id` when sessions are recorded and the data directory
+    /// exists (a server's store makes it; a hub without one records nothing); `None`,
+    /// logged, when the recordings' disk is spent.
+    fn start_recording(
+        &self,
+        id: &str,
+        topics: &crate::episode::EpisodeTopics,
+    ) -> Option<super::recording::Recorder> {
+        let c = &self.config;
+        if !c.record_sessions || !c.data_dir.is_dir() {
+            return None;
+        }
+        let limits = super::recording::RecordingLimits {
+            disk_bytes: c.recordings_disk_mb.saturating_mul(1 << 20),
+            session_bytes: c.max_recording_mb.saturating_mul(1 << 20),
+        };
+        match super::recording::Recorder::start(&self.recordings_dir(), id, topics, limits) {
+            Ok(r) => Some(r),
+            Err(e) => {
+                tracing::warn!(session = %id, "session not recorded: {e}");
+                None
+            }
+        }
+    }
+
     /// Starts the worker pool.
     pub fn start(config: ServiceConfig, metrics: Metrics) -> Arc<Self> {
         let n = if config.workers == 0 {
@@ -213,6 +243,11 @@ impl Hub {
             .calibrated_scorer(&seed_key, req.maps)
             .map_err(SessionError::scorer)?;
         let alarm_rule = profile.setup.profile.file.alarm_events;
+        let recorder = if req.episode {
+            None // an uploaded episode is its own record
+        } else {
+            self.start_recording(&id, &profile.setup.episode.topics)
+        };
         let session = Arc::new(Session {
             id: id.clone(),
             robot_id: req.robot_id,
@@ -252,6 +287,7 @@ impl Hub {
             maps: req.maps,
             alarms: Mutex::new(super::alarms::AlarmTracker::new(alarm_rule)),
             live: Mutex::new(super::live::LiveView::default()),
+            recorder: Mutex::new(recorder),
             profile: Mutex::new(profile),
         });
         sessions.insert(id.clone(), session.clone());
@@ -433,6 +469,14 @@ impl Hub {
             let _ = out.try_send(Output::Closed(error));
         }
         drop(out);
+        if let Some(recorder) = lock(&s.recorder).take() {
+            match recorder.finish() {
+                Ok(path) => {
+                    tracing::debug!(session = %s.id, recording = %path.display(), "recording finished")
+                }
+                Err(e) => tracing::warn!(session = %s.id, "the session's recording is lost: {e}"),
+            }
+        }
         tracing::info!(
             session = %s.id,
             frames = s.frames_scored.load(Ordering::Relaxed),

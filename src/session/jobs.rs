@@ -26,12 +26,14 @@ pub enum JobError {
     Store(#[from] StoreError),
 }
 
-/// A running job's handle: its id and its cancel flag.
+/// A running job's handle: its id and its cancel flag. The job counts as running (for
+/// [`Jobs::stop_all`]) until its last handle is dropped: the job's thread drops it last.
 #[derive(Debug, Clone)]
 pub struct JobHandle {
     /// The job's id.
     pub id: u64,
     cancel: Arc<AtomicBool>,
+    _alive: Arc<()>,
 }
 
 impl JobHandle {
@@ -47,6 +49,10 @@ pub struct Jobs {
     store: Store,
     max_running: usize,
     running: Mutex<HashMap<u64, Arc<AtomicBool>>>,
+    /// One strong count per live job handle beside this one.
+    alive: Arc<()>,
+    /// Set by [`Jobs::stop_all`]: a job stopped now was interrupted, not cancelled.
+    stopping: AtomicBool,
 }
 
 impl Jobs {
@@ -56,7 +62,27 @@ impl Jobs {
             store,
             max_running: max_running.max(1),
             running: Mutex::new(HashMap::new()),
+            alive: Arc::new(()),
+            stopping: AtomicBool::new(false),
         }
+    }
+
+    /// Asks every running job to stop and waits, at most `grace`, until their threads
+    /// have let go of their handles (and with them of the data directory); whether they
+    /// all did. Blocking. For shutdown: a job left running would hold the store's lock.
+    pub fn stop_all(&self, grace: std::time::Duration) -> bool {
+        self.stopping.store(true, Ordering::SeqCst);
+        for flag in self.running().values() {
+            flag.store(true, Ordering::SeqCst);
+        }
+        let deadline = std::time::Instant::now() + grace;
+        while Arc::strong_count(&self.alive) > 1 {
+            if std::time::Instant::now() >= deadline {
+                return false;
+            }
+            std::thread::sleep(std::time::Duration::from_millis(10));
+        }
+        true
     }
 
     fn running(&self) -> std::sync::MutexGuard<'_, HashMap<u64, Arc<AtomicBool>>> {
@@ -89,14 +115,24 @@ impl Jobs {
         let job = self.store.start_job(profile, episodes, holdout)?;
         let cancel = Arc::new(AtomicBool::new(false));
         running.insert(job.id, cancel.clone());
-        Ok(JobHandle { id: job.id, cancel })
+        Ok(JobHandle {
+            id: job.id,
+            cancel,
+            _alive: self.alive.clone(),
+        })
     }
 
     /// Records the end of a job: succeeded with its calibration, or failed (cancelled
     /// when its cancel flag was set) with the reason.
     pub fn finish(&self, job: &JobHandle, result: Result<(Calibration, Vec<String>), String>) {
         let result = result.map_err(|e| {
-            if job.cancelled() {
+            if job.cancelled() && self.stopping.load(Ordering::SeqCst) {
+                (
+                    JobState::Failed,
+                    "interrupted: the server stopped while the job ran; nothing was saved, start it again"
+                        .to_string(),
+                )
+            } else if job.cancelled() {
                 (JobState::Cancelled, "cancelled through the API".to_string())
             } else {
                 (JobState::Failed, e)

@@ -37,6 +37,7 @@ pub mod joints;
 pub mod live;
 pub mod metrics;
 pub mod profiles;
+pub mod recording;
 pub mod reload;
 pub mod state;
 pub mod upload;

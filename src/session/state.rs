@@ -154,6 +154,8 @@ pub struct Session {
     pub(super) alarms: Mutex<super::alarms::AlarmTracker>,
     /// What the live view shows of it.
     pub(super) live: Mutex<super::live::LiveView>,
+    /// Its recording in progress ([`super::recording`]), if it is recorded.
+    pub(super) recorder: Mutex<Option<super::recording::Recorder>>,
 }
 
 impl Session {

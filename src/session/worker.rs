@@ -190,11 +190,11 @@ impl Hub {
         // Held until the frame is scored: the buffered bytes, then the decoding's.
         let _buffered = frame.charge;
         let decode_span = tracing::debug_span!("decode").entered();
-        let (image, frame_camera, _decoding) = match frame.image {
-            ImagePayload::Decoded(img, k) => (img, k, None),
+        let (image, frame_camera, _decoding, live) = match frame.image {
+            ImagePayload::Decoded(img, k) => (img, k, None, None),
             ImagePayload::Live(msg) => {
                 match decode_live_image(&msg, self.config.max_image_pixels, Some(&self.budget)) {
-                    Ok((img, charge)) => (img, None, charge),
+                    Ok((img, charge)) => (img, None, charge, Some(msg)),
                     Err(e) => {
                         self.refuse(s, "image", format!("image refused: {e}"), stamp);
                         return;
@@ -214,6 +214,26 @@ impl Hub {
                     .then_some(k)
             })
         });
+        // The image as received goes to the session's recording, if it has one.
+        {
+            let mut recorder = lock(&s.recorder);
+            if let (Some(r), Some(msg)) = (recorder.as_mut(), live.as_ref())
+                && let Err(e) = r.record(
+                    msg,
+                    frame
+                        .joints
+                        .as_ref()
+                        .map(|(n, p)| (n.as_slice(), p.as_slice())),
+                    intrinsics.as_ref(),
+                )
+            {
+                tracing::warn!(session = %s.id, "recording stopped: {e}");
+                // What was recorded stays readable.
+                if let Some(Err(e)) = recorder.take().map(super::recording::Recorder::finish) {
+                    tracing::warn!(session = %s.id, "the session's recording is lost: {e}");
+                }
+            }
+        }
         let joints = frame.joints.as_ref().map(|(n, p)| JointInput {
             names: n,
             positions: p,

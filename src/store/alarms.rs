@@ -28,17 +28,10 @@ pub struct AlarmComponents {
     pub e_r: Option<f64>,
 }
 
-/// The thresholds in force when an alarm started (absent: none, i.e. never crossed).
-#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct AlarmThresholds {
-    /// Fused-score alarm threshold.
-    pub alarm: Option<f64>,
-    /// Threshold on e_c, pixels.
-    pub e_c: Option<f64>,
-    /// Threshold on e_b, pixels.
-    pub e_b: Option<f64>,
-}
+/// The thresholds in force when an alarm started: the fused score's and each
+/// detector's own (absent: none, i.e. never crossed). Records stored before `e_o` and
+/// `e_r` were kept read with them absent.
+pub use crate::eval::DetectorThresholds as AlarmThresholds;
 
 /// An operator's verdict on an alarm.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -90,6 +83,10 @@ pub struct AlarmRecord {
     /// The operator's mark, once marked.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub false_alarm: Option<FalseAlarmMark>,
+    /// The session's recording (a file of the data directory's `recordings/`), if it was
+    /// recorded; once the alarm is marked it is kept and joins the profile's nominal set.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub recording: Option<String>,
 }
 
 impl Store {
@@ -192,7 +189,8 @@ mod tests {
             thresholds: AlarmThresholds {
                 alarm: Some(0.5),
                 e_c: Some(2.0),
-                e_b: None,
+                e_o: Some(0.5),
+                ..AlarmThresholds::default()
             },
             start: AlarmComponents {
                 stamp_ns: 400,
@@ -206,6 +204,7 @@ mod tests {
                 by_role: "admin".into(),
                 note: "a person walked by".into(),
             }),
+            recording: None,
         }
     }
 

@@ -5,6 +5,7 @@
 
 use super::files::{list_dir, now_unix_s, read_json, remove_file_quiet, write_json};
 use super::{JOB, State, Store, StoreError, StoreProblem};
+use crate::eval::DetectorThresholds;
 use crate::pipeline::Calibration;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
@@ -63,6 +64,40 @@ pub struct JobInfo {
     /// Remarks of the calibration (no conformal threshold and why, ...).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub notes: Vec<String>,
+    /// A recalibration from the profile's nominal set: its `calibration` is a proposal,
+    /// saved only when applied (`POST /v1/jobs/{id}/apply`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub proposal: Option<Proposal>,
+}
+
+/// What a recalibration proposes, to be looked at before it is applied.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Proposal {
+    /// `created_unix_s` of the calibration it revises (applying it is refused once the
+    /// profile's calibration has changed).
+    pub revises_unix_s: u64,
+    /// The thresholds in force when it started.
+    pub current: DetectorThresholds,
+    /// The thresholds once applied.
+    pub proposed: DetectorThresholds,
+    /// Each nominal episode with its largest fused score before and after.
+    pub episodes: Vec<ProposalEpisode>,
+    /// When it was applied.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub applied_unix_s: Option<u64>,
+}
+
+/// One episode of a [`Proposal`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ProposalEpisode {
+    /// The episode (a kept session recording).
+    pub name: String,
+    /// Its largest fused score under the current calibration.
+    pub max_score_before: f64,
+    /// ... and under the proposed one.
+    pub max_score_after: f64,
 }
 
 /// Reads `jobs/` at open: records by id; running ones are marked failed and rewritten;
@@ -149,6 +184,7 @@ impl Store {
             error: None,
             calibration: None,
             notes: Vec::new(),
+            proposal: None,
         };
         write_json(&self.tmp_dir(), &self.job_file(id), &job)?;
         st.next_job = id + 1;
@@ -219,6 +255,24 @@ impl Store {
                 kind: JOB,
                 name: id.to_string(),
             })
+    }
+
+    /// Changes job `id`'s record with `f` (its proposal: set while it runs, marked applied
+    /// once applied) and writes it; returns the record as written.
+    pub fn update_job(&self, id: u64, f: impl FnOnce(&mut JobInfo)) -> Result<JobInfo, StoreError> {
+        self.check_writable()?;
+        let mut st = self.lock();
+        let Some(job) = st.jobs.get_mut(&id) else {
+            return Err(StoreError::NotFound {
+                kind: JOB,
+                name: id.to_string(),
+            });
+        };
+        let mut updated = job.clone();
+        f(&mut updated);
+        write_json(&self.tmp_dir(), &self.job_file(id), &updated)?;
+        *job = updated.clone();
+        Ok(updated)
     }
 
     /// Every job record, oldest first.

@@ -77,7 +77,7 @@ pub use alarms::{
     AlarmComponents, AlarmRecord, AlarmThresholds, FalseAlarmMark, KEPT_MARKED_ALARMS, now_s,
 };
 pub use error::{StoreError, StoreErrorKind};
-pub use jobs::{JobInfo, JobState, KEPT_JOBS};
+pub use jobs::{JobInfo, JobState, KEPT_JOBS, Proposal, ProposalEpisode};
 pub use mirror::{MirrorChange, StoredFile};
 pub use types::{
     ModelInfo, ModelRef, ModelVersionInfo, OpenReport, ProfileInfo, ProfileSpec, ResolvedModel,

@@ -75,6 +75,7 @@ fn calibration(model_sha256: Option<String>) -> Calibration {
             marginal_false_alarm_bound: 0.1,
             confidence: 0.6,
             calibration_false_alarm_rate: 0.0,
+            episode_maxima: Vec::new(),
         }),
     }
 }

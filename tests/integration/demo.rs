@@ -54,18 +54,41 @@ fn the_demo_streams_the_bundled_episodes_and_writes_its_report() {
     assert!((0.0..=1.0).contains(&auc), "{eval}");
     assert!(eval["anomalous_episodes"].as_u64().unwrap() >= 3);
     assert!(report["alarm_threshold"].as_f64().unwrap().is_finite());
+    let md = std::fs::read_to_string(&report_md).unwrap();
+    let mut alarmed = 0;
     for e in episodes {
         let name = e["episode"].as_str().unwrap();
+        for plot in [format!("{name}.png"), format!("{name}.detectors.png")] {
+            let bytes = std::fs::read(out_dir.join("plots").join(&plot)).unwrap();
+            assert!(bytes.starts_with(b"\x89PNG"), "{plot}");
+        }
         assert!(
-            out_dir.join(format!("plots/{name}.png")).is_file(),
+            md.contains(&format!("(plots/{name}.detectors.png)")),
             "{name}"
         );
+        // An episode with an alarm (debounced, so a flagged frame is needed) shows the
+        // frame at its first alarm beside the same frame with its map (twice as wide).
+        let frame = out_dir.join(format!("plots/{name}.first_alarm.png"));
+        if e["first_alarm_ns"].is_null() {
+            assert!(!frame.exists(), "{name}");
+        } else if frame.exists() {
+            alarmed += 1;
+            let img = image::open(&frame).unwrap();
+            assert!(
+                img.width() == 2 * 160 && img.height() == 120,
+                "{name}: {img:?}"
+            );
+            assert!(
+                md.contains(&format!("(plots/{name}.first_alarm.png)")),
+                "{name}"
+            );
+        }
     }
+    assert!(alarmed >= 3, "{alarmed} episodes with an alarm");
     for plot in ["roc.png", "pr.png", "roc_per_type.png"] {
         let bytes = std::fs::read(out_dir.join("plots").join(plot)).unwrap();
         assert!(bytes.starts_with(b"\x89PNG"), "{plot}");
     }
-    let md = std::fs::read_to_string(&report_md).unwrap();
     assert!(md.contains("| frame-level AUC-ROC |"), "{md}");
     assert!(md.contains("![ROC](plots/roc.png)"));
     assert!(
@@ -90,4 +113,88 @@ fn the_demo_streams_the_bundled_episodes_and_writes_its_report() {
         report["evaluation"]["auc_roc"]
     );
     assert_eq!(second["episodes"], report["episodes"]);
+}
+
+/// `vamos demo --serve`: after the demo the server and its page stay up, the robots keep
+/// replaying, the URL is printed; Ctrl-C (SIGINT) stops it cleanly.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn demo_serve_keeps_the_page_and_the_robots_up_until_interrupted() {
+    use std::io::{BufRead, BufReader};
+    /// Stops the server whatever happens to the test.
+    struct Running(std::process::Child);
+    impl Drop for Running {
+        fn drop(&mut self) {
+            let _ = self.0.kill();
+            let _ = self.0.wait();
+        }
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let child = Command::new(env!("CARGO_BIN_EXE_vamos"))
+        .args(["demo", "--quiet", "--serve", "--out"])
+        .arg(dir.path().join("demo"))
+        .env("VAMOS_LOG__LEVEL", "warn")
+        .env_remove("VAMOS_ADMIN_TOKEN")
+        .env_remove("VAMOS_ROBOT_TOKEN")
+        .env_remove("VAMOS_VIEWER_TOKEN")
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut child = Running(child);
+    let stdout = child.0.stdout.take().unwrap();
+    // The printed URL, read on a thread (the pipe stays open while the server runs).
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        for line in BufReader::new(stdout).lines().map_while(Result::ok) {
+            if let Some(rest) = line.strip_prefix("live view: ") {
+                let url = rest.split_whitespace().next().unwrap_or("").to_string();
+                let _ = tx.send(url);
+            }
+        }
+    });
+    let url = rx
+        .recv_timeout(std::time::Duration::from_secs(300))
+        .expect("demo --serve printed no live view URL");
+    assert!(
+        url.starts_with("http://127.0.0.1:") && url.ends_with("/ui"),
+        "{url}"
+    );
+    let http = reqwest::Client::new();
+    let page = http.get(&url).send().await.unwrap();
+    assert_eq!(page.status(), 200);
+    assert!(page.text().await.unwrap().contains("<html"));
+    // The robots keep coming: live sessions appear.
+    let sessions_url = url.replace("/ui", "/v1/sessions");
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(60);
+    let mut live = 0;
+    while live == 0 && std::time::Instant::now() < deadline {
+        let body: Value = http
+            .get(&sessions_url)
+            .send()
+            .await
+            .unwrap()
+            .json()
+            .await
+            .unwrap();
+        live = body["sessions"].as_array().map_or(0, Vec::len);
+        if live == 0 {
+            tokio::time::sleep(std::time::Duration::from_millis(200)).await;
+        }
+    }
+    assert!(live > 0, "no live session after the demo");
+    // Ctrl-C: a clean stop.
+    let pid = child.0.id().to_string();
+    let killed = Command::new("kill").args(["-INT", &pid]).status().unwrap();
+    assert!(killed.success());
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(30);
+    let status = loop {
+        if let Some(s) = child.0.try_wait().unwrap() {
+            break s;
+        }
+        assert!(
+            std::time::Instant::now() < deadline,
+            "demo --serve did not stop on SIGINT"
+        );
+        std::thread::sleep(std::time::Duration::from_millis(100));
+    };
+    assert!(status.success(), "{status:?}");
 }

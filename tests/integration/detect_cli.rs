@@ -261,6 +261,7 @@ fn score_calibrate_eval_on_simulated_episodes() {
         "pr.png",
         "roc_per_type.png",
         "test_0001_external_push.png",
+        "test_0001_external_push.detectors.png",
     ] {
         let img = image::open(dir.join("plots").join(png)).unwrap();
         assert!(img.width() >= 64 && img.height() >= 64);

@@ -385,6 +385,72 @@ async fn two_robots_at_once_each_get_their_own_scores_and_episode_upload_matches
         tokio::time::sleep(std::time::Duration::from_millis(20)).await;
     }
     assert_eq!(leftovers(), 0);
+    // The same episode compressed as rosbag2 compresses files (streamed zstd, no declared
+    // size: a `.mcap.zstd`): decompressed in the upload folder, the same scores over REST
+    // (JSON and scored bag) and gRPC, and nothing left behind.
+    let packed = zstd::stream::encode_all(&bytes[..], 3).unwrap();
+    let body: serde_json::Value = http
+        .post(format!(
+            "http://{}/v1/episodes:score?profile=sim-arm&name={b}",
+            server.rest_addr
+        ))
+        .body(packed.clone())
+        .send()
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
+    let zstd_scores: Vec<f64> = body["frames"]
+        .as_array()
+        .unwrap_or_else(|| panic!("{body}"))
+        .iter()
+        .map(|j| j["score"].as_f64().unwrap())
+        .collect();
+    assert_eq!(
+        zstd_scores,
+        expected.iter().map(|o| o.score).collect::<Vec<_>>()
+    );
+    let response = http
+        .post(format!(
+            "http://{}/v1/episodes:score?profile=sim-arm&name={b}",
+            server.rest_addr
+        ))
+        .header("accept", "application/x-mcap")
+        .body(packed.clone())
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(response.status(), 200);
+    let out = tempfile::Builder::new().suffix(".mcap").tempfile().unwrap();
+    std::fs::write(out.path(), response.bytes().await.unwrap()).unwrap();
+    let unpacked = McapEpisode::open(out.path(), &Default::default())
+        .unwrap()
+        .info();
+    for topic in ["/vamos/score", "/vamos/anomaly"] {
+        let n = unpacked.topics.iter().find(|t| t.name == topic);
+        assert_eq!(n.map(|t| t.message_count), Some(count(topic)), "{topic}");
+    }
+    let chunk = proto::EpisodeChunk {
+        profile: "sim-arm".into(),
+        data: packed,
+        name: b.into(),
+    };
+    let mut out = client
+        .score_episode(tokio_stream::iter(vec![chunk]))
+        .await
+        .unwrap()
+        .into_inner();
+    let mut uploaded = Vec::new();
+    while let Some(s) = out.next().await {
+        uploaded.push(s.unwrap());
+    }
+    assert_same_scores(&uploaded, &expected);
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(10);
+    while leftovers() > 0 && std::time::Instant::now() < deadline {
+        tokio::time::sleep(std::time::Duration::from_millis(20)).await;
+    }
+    assert_eq!(leftovers(), 0);
     // A truncated upload: the frames before the damage, then the damage reported.
     let cut = &bytes[..bytes.len() * 2 / 3];
     let body: serde_json::Value = http

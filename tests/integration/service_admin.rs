@@ -701,3 +701,154 @@ async fn calibration_from_uploaded_episodes_with_job_limits_cancel_and_restart()
     assert_eq!(status, StatusCode::NOT_FOUND);
     server.shutdown().await.unwrap();
 }
+
+/// An operator's false alarm puts its session's recording in the profile's nominal set;
+/// a recalibration from it proposes thresholds, shown (and nothing changed) before they
+/// are applied; applied, the same run no longer alarms. Applying twice, a recalibration
+/// without a calibration or without nominal episodes, are refused.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_false_alarm_joins_the_nominal_set_and_a_recalibration_clears_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let settings = settings(dir.path());
+    let server = start(&settings).await;
+    let api = Api::new(&server);
+    stored_profile(&api).await;
+    let recalibrate = "/v1/profiles/arm-store/recalibrate";
+    let (status, e) = api.call(Method::POST, recalibrate, None).await;
+    assert_eq!(status, StatusCode::CONFLICT, "{e}");
+    assert!(
+        e["error"].as_str().unwrap().contains("not calibrated"),
+        "{e}"
+    );
+
+    // Calibrated on one training episode, the other held out (alpha 0.5: its maximum).
+    let train = fixture().join("train");
+    let (status, job) = api
+        .json(
+            Method::POST,
+            "/v1/profiles/arm-store/calibrate",
+            json!({
+                "episodes": [train.join("train_0000.mcap")],
+                "holdout": [train.join("train_0001.mcap")],
+                "alpha": 0.5,
+            }),
+        )
+        .await;
+    assert_eq!(status, StatusCode::ACCEPTED, "{job}");
+    let job = wait_job(&api, job["job"].as_u64().unwrap()).await;
+    assert_eq!(job["state"], "succeeded", "{job}");
+    let maxima = &job["calibration"]["conformal"]["episode_maxima"];
+    assert_eq!(maxima.as_array().map(Vec::len), Some(1), "{job}");
+    let before = api.get("/v1/profiles/arm-store").await["alarm_threshold"].clone();
+    assert!(before.as_f64().unwrap().is_finite());
+    assert_eq!(
+        api.get("/v1/profiles/arm-store/nominal").await,
+        json!({ "episodes": [] })
+    );
+    let (status, e) = api.call(Method::POST, recalibrate, None).await;
+    assert_eq!(status, StatusCode::CONFLICT, "{e}");
+    assert!(e["error"].as_str().unwrap().contains("nominal set"), "{e}");
+
+    // A run that alarms (the robot is pushed); the operator says it was a false alarm.
+    let (messages, camera) = episode_messages(&episode("test_0001_external_push"));
+    let addr = server.grpc_addr;
+    let run = |camera: Option<proto::CameraInfo>| {
+        let messages = messages.clone();
+        async move {
+            let (tx, task, _) = open_session(addr, "arm-store", "pushed", camera).await;
+            send_all(&tx, &messages).await;
+            drop(tx);
+            let (scores, _, error) = task.await.unwrap();
+            assert!(error.is_none(), "{error:?}");
+            assert_eq!(scores.len(), images(&messages));
+            scores
+        }
+    };
+    let first = run(camera.clone()).await;
+    assert!(first.iter().any(|s| s.anomaly), "the run alarms");
+    let alarms = api.get("/v1/alarms").await;
+    let alarm = alarms["alarms"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|a| a["session_id"] == "pushed")
+        .unwrap_or_else(|| panic!("no alarm of the run: {alarms}"))
+        .clone();
+    let id = alarm["id"].as_str().unwrap();
+    let (status, marked) = api
+        .json(
+            Method::POST,
+            &format!("/v1/alarms/{id}/false-alarm"),
+            json!({ "note": "a person leaned on it" }),
+        )
+        .await;
+    assert_eq!(status, StatusCode::OK, "{marked}");
+    let recording = marked["recording"].as_str().unwrap().to_string();
+    assert!(recording.ends_with(".mcap"), "{marked}");
+    // The session's recording is in the nominal set once the session has ended.
+    let deadline = std::time::Instant::now() + Duration::from_secs(30);
+    let nominal = loop {
+        let n = api.get("/v1/profiles/arm-store/nominal").await;
+        if n["episodes"][0]["finished"] == true {
+            break n;
+        }
+        assert!(std::time::Instant::now() < deadline, "{n}");
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    };
+    let e = &nominal["episodes"][0];
+    assert_eq!(
+        (e["session_id"].as_str(), e["recording"].as_str()),
+        (Some("pushed"), Some(recording.as_str()))
+    );
+    assert_eq!(e["alarms"], json!([id]));
+    assert!(
+        dir.path()
+            .join("data/recordings")
+            .join(&recording)
+            .is_file()
+    );
+
+    // The recalibration proposes; nothing changes until it is applied.
+    let (status, started) = api.call(Method::POST, recalibrate, None).await;
+    assert_eq!(status, StatusCode::ACCEPTED, "{started}");
+    let job_id = started["job"].as_u64().unwrap();
+    let job = wait_job(&api, job_id).await;
+    assert_eq!(job["state"], "succeeded", "{job}");
+    let proposal = &job["proposal"];
+    assert_eq!(proposal["current"]["alarm"], before, "{job}");
+    let proposed = proposal["proposed"]["alarm"].as_f64().unwrap();
+    let recorded = &proposal["episodes"][0];
+    // The recording scores as the session did: its largest score is the run's.
+    let run_max = first.iter().map(|s| s.score).fold(f64::MIN, f64::max);
+    assert_eq!(
+        recorded["max_score_before"].as_f64().unwrap(),
+        run_max,
+        "{job}"
+    );
+    assert!(
+        recorded["max_score_after"].as_f64().unwrap() < proposed,
+        "{job}"
+    );
+    assert!(proposal["applied_unix_s"].is_null());
+    assert_eq!(
+        api.get("/v1/profiles/arm-store").await["alarm_threshold"],
+        before
+    );
+
+    // Applied: the profile's thresholds are the proposed ones, and the same run (seeded
+    // the same, so scored the same) no longer alarms.
+    let apply = format!("/v1/jobs/{job_id}/apply");
+    let (status, applied) = api.call(Method::POST, &apply, None).await;
+    assert_eq!(status, StatusCode::OK, "{applied}");
+    assert!(applied["proposal"]["applied_unix_s"].is_u64(), "{applied}");
+    let profile = api.get("/v1/profiles/arm-store").await;
+    assert_eq!(profile["alarm_threshold"].as_f64(), Some(proposed));
+    let again = run(camera).await;
+    assert!(
+        again.iter().all(|s| !s.anomaly),
+        "a false alarm again after the recalibration"
+    );
+    let (status, e) = api.call(Method::POST, &apply, None).await;
+    assert_eq!(status, StatusCode::CONFLICT, "{e}");
+    server.shutdown().await.unwrap();
+}

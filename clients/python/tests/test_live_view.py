@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import threading
 import time
@@ -267,6 +268,17 @@ def test_live_view_in_a_real_browser(browser: Any, tmp_path: Path) -> None:
 
         # The session has ended: the page says so instead of showing stale data.
         _wait("the page to notice the end", lambda: "no open session" in d.find_element(By.ID, "message").text)
+
+        # The marked alarm kept the session's recording: it is the profile's nominal set.
+        recording = json.loads(stored.read_text())["recording"]
+        def nominal() -> Any:
+            status, body = _call(server, "GET", "/v1/profiles/sim-arm/nominal", VIEWER)
+            assert status == 200, body
+            return body["episodes"] if body["episodes"] and body["episodes"][0]["finished"] else None
+        (episode,) = _wait("the nominal set", nominal)
+        assert episode["session_id"] == "ui-session" and episode["alarms"] == [alarm_id]
+        assert episode["recording"] == recording and episode["bytes"] > 0
+        assert (tmp_path / "server" / "data" / "recordings" / recording).is_file()
     finally:
         robot.release.set()
         server.stop()
@@ -293,13 +305,20 @@ def _check_scored_bag(path: Path) -> None:
                                          source["/camera/camera_info"][0][1].height)
     # The thresholds once, the anomaly map with every frame that has e_o.
     (schema, thr), = topics["/vamos/thresholds"]
-    assert schema == "std_msgs/msg/String" and json.loads(thr.data) == {"alarm": 0.0, "e_c": None, "e_b": None}
+    assert schema == "std_msgs/msg/String" and json.loads(thr.data) == {
+        # With a model the fusion is the paper's: e_o alarms at the alarm threshold itself.
+        "alarm": 0.0, "e_c": None, "e_b": None, "e_o": 0.0, "e_r": None}
     maps = topics["/vamos/anomaly_map"]
     assert maps and len(maps) == len(topics["/vamos/e_o"])
     for schema, m in maps:
         assert schema == "sensor_msgs/msg/Image" and m.encoding == "mono8"
         assert len(m.data) == m.width * m.height and m.step == m.width
     assert any(max(m.data) > 0 for _, m in maps)
+    # Every topic the Foxglove layout of deploy/ shows is in the bag.
+    layout = (ROOT / "deploy" / "foxglove" / "scored-bag.json").read_text()
+    named = set(re.findall(r'"(/[a-z_]+/[a-z_]+)(?:\.[a-z_]+)?"', layout))
+    assert {"/camera/image_raw", "/vamos/anomaly_map", "/vamos/score"} <= named, named
+    assert named <= set(topics), sorted(named - set(topics))
 
 
 def test_scored_bags_carry_the_map_the_context_and_the_thresholds(tmp_path: Path) -> None:

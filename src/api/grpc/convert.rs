@@ -126,6 +126,8 @@ pub fn alarm_event(e: &AlarmEvent) -> proto::AlarmEvent {
         alarm_threshold: a.thresholds.alarm,
         e_c_threshold: a.thresholds.e_c,
         e_b_threshold: a.thresholds.e_b,
+        e_o_threshold: a.thresholds.e_o,
+        e_r_threshold: a.thresholds.e_r,
         start: Some(alarm_components(&a.start)),
         peak: Some(alarm_components(&a.peak)),
     }

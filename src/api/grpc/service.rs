@@ -215,6 +215,10 @@ impl Monitor for MonitorService {
             .get_async(&name)
             .await
             .map_err(SessionError::from)?;
+        // A `.mcap.zstd` upload is decompressed in the upload folder, charged as written.
+        let buffer = buffer
+            .decompressed(profile.setup.episode.max_decompressed_bytes)
+            .await?;
         let (file, ticket) = buffer.into_parts();
         let scores = score_episode(
             self.shared.hub.clone(),

@@ -8,7 +8,7 @@ use super::errors::ApiError;
 use super::profiles::refuse_file_profile;
 use crate::api::state::Shared;
 use crate::session::budget::UploadTicket;
-use crate::session::calibration::CalibrationRequest;
+use crate::session::calibration::{CalibrationRequest, nominal_set};
 use axum::Json;
 use axum::body::Body;
 use axum::extract::{Path, State};
@@ -274,4 +274,47 @@ pub(super) async fn delete_job(
     let jobs = s.clone();
     blocking(move || jobs.jobs.delete(id)).await?;
     Ok(StatusCode::NO_CONTENT.into_response())
+}
+
+/// `GET /v1/profiles/{name}/nominal`: the profile's nominal set, the kept recordings of
+/// sessions with an alarm marked as a false alarm.
+pub(super) async fn nominal(
+    State(s): State<Arc<Shared>>,
+    Path(name): Path<String>,
+) -> Result<Response, ApiError> {
+    let (store, dir) = (s.store.clone(), s.hub.recordings_dir());
+    let episodes = blocking(move || nominal_set(&store, &dir, &name)).await?;
+    Ok(Json(json!({ "episodes": episodes })).into_response())
+}
+
+/// `POST /v1/profiles/{name}/recalibrate`: starts a recalibration from the profile's
+/// nominal set (202 `{"job": id}`); its proposal is in the job's record once it succeeds.
+pub(super) async fn start_recalibration(
+    State(s): State<Arc<Shared>>,
+    Path(name): Path<String>,
+) -> Result<Response, ApiError> {
+    refuse_file_profile(&s, &name)?;
+    let calibrator = s.calibrator();
+    let dir = s.hub.recordings_dir();
+    let handle = tokio::runtime::Handle::current();
+    let id = tokio::task::spawn_blocking(move || {
+        let _runtime = handle.enter();
+        calibrator.recalibrate(name, &dir)
+    })
+    .await
+    .map_err(ApiError::internal)??;
+    Ok((StatusCode::ACCEPTED, Json(json!({ "job": id }))).into_response())
+}
+
+/// `POST /v1/jobs/{id}/apply`: applies a finished recalibration's proposal (200, the job).
+pub(super) async fn apply_job(
+    State(s): State<Arc<Shared>>,
+    Path(id): Path<String>,
+) -> Result<Response, ApiError> {
+    let id = job_id(&id)?;
+    let calibrator = s.calibrator();
+    let job = tokio::task::spawn_blocking(move || calibrator.apply(id))
+        .await
+        .map_err(ApiError::internal)??;
+    Ok(Json(job).into_response())
 }

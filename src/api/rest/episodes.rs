@@ -6,7 +6,7 @@ use super::body::{content_length, file_body};
 use super::errors::ApiError;
 use crate::api::state::Shared;
 use crate::episode::{EpisodeConfig, McapEpisode, ScoreBagWriter, ScoreTopics};
-use crate::eval::Thresholds;
+use crate::eval::DetectorThresholds;
 use crate::session::episode::score_episode as score;
 use crate::session::event::detector_name;
 use crate::session::upload::EpisodeBuffer;
@@ -77,6 +77,11 @@ pub(super) async fn score_episode(
         let chunk = chunk.map_err(ApiError::bad_request)?;
         buffer.write(&chunk)?;
     }
+    // A `.mcap.zstd` upload is decompressed in the upload folder, charged as written: the
+    // scoring and the scored bag read the copy.
+    let mut buffer = buffer
+        .decompressed(profile.setup.episode.max_decompressed_bytes)
+        .await?;
     let wants_mcap = headers
         .get(header::ACCEPT)
         .and_then(|v| v.to_str().ok())
@@ -129,8 +134,7 @@ pub(super) async fn score_episode(
         }
         Some(input) => {
             let dir = s.upload_dir();
-            let p = &profile.setup.profile;
-            let thresholds = (p.thresholds(), p.alarm_threshold());
+            let thresholds = profile.setup.detector_thresholds();
             let out = tokio::task::spawn_blocking(move || {
                 scored_bag(input.path(), &config, &frames, &dir, thresholds)
             })
@@ -154,7 +158,7 @@ fn scored_bag(
     config: &EpisodeConfig,
     frames: &[ScoredFrame],
     dir: &Path,
-    thresholds: (Thresholds, f64),
+    thresholds: DetectorThresholds,
 ) -> Result<tempfile::NamedTempFile, ApiError> {
     let episode = McapEpisode::open(input, config).map_err(ApiError::bad_request)?;
     let out = tempfile::Builder::new()
@@ -165,15 +169,7 @@ fn scored_bag(
     let mut bag =
         ScoreBagWriter::create(out.path(), Some(&episode.info())).map_err(ApiError::internal)?;
     bag.copy_context(&episode).map_err(ApiError::internal)?;
-    let finite = |v: Option<f64>| v.filter(|x| x.is_finite());
-    let mut thresholds_json = Some(
-        json!({
-            "alarm": finite(Some(thresholds.1)),
-            "e_c": finite(thresholds.0.e_c),
-            "e_b": finite(thresholds.0.e_b),
-        })
-        .to_string(),
-    );
+    let mut thresholds_json = Some(json!(thresholds).to_string());
     let by_stamp: HashMap<i64, &ScoredFrame> =
         frames.iter().map(|f| (f.score.stamp_ns, f)).collect();
     for frame in episode.frames() {
@@ -189,6 +185,7 @@ fn scored_bag(
                     e_c: s.e_c,
                     e_b: s.e_b,
                     e_o: s.e_o,
+                    e_r: s.e_r,
                     heatmap: None,
                     anomaly_map: f
                         .anomaly_map

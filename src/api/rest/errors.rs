@@ -3,7 +3,7 @@
 //! check's errors to statuses; handlers name an error, never a status.
 
 use crate::api::auth::AuthError;
-use crate::session::calibration::CalibrationRefused;
+use crate::session::calibration::{CalibrationRefused, RecalibrationRefused};
 use crate::session::jobs::JobError;
 use crate::session::{ProfileLookupError, SessionError};
 use crate::store::{StoreError, StoreErrorKind};
@@ -149,6 +149,22 @@ impl From<JobError> for ApiError {
         match e {
             JobError::Busy { .. } => Self::too_many(e),
             JobError::Store(e) => e.into(),
+        }
+    }
+}
+
+impl From<RecalibrationRefused> for ApiError {
+    fn from(e: RecalibrationRefused) -> Self {
+        use RecalibrationRefused as R;
+        match e {
+            R::Profile(p) => SessionError::Profile(p).into(),
+            R::Job(j) => j.into(),
+            R::Store(s) => s.into(),
+            R::NotCalibrated { .. }
+            | R::NoNominalEpisodes { .. }
+            | R::NotAProposal { .. }
+            | R::Applied { .. }
+            | R::Stale { .. } => Self::conflict(e),
         }
     }
 }

@@ -187,17 +187,9 @@ fn timeline_json(
     session: &crate::session::Session,
     points: &[crate::session::live::FramePoint],
 ) -> serde_json::Value {
-    let profile = session.profile();
-    let p = &profile.setup.profile;
-    let t = p.thresholds();
-    let finite = |v: Option<f64>| v.filter(|x| x.is_finite());
     json!({
         "session": session.summary(),
-        "thresholds": {
-            "alarm": finite(Some(p.alarm_threshold())),
-            "e_c": finite(t.e_c),
-            "e_b": finite(t.e_b),
-        },
+        "thresholds": session.profile().setup.detector_thresholds(),
         "points": points,
     })
 }

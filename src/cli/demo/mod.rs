@@ -9,7 +9,7 @@ mod report;
 
 use super::score::expand_episodes;
 use anyhow::{Context, Result, bail};
-use report::write_report;
+use report::{ReportContext, write_report};
 use std::collections::BTreeMap;
 use std::io::{IsTerminal, Write};
 use std::path::{Path, PathBuf};
@@ -188,7 +188,8 @@ async fn demo(settings: &Settings, opts: DemoOptions) -> Result<()> {
     };
     let profile_name = setup.profile.file.name.clone();
     let alarm = setup.profile.alarm_threshold();
-    let thresholds = setup.profile.thresholds();
+    let thresholds = setup.detector_thresholds();
+    let rule = setup.profile.file.alarm_events.unwrap_or_default();
     let model_desc = setup.model.as_ref().map(|m| {
         let man = m.manifest();
         let frames = man
@@ -253,12 +254,16 @@ async fn demo(settings: &Settings, opts: DemoOptions) -> Result<()> {
     };
     let streamed = result?;
     let report_path = write_report(
-        &opts.out,
-        &profile_path,
-        &profile_name,
-        model_desc.as_deref(),
-        alarm,
-        thresholds,
+        &ReportContext {
+            out: &opts.out,
+            profile_path: &profile_path,
+            profile_name: &profile_name,
+            model: model_desc.as_deref(),
+            thresholds,
+            rule,
+            episodes: &episode_paths,
+            episode_config: &episode_config,
+        },
         &streamed,
         started.elapsed(),
     )?;

@@ -1,30 +1,71 @@
 //! The demo's report: `report.md`, `report.json` and the plots of every episode.
 
 use super::{Streamed, fmt_score, fmt_threshold};
-use crate::cli::eval::{Timeline, write_plots};
+use crate::cli::eval::{
+    DetectorPoint, DetectorSeries, Timeline, first_alarm, write_detector_plots, write_plots,
+};
 use crate::cli::percentile;
 use anyhow::{Context, Result};
 use serde_json::json;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
-use vamos::eval::{EvalReport, ScoredFrame, evaluate};
+use vamos::api::proto;
+use vamos::episode::{EpisodeConfig, McapEpisode};
+use vamos::eval::alarm::Debounce;
+use vamos::eval::{DetectorThresholds, EvalReport, ScoredFrame, evaluate};
+use vamos::vision::GrayImage;
 
 fn opt(v: Option<f64>, digits: usize) -> String {
     v.map_or("-".into(), |v| format!("{v:.digits$}"))
 }
 
+/// What the report is about, beside the streamed results.
+pub(super) struct ReportContext<'a> {
+    /// The report's folder.
+    pub out: &'a Path,
+    /// The profile's file and name.
+    pub profile_path: &'a Path,
+    pub profile_name: &'a str,
+    /// The model, described (`None`: no flow predictor).
+    pub model: Option<&'a str>,
+    /// The alarm threshold and each detector's own.
+    pub thresholds: DetectorThresholds,
+    /// How flagged frames become alarms (the profile's).
+    pub rule: Debounce,
+    /// The streamed episodes' files (the frame at each first alarm is read from them).
+    pub episodes: &'a [PathBuf],
+    /// How they are read.
+    pub episode_config: &'a EpisodeConfig,
+}
+
+fn point(f: &proto::FrameScore) -> DetectorPoint {
+    DetectorPoint {
+        stamp_ns: f.stamp_ns,
+        score: f.score,
+        e_c: f.e_c,
+        e_b: f.e_b,
+        e_o: f.e_o,
+        e_r: f.e_r,
+        warming_up: f.warming_up,
+        anomaly: f.anomaly,
+    }
+}
+
 /// Writes `report.md`, `report.json` and the plots; returns the report's path.
-#[allow(clippy::too_many_arguments)]
 pub(super) fn write_report(
-    out: &Path,
-    profile_path: &Path,
-    profile_name: &str,
-    model: Option<&str>,
-    alarm: f64,
-    thresholds: vamos::eval::Thresholds,
+    ctx: &ReportContext<'_>,
     streamed: &[Streamed],
     elapsed: Duration,
 ) -> Result<PathBuf> {
+    let ReportContext {
+        out,
+        profile_path,
+        profile_name,
+        model,
+        thresholds,
+        ..
+    } = *ctx;
+    let alarm = thresholds.alarm.unwrap_or(f64::INFINITY);
     let mut frames = Vec::new();
     for s in streamed {
         for f in &s.summary.scores {
@@ -58,6 +99,16 @@ pub(super) fn write_report(
         })
         .collect();
     write_plots(&plots_dir, &timelines, &frames, alarm)?;
+    let series: Vec<DetectorSeries<'_>> = streamed
+        .iter()
+        .map(|s| DetectorSeries {
+            name: &s.name,
+            labels: s.labels.as_ref(),
+            points: s.summary.scores.iter().map(point).collect(),
+        })
+        .collect();
+    write_detector_plots(&plots_dir, &series, &thresholds, ctx.rule)?;
+    let alarm_frames = write_alarm_frames(ctx, &plots_dir, streamed)?;
 
     let mut latencies: Vec<f64> = streamed
         .iter()
@@ -90,10 +141,16 @@ pub(super) fn write_report(
         elapsed.as_secs_f64()
     ));
     md.push_str(&format!(
-        "Thresholds: e_c {}, e_b {}; alarm when the fused score reaches {}.\n\n",
+        "Alarm when the fused score reaches {}, i.e. when one detector alone reaches its own \
+         threshold: e_c {}, e_b {}, e_o {}, e_r {} (-: it cannot alarm alone); an alarm \
+         starts after {} flagged frames of {}.\n\n",
+        fmt_threshold(alarm),
         opt(thresholds.e_c, 3),
         opt(thresholds.e_b, 3),
-        fmt_threshold(alarm)
+        opt(thresholds.e_o, 4),
+        opt(thresholds.e_r, 3),
+        ctx.rule.frames,
+        ctx.rule.window,
     ));
     md.push_str("## Summary\n\n| figure | value |\n|---|---|\n");
     let timely_label = format!(
@@ -215,6 +272,28 @@ pub(super) fn write_report(
     for s in streamed {
         md.push_str(&format!("![{0}](plots/{0}.png)\n", s.name));
     }
+    md.push_str(
+        "\nEach detector against its own threshold (dashed), below the fused score; the \
+         flow predictor's warm-up greyed, labelled anomalies shaded, the first alarm marked:\n\n",
+    );
+    for s in streamed {
+        md.push_str(&format!(
+            "![{0} detectors](plots/{0}.detectors.png)\n",
+            s.name
+        ));
+    }
+    if !alarm_frames.is_empty() {
+        md.push_str(
+            "\n## Where: the frame at each episode's first alarm\n\nThe camera image as \
+             scored (left) and with the anomaly map over it (right; red: the scene moved \
+             against its nominal statistics there).\n\n",
+        );
+        for (name, seconds, file) in &alarm_frames {
+            md.push_str(&format!(
+                "**{name}** at {seconds:.1} s:\n\n![{name} first alarm](plots/{file})\n\n"
+            ));
+        }
+    }
     let path = out.join("report.md");
     std::fs::write(&path, md).with_context(|| format!("cannot write {}", path.display()))?;
     let json_path = out.join("report.json");
@@ -241,4 +320,94 @@ pub(super) fn write_report(
     std::fs::write(&json_path, serde_json::to_string_pretty(&value)? + "\n")
         .with_context(|| format!("cannot write {}", json_path.display()))?;
     Ok(path)
+}
+
+/// For every episode with an alarm: `plots/<episode>.first_alarm.png`, the frame at the
+/// first alarm's start beside the same frame with its anomaly map over it. Returns
+/// (episode, seconds into it, file name) of each written.
+fn write_alarm_frames(
+    ctx: &ReportContext<'_>,
+    dir: &Path,
+    streamed: &[Streamed],
+) -> Result<Vec<(String, f64, String)>> {
+    let mut written = Vec::new();
+    for s in streamed {
+        let points: Vec<DetectorPoint> = s.summary.scores.iter().map(point).collect();
+        let Some(i) = first_alarm(&points, ctx.rule)? else {
+            continue;
+        };
+        let score = &s.summary.scores[i];
+        let Some(path) = ctx
+            .episodes
+            .iter()
+            .find(|p| p.file_stem().is_some_and(|n| n.to_string_lossy() == s.name))
+        else {
+            continue;
+        };
+        let episode = McapEpisode::open(path, ctx.episode_config)
+            .with_context(|| format!("cannot reopen {}", path.display()))?;
+        let Some(frame) = episode
+            .frames()
+            .filter_map(Result::ok)
+            .find(|f| f.stamp_ns == score.stamp_ns)
+        else {
+            continue;
+        };
+        let map = (!score.anomaly_map.is_empty())
+            .then(|| image::load_from_memory(&score.anomaly_map))
+            .transpose()
+            .with_context(|| format!("the anomaly map of {} is not an image", s.name))?
+            .map(|m| m.to_luma8());
+        let file = format!("{}.first_alarm.png", s.name);
+        overlay(&frame.image, map.as_ref())
+            .save(dir.join(&file))
+            .with_context(|| format!("cannot write {}", dir.join(&file).display()))?;
+        let t0 = s.summary.scores.first().map_or(0, |f| f.stamp_ns);
+        written.push((s.name.clone(), (score.stamp_ns - t0) as f64 / 1e9, file));
+    }
+    Ok(written)
+}
+
+/// `frame` (gray) beside itself with `map` (8-bit, 0 nominal, any size: stretched over
+/// the frame) over it in red.
+fn overlay(frame: &GrayImage, map: Option<&image::GrayImage>) -> image::RgbImage {
+    let (w, h) = (frame.width() as u32, frame.height() as u32);
+    let map = map.map(|m| image::imageops::resize(m, w, h, image::imageops::FilterType::Triangle));
+    let mut out = image::RgbImage::new(2 * w, h);
+    for y in 0..h {
+        for x in 0..w {
+            let g = frame.get(x as usize, y as usize).clamp(0.0, 255.0);
+            out.put_pixel(x, y, image::Rgb([g as u8; 3]));
+            let a = map
+                .as_ref()
+                .map_or(0.0, |m| f32::from(m.get_pixel(x, y)[0]) / 255.0);
+            let a = (0.8 * a).min(0.8);
+            let mix = |c: f32| ((1.0 - a) * g + a * c).round() as u8;
+            out.put_pixel(w + x, y, image::Rgb([mix(255.0), mix(0.0), mix(0.0)]));
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_overlay_is_the_frame_beside_the_frame_reddened_where_the_map_is_high() {
+        let frame = GrayImage::new(4, 2, vec![100.0; 8]).unwrap();
+        let mut map = image::GrayImage::new(2, 1);
+        map.put_pixel(1, 0, image::Luma([255]));
+        let out = overlay(&frame, Some(&map));
+        assert_eq!(out.dimensions(), (8, 2));
+        assert_eq!(out.get_pixel(0, 0).0, [100, 100, 100]);
+        assert_eq!(out.get_pixel(3, 1).0, [100, 100, 100]);
+        // Left half of the map is 0: unchanged; its right edge is 255: mostly red.
+        assert_eq!(out.get_pixel(4, 0).0, [100, 100, 100]);
+        let hot = out.get_pixel(7, 0).0;
+        assert!(hot[0] > 200 && hot[1] < 40 && hot[2] < 40, "{hot:?}");
+        // No map: both halves are the frame.
+        let plain = overlay(&frame, None);
+        assert_eq!(plain.get_pixel(6, 1).0, [100, 100, 100]);
+    }
 }

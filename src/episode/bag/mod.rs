@@ -37,6 +37,8 @@ mod files;
 mod source;
 mod topics;
 
+pub use files::{decompress_zstd_into, is_zstd_file};
+
 use super::EpisodeError;
 use super::joints::interpolate_rows;
 use super::labels::Labels;

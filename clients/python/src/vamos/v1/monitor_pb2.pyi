@@ -163,7 +163,7 @@ class AlarmComponents(_message.Message):
     def __init__(self, stamp_ns: _Optional[int] = ..., score: _Optional[float] = ..., e_c: _Optional[float] = ..., e_b: _Optional[float] = ..., e_o: _Optional[float] = ..., e_r: _Optional[float] = ...) -> None: ...
 
 class AlarmEvent(_message.Message):
-    __slots__ = ("edge", "alarm_id", "session_id", "detector", "detectors", "start_frame", "end_frame", "end_stamp_ns", "frames_flagged", "alarm_threshold", "e_c_threshold", "e_b_threshold", "start", "peak")
+    __slots__ = ("edge", "alarm_id", "session_id", "detector", "detectors", "start_frame", "end_frame", "end_stamp_ns", "frames_flagged", "alarm_threshold", "e_c_threshold", "e_b_threshold", "start", "peak", "e_o_threshold", "e_r_threshold")
     class Edge(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
         __slots__ = ()
         EDGE_UNSPECIFIED: _ClassVar[AlarmEvent.Edge]
@@ -186,6 +186,8 @@ class AlarmEvent(_message.Message):
     E_B_THRESHOLD_FIELD_NUMBER: _ClassVar[int]
     START_FIELD_NUMBER: _ClassVar[int]
     PEAK_FIELD_NUMBER: _ClassVar[int]
+    E_O_THRESHOLD_FIELD_NUMBER: _ClassVar[int]
+    E_R_THRESHOLD_FIELD_NUMBER: _ClassVar[int]
     edge: AlarmEvent.Edge
     alarm_id: str
     session_id: str
@@ -200,7 +202,9 @@ class AlarmEvent(_message.Message):
     e_b_threshold: float
     start: AlarmComponents
     peak: AlarmComponents
-    def __init__(self, edge: _Optional[_Union[AlarmEvent.Edge, str]] = ..., alarm_id: _Optional[str] = ..., session_id: _Optional[str] = ..., detector: _Optional[_Union[Detector, str]] = ..., detectors: _Optional[_Iterable[_Union[Detector, str]]] = ..., start_frame: _Optional[int] = ..., end_frame: _Optional[int] = ..., end_stamp_ns: _Optional[int] = ..., frames_flagged: _Optional[int] = ..., alarm_threshold: _Optional[float] = ..., e_c_threshold: _Optional[float] = ..., e_b_threshold: _Optional[float] = ..., start: _Optional[_Union[AlarmComponents, _Mapping]] = ..., peak: _Optional[_Union[AlarmComponents, _Mapping]] = ...) -> None: ...
+    e_o_threshold: float
+    e_r_threshold: float
+    def __init__(self, edge: _Optional[_Union[AlarmEvent.Edge, str]] = ..., alarm_id: _Optional[str] = ..., session_id: _Optional[str] = ..., detector: _Optional[_Union[Detector, str]] = ..., detectors: _Optional[_Iterable[_Union[Detector, str]]] = ..., start_frame: _Optional[int] = ..., end_frame: _Optional[int] = ..., end_stamp_ns: _Optional[int] = ..., frames_flagged: _Optional[int] = ..., alarm_threshold: _Optional[float] = ..., e_c_threshold: _Optional[float] = ..., e_b_threshold: _Optional[float] = ..., start: _Optional[_Union[AlarmComponents, _Mapping]] = ..., peak: _Optional[_Union[AlarmComponents, _Mapping]] = ..., e_o_threshold: _Optional[float] = ..., e_r_threshold: _Optional[float] = ...) -> None: ...
 
 class SessionEvent(_message.Message):
     __slots__ = ("kind", "session_id", "detail", "stamp_ns", "count")
