@@ -270,7 +270,7 @@ def test_live_view_in_a_real_browser(browser: Any, tmp_path: Path) -> None:
         _wait("the page to notice the end", lambda: "no open session" in d.find_element(By.ID, "message").text)
 
         # The marked alarm kept the session's recording: it is the profile's nominal set.
-        recording = json.loads(stored.read_text())["recording"]
+        recording = json.loads(stored.read_text())["body"]["recording"]
         def nominal() -> Any:
             status, body = _call(server, "GET", "/v1/profiles/sim-arm/nominal", VIEWER)
             assert status == 200, body
