@@ -708,8 +708,10 @@ async fn calibration_from_uploaded_episodes_with_job_limits_cancel_and_restart()
 /// without a calibration or without nominal episodes, are refused.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_false_alarm_joins_the_nominal_set_and_a_recalibration_clears_it() {
+    const VIEWER: &str = "viewer-secret";
     let dir = tempfile::tempdir().unwrap();
-    let settings = settings(dir.path());
+    let mut settings = settings(dir.path());
+    settings.service.viewer_token_sha256 = vec![hex_sha256(VIEWER)];
     let server = start(&settings).await;
     let api = Api::new(&server);
     stored_profile(&api).await;
@@ -764,7 +766,7 @@ async fn a_false_alarm_joins_the_nominal_set_and_a_recalibration_clears_it() {
             scores
         }
     };
-    let first = run(camera.clone()).await;
+    let first = run(camera).await;
     assert!(first.iter().any(|s| s.anomaly), "the run alarms");
     let alarms = api.get("/v1/alarms").await;
     let alarm = alarms["alarms"]
@@ -774,6 +776,12 @@ async fn a_false_alarm_joins_the_nominal_set_and_a_recalibration_clears_it() {
         .find(|a| a["session_id"] == "pushed")
         .unwrap_or_else(|| panic!("no alarm of the run: {alarms}"))
         .clone();
+    // The push is over before the run is: the alarm's end was recorded too.
+    assert!(alarm["end_frame"].is_u64(), "{alarm}");
+    assert!(
+        alarm["recording"].is_string(),
+        "a recorded session: {alarm}"
+    );
     let id = alarm["id"].as_str().unwrap();
     let (status, marked) = api
         .json(
@@ -795,6 +803,33 @@ async fn a_false_alarm_joins_the_nominal_set_and_a_recalibration_clears_it() {
         assert!(std::time::Instant::now() < deadline, "{n}");
         tokio::time::sleep(Duration::from_millis(50)).await;
     };
+    // A viewer may look at the nominal set, but neither recalibrate nor stream.
+    let as_viewer = |method: Method, path: &str| {
+        reqwest::Client::new()
+            .request(method, format!("http://{}{path}", server.rest_addr))
+            .bearer_auth(VIEWER)
+            .send()
+    };
+    let seen = as_viewer(Method::GET, "/v1/profiles/arm-store/nominal")
+        .await
+        .unwrap();
+    assert_eq!(seen.status(), StatusCode::OK);
+    let refused = as_viewer(Method::POST, recalibrate).await.unwrap();
+    assert_eq!(refused.status(), StatusCode::FORBIDDEN);
+    let (tx, rx) = mpsc::channel(1);
+    tx.send(proto::StreamRequest {
+        message: Some(open_msg("arm-store", "viewer", None)),
+    })
+    .await
+    .unwrap();
+    let mut client = MonitorClient::connect(format!("http://{addr}"))
+        .await
+        .unwrap();
+    let err = client
+        .stream(authed(ReceiverStream::new(rx), Some(VIEWER)))
+        .await
+        .unwrap_err();
+    assert_eq!(err.code(), tonic::Code::PermissionDenied, "{err}");
     let e = &nominal["episodes"][0];
     assert_eq!(
         (e["session_id"].as_str(), e["recording"].as_str()),
