@@ -378,12 +378,13 @@ async function loadSide() {
     const ul = el('ul');
     // Each profile's nominal set: the recorded sessions of its false alarms.
     const nominal = await Promise.all(profiles.map((p) => (p.name
-      ? api('/v1/profiles/' + encodeURIComponent(p.name) + '/nominal').then((r) => r.json()).then((b) => b.episodes.length, () => null)
+      ? api('/v1/profiles/' + encodeURIComponent(p.name) + '/nominal').then((r) => r.json()).then((b) => b.episodes, () => null)
       : null)));
     profiles.forEach((p, i) => {
-      const count = nominal[i] === null ? '' : ', ' + nominal[i] + ' nominal episode(s) from false alarms';
+      const count = nominal[i] === null ? '' : ', ' + nominal[i].length + ' nominal episode(s) from false alarms';
       const li = el('li', (p.name || p) + (p.alarm_threshold !== undefined ? ': alarm threshold ' + fmt(p.alarm_threshold) : '') + count);
-      if (state.role === 'admin' && p.name && nominal[i]) li.appendChild(recalibrateButton(p.name));
+      if (nominal[i] && nominal[i].length) li.appendChild(nominalList(nominal[i]));
+      if (state.role === 'admin' && p.name && nominal[i] && nominal[i].length) li.appendChild(recalibrateButton(p.name));
       ul.appendChild(li);
     });
     $('profiles').replaceChildren(profiles.length ? ul : el('span', 'No profile.'));
@@ -407,6 +408,7 @@ function proposal(j) {
   box.appendChild(el('div', 'thresholds: ' + rows.join(', ')));
   box.appendChild(el('div', p.episodes.length + ' nominal episode(s), largest score ' +
     p.episodes.map((e) => fmt(e.max_score_before) + ' \u2192 ' + fmt(e.max_score_after)).join(', '), 'muted'));
+  box.appendChild(proposalPlot(p));
   if (p.applied_unix_s) {
     box.appendChild(el('div', 'applied', 'muted'));
   } else if (state.role === 'admin') {
@@ -422,6 +424,58 @@ function proposal(j) {
     box.appendChild(b);
   }
   return box;
+}
+
+// Each nominal episode's largest fused score before (grey) and after (blue) the proposal,
+// on a log axis, against the alarm threshold now (red, dashed) and proposed (green).
+function proposalPlot(p) {
+  const rowH = 16;
+  const c = el('canvas', null, 'proposal-plot');
+  c.width = 420;
+  c.height = 24 + rowH * 2 * p.episodes.length;
+  const g = c.getContext('2d');
+  const values = p.episodes.flatMap((e) => [e.max_score_before, e.max_score_after])
+    .concat([p.current.alarm, p.proposed.alarm]).filter((v) => v !== null && v > 0);
+  const lo = Math.log10(Math.min(...values, 1e-3)) - 0.2;
+  const hi = Math.log10(Math.max(...values, 1)) + 0.2;
+  const x0 = 110;
+  const w = c.width - x0 - 10;
+  const xOf = (v) => x0 + (w * (Math.log10(Math.max(v, 10 ** lo)) - lo)) / (hi - lo);
+  g.font = '11px system-ui';
+  p.episodes.forEach((e, i) => {
+    const y = 8 + i * 2 * rowH;
+    g.fillStyle = '#56606b';
+    g.fillText(e.name.slice(0, 16), 2, y + rowH);
+    g.fillStyle = '#9e9e9e';
+    g.fillRect(x0, y, xOf(e.max_score_before) - x0, rowH - 3);
+    g.fillStyle = '#1565c0';
+    g.fillRect(x0, y + rowH, xOf(e.max_score_after) - x0, rowH - 3);
+  });
+  const line = (v, color, dash) => {
+    if (v === null || !(v > 0)) return;
+    g.strokeStyle = color;
+    g.setLineDash(dash);
+    g.beginPath();
+    g.moveTo(xOf(v), 2);
+    g.lineTo(xOf(v), c.height - 14);
+    g.stroke();
+  };
+  line(p.current.alarm, '#c62828', [4, 3]);
+  line(p.proposed.alarm, '#2e7d32', []);
+  g.setLineDash([]);
+  g.fillStyle = '#56606b';
+  g.fillText('largest score, log axis; red: alarm now, green: proposed', x0, c.height - 2);
+  return c;
+}
+
+// A profile's nominal set, one line per recorded session.
+function nominalList(episodes) {
+  const ul = el('ul', null, 'nominal');
+  for (const e of episodes) {
+    ul.appendChild(el('li', e.session_id + ' (' + (e.finished ? Math.round((e.bytes || 0) / 1024) + ' KiB' : 'recording') +
+      ', ' + e.alarms.length + ' false alarm(s))', 'muted'));
+  }
+  return ul;
 }
 
 // Starts a recalibration of a profile from its nominal set (its false alarms' sessions).

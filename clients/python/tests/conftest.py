@@ -9,10 +9,20 @@ import pytest
 torch = pytest.importorskip("torch")
 
 from vamos.train.config import ModelConfig, FitConfig  # noqa: E402
+from vamos.train.model import ProbabilisticUNet  # noqa: E402
 from vamos.train.synthetic import write_synthetic_dataset  # noqa: E402
 
 #: Widths small enough for fast CPU tests.
 TINY_FILTERS = (4, 8, 8, 8)
+
+
+def fixed_latents(model: ProbabilisticUNet, posterior_mu: list[float]) -> None:
+    """Prior N(0, 1) and posterior N(posterior_mu, 1) for every input (1x1 conv weights 0)."""
+    latent = model.config.latent_dim
+    with torch.no_grad():
+        for net, mu in ((model.prior, [0.0] * latent), (model.posterior, posterior_mu)):
+            net.to_params.weight.zero_()
+            net.to_params.bias.copy_(torch.tensor(mu + [0.0] * latent))
 
 
 @pytest.fixture(autouse=True)

@@ -10,21 +10,12 @@ import numpy as np
 import pytest
 import torch
 
-from conftest import TINY_FILTERS, tiny_fit_config
+from conftest import TINY_FILTERS, fixed_latents, tiny_fit_config
 from vamos.train.collapse import collapse_check, collapse_summary, collapse_warning
 from vamos.train.config import ConfigError, ModelConfig
 from vamos.train.data import PairSampler, load_dataset
 from vamos.train.model import ProbabilisticUNet
 from vamos.train.trainer import fit, load_checkpoint
-
-
-def _set_latents(model: ProbabilisticUNet, posterior_mu: list[float]) -> None:
-    """Prior N(0, 1) and posterior N(posterior_mu, 1) for every input (1x1 conv weights 0)."""
-    latent = model.config.latent_dim
-    with torch.no_grad():
-        for net, mu in ((model.prior, [0.0] * latent), (model.posterior, posterior_mu)):
-            net.to_params.weight.zero_()
-            net.to_params.bias.copy_(torch.tensor(mu + [0.0] * latent))
 
 
 def _sampler(dataset: Path) -> PairSampler:
@@ -39,7 +30,7 @@ def _check(model: ProbabilisticUNet, sampler: PairSampler, samples: int = 4):
 def test_a_posterior_equal_to_the_prior_is_collapsed(tiny_dataset: Path) -> None:
     torch.manual_seed(0)
     model = ProbabilisticUNet(ModelConfig(filters=TINY_FILTERS, latent_dim=3))
-    _set_latents(model, [0.0, 0.0, 0.0])
+    fixed_latents(model, [0.0, 0.0, 0.0])
     check = _check(model, _sampler(tiny_dataset))
     assert check.pairs == 25 and check.samples == 4
     assert abs(check.kl) < 1e-9 and check.collapsed
@@ -53,7 +44,7 @@ def test_an_informative_posterior_is_not_collapsed(tiny_dataset: Path) -> None:
     torch.manual_seed(0)
     model = ProbabilisticUNet(ModelConfig(filters=TINY_FILTERS, latent_dim=3))
     # KL per dimension of N(mu, 1) || N(0, 1) is mu^2 / 2: 0.5 + 0.125 + 0 nats.
-    _set_latents(model, [1.0, 0.5, 0.0])
+    fixed_latents(model, [1.0, 0.5, 0.0])
     check = _check(model, _sampler(tiny_dataset))
     assert check.kl == pytest.approx(0.625, abs=1e-6)
     assert check.kl_per_dim == pytest.approx([0.5, 0.125, 0.0], abs=1e-6)
@@ -70,7 +61,7 @@ def test_an_informative_posterior_is_not_collapsed(tiny_dataset: Path) -> None:
 def test_a_network_that_ignores_z_is_collapsed_by_spread(tiny_dataset: Path) -> None:
     torch.manual_seed(0)
     model = ProbabilisticUNet(ModelConfig(filters=TINY_FILTERS, latent_dim=3))
-    _set_latents(model, [1.0, 1.0, 1.0])  # KL 1.5 nats: not collapsed by KL
+    fixed_latents(model, [1.0, 1.0, 1.0])  # KL 1.5 nats: not collapsed by KL
     with torch.no_grad():  # ... but fcomb's first layer no longer reads the latent channels
         first = next(m for m in model.fcomb.modules() if isinstance(m, torch.nn.Conv2d))
         first.weight[:, -3:].zero_()

@@ -279,6 +279,9 @@ def test_live_view_in_a_real_browser(browser: Any, tmp_path: Path) -> None:
         assert episode["session_id"] == "ui-session" and episode["alarms"] == [alarm_id]
         assert episode["recording"] == recording and episode["bytes"] > 0
         assert (tmp_path / "server" / "data" / "recordings" / recording).is_file()
+        # ... and the page lists it under its profile (refreshed every 10 s).
+        _wait("the nominal set on the page", lambda: "ui-session" in d.find_element(By.ID, "profiles").text
+              and "1 nominal episode(s)" in d.find_element(By.ID, "profiles").text, timeout_s=40)
     finally:
         robot.release.set()
         server.stop()

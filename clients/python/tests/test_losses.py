@@ -7,6 +7,7 @@ import math
 import numpy as np
 import torch
 
+from conftest import fixed_latents
 from vamos.train.config import ModelConfig
 from vamos.train.losses import free_bits_kl, kl_diagonal_gaussians, training_loss, weight_norm
 from vamos.train.model import ProbabilisticUNet
@@ -96,20 +97,11 @@ def _v(t: torch.Tensor) -> float:
     return float(t.detach())
 
 
-def _fixed_latents(model: ProbabilisticUNet, posterior_mu: list[float]) -> None:
-    """Prior N(0, 1) and posterior N(posterior_mu, 1) for every input (1x1 conv weights 0)."""
-    latent = model.config.latent_dim
-    with torch.no_grad():
-        for net, mu in ((model.prior, [0.0] * latent), (model.posterior, posterior_mu)):
-            net.to_params.weight.zero_()
-            net.to_params.bias.copy_(torch.tensor(mu + [0.0] * latent))
-
-
 def test_free_bits_in_the_training_loss_hand_computed() -> None:
     torch.manual_seed(0)
     model = ProbabilisticUNet(ModelConfig(filters=(4, 8), latent_dim=3, input_size=16))
     # KL per dimension of N(mu, 1) || N(0, 1) is mu^2 / 2: 0.005, 0.5, 0.
-    _fixed_latents(model, [0.1, 1.0, 0.0])
+    fixed_latents(model, [0.1, 1.0, 0.0])
     past, target = torch.rand(2, 2, 16, 16) - 0.5, torch.rand(2, 2, 16, 16) - 0.5
     eps = torch.randn(2, 3)
     plain = training_loss(model, past, target, eps, beta=10.0, weight_decay=1e-5)
