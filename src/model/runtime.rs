@@ -90,6 +90,19 @@ pub enum RuntimeSource {
     Provisioned,
 }
 
+impl RuntimeSource {
+    /// Where the library came from, in words (what a first run prints).
+    pub fn describe(self) -> &'static str {
+        match self {
+            Self::EnvVar => "ORT_DYLIB_PATH",
+            Self::BesideBinary => "lib/ beside the binary",
+            Self::Cache => "the vamos cache",
+            Self::PythonPackage => "the Python onnxruntime package",
+            Self::Provisioned => "downloaded from PyPI into the vamos cache by this run",
+        }
+    }
+}
+
 /// Which sources [`ensure`] may use besides the environment variable, binary folder and cache.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct RuntimeOptions {
@@ -359,6 +372,11 @@ fn provision_into(tmp: &Path, version_dir: &Path, target: &Path) -> Result<PathB
 
 static RUNTIME: OnceLock<Runtime> = OnceLock::new();
 static INIT_LOCK: Mutex<()> = Mutex::new(());
+
+/// The process's ONNX Runtime, if [`ensure`] has loaded it.
+pub fn loaded() -> Option<&'static Runtime> {
+    RUNTIME.get()
+}
 
 /// The process's ONNX Runtime: found (and provisioned) and loaded on the first call,
 /// returned as is afterwards. A failure is not cached: a later call tries again.

@@ -25,6 +25,15 @@ fn the_demo_streams_the_bundled_episodes_and_writes_its_report() {
         stdout.contains(&format!("report: {}", report_md.display())),
         "{stdout}"
     );
+    // The bundled model runs on ONNX Runtime: the run says which library and from where.
+    let runtime = stdout
+        .lines()
+        .find_map(|l| l.strip_prefix("ONNX Runtime: "))
+        .unwrap_or_else(|| panic!("no ONNX Runtime line: {stdout}"));
+    assert!(
+        runtime.contains("libonnxruntime") && runtime.contains("s to find and load"),
+        "{runtime}"
+    );
 
     let report: Value =
         serde_json::from_str(&std::fs::read_to_string(out_dir.join("report.json")).unwrap())

@@ -227,6 +227,15 @@ async fn demo(settings: &Settings, opts: DemoOptions) -> Result<()> {
         model_desc.as_deref().unwrap_or("none"),
         fmt_threshold(alarm)
     );
+    // What the first run uses (and, on a machine without it, fetched).
+    if let Some(rt) = vamos::model::runtime::loaded() {
+        println!(
+            "ONNX Runtime: {} ({}; {:.1} s to find and load)",
+            rt.path.display(),
+            rt.source.describe(),
+            rt.setup_secs
+        );
+    }
     let token = ["VAMOS_ROBOT_TOKEN", "VAMOS_ADMIN_TOKEN"]
         .iter()
         .find_map(|k| std::env::var(k).ok())
