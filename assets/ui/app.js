@@ -365,10 +365,11 @@ async function loadSide() {
     const jobs = (await (await api('/v1/jobs')).json()).jobs || [];
     const ul = el('ul');
     for (const j of jobs.slice(-10).reverse()) {
-      const thr = j.calibration && j.calibration.alarm_thresholds ? ' alarm ' + fmt(j.calibration.alarm_thresholds.conformal) : '';
+      const thr = j.calibration ? calibrationSummary(j.calibration) : '';
       const kind = j.proposal ? ' recalibration' : '';
       const li = el('li', '#' + j.id + ' ' + j.profile + kind + ': ' + j.state + (j.proposal ? '' : thr) + (j.error ? ' (' + j.error + ')' : ''));
       if (j.proposal && j.state === 'succeeded') li.appendChild(proposal(j));
+      for (const n of j.notes || []) li.appendChild(el('div', n, 'muted note'));
       ul.appendChild(li);
     }
     $('jobs').replaceChildren(jobs.length ? ul : el('span', 'No calibration job.'));
@@ -395,6 +396,17 @@ async function loadSide() {
     for (const a of marked.slice(-10).reverse()) ul.appendChild(el('li', a.id + ' ' + a.profile + ' ' + a.detector + ' (' + a.false_alarm.by_role + ')'));
     $('marked').replaceChildren(marked.length ? ul : el('span', 'None yet.'));
   } catch (e) { $('marked').textContent = e.message; }
+}
+
+// A calibration's result in one line: the detector thresholds, the training maximum and
+// the conformal threshold with what it rests on.
+function calibrationSummary(c) {
+  const t = c.thresholds || {};
+  const parts = ['e_c ' + fmt(t.e_c), 'e_b ' + fmt(t.e_b), 'max ' + fmt(c.score_max)];
+  if (c.conformal) {
+    parts.push('conformal ' + fmt(c.conformal.threshold) + ' (' + c.conformal.n + ' held out, alpha ' + c.conformal.alpha + ')');
+  }
+  return ' \u2014 ' + (c.training_frames || 0) + ' training frames: ' + parts.join(', ');
 }
 
 // A recalibration's proposal: each threshold now and proposed, the episodes' largest
