@@ -161,6 +161,21 @@ impl From<&vamos::pipeline::FrameScore> for DetectorPoint {
     }
 }
 
+impl From<&vamos::api::proto::FrameScore> for DetectorPoint {
+    fn from(f: &vamos::api::proto::FrameScore) -> Self {
+        Self {
+            stamp_ns: f.stamp_ns,
+            score: f.score,
+            e_c: f.e_c,
+            e_b: f.e_b,
+            e_o: f.e_o,
+            e_r: f.e_r,
+            warming_up: f.warming_up,
+            anomaly: f.anomaly,
+        }
+    }
+}
+
 /// One episode's frames for [`write_detector_plots`], whatever scored them.
 pub struct DetectorSeries<'a> {
     /// Episode name (the plot's file stem).

@@ -424,16 +424,7 @@ mod tests {
                             let mut e = episode(&stem(p), &[1.0, 2.0, held_e_c.min(2.0)]);
                             if t.e_c.is_some() {
                                 // Held-out: scored with the thresholds, as the scorer does.
-                                e = episode(&stem(p), &[1.0, held_e_c]);
-                                for f in &mut e.frames {
-                                    let c = Components {
-                                        e_c: f.e_c,
-                                        e_b: None,
-                                        e_r: None,
-                                        e_o: f.e_o,
-                                    };
-                                    f.score = fuse_frame(&c, &t, Fusion::Paper).score;
-                                }
+                                e = scored(episode(&stem(p), &[1.0, held_e_c]), &t);
                             }
                             e
                         })

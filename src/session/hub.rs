@@ -243,11 +243,7 @@ impl Hub {
             .calibrated_scorer(&seed_key, req.maps)
             .map_err(SessionError::scorer)?;
         let alarm_rule = profile.setup.profile.file.alarm_events;
-        let recorder = if req.episode {
-            None // an uploaded episode is its own record
-        } else {
-            self.start_recording(&id, &profile.setup.episode.topics)
-        };
+        let record = !req.episode; // an uploaded episode is its own record
         let session = Arc::new(Session {
             id: id.clone(),
             robot_id: req.robot_id,
@@ -287,7 +283,7 @@ impl Hub {
             maps: req.maps,
             alarms: Mutex::new(super::alarms::AlarmTracker::new(alarm_rule)),
             live: Mutex::new(super::live::LiveView::default()),
-            recorder: Mutex::new(recorder),
+            recorder: Mutex::new(None),
             profile: Mutex::new(profile),
         });
         sessions.insert(id.clone(), session.clone());
@@ -301,6 +297,13 @@ impl Hub {
             .sessions_opened
             .with_label_values(&[&session.profile_name, "ok"])
             .inc();
+        drop(sessions);
+        // The recording starts outside the table's lock (it may prune old recordings);
+        // no frame reaches the session before `open` returns.
+        if record {
+            let profile = session.profile();
+            *lock(&session.recorder) = self.start_recording(&id, &profile.setup.episode.topics);
+        }
         tracing::info!(session = %id, robot = %session.robot_id, profile = %session.profile_name, "session opened");
         Ok((session, false))
     }

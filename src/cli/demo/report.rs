@@ -9,7 +9,6 @@ use anyhow::{Context, Result};
 use serde_json::json;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
-use vamos::api::proto;
 use vamos::episode::{EpisodeConfig, McapEpisode};
 use vamos::eval::alarm::Debounce;
 use vamos::eval::{DetectorThresholds, EvalReport, ScoredFrame, evaluate};
@@ -36,19 +35,6 @@ pub(super) struct ReportContext<'a> {
     pub episodes: &'a [PathBuf],
     /// How they are read.
     pub episode_config: &'a EpisodeConfig,
-}
-
-fn point(f: &proto::FrameScore) -> DetectorPoint {
-    DetectorPoint {
-        stamp_ns: f.stamp_ns,
-        score: f.score,
-        e_c: f.e_c,
-        e_b: f.e_b,
-        e_o: f.e_o,
-        e_r: f.e_r,
-        warming_up: f.warming_up,
-        anomaly: f.anomaly,
-    }
 }
 
 /// Writes `report.md`, `report.json` and the plots; returns the report's path.
@@ -104,7 +90,7 @@ pub(super) fn write_report(
         .map(|s| DetectorSeries {
             name: &s.name,
             labels: s.labels.as_ref(),
-            points: s.summary.scores.iter().map(point).collect(),
+            points: s.summary.scores.iter().map(DetectorPoint::from).collect(),
         })
         .collect();
     write_detector_plots(&plots_dir, &series, &thresholds, ctx.rule)?;
@@ -332,7 +318,7 @@ fn write_alarm_frames(
 ) -> Result<Vec<(String, f64, String)>> {
     let mut written = Vec::new();
     for s in streamed {
-        let points: Vec<DetectorPoint> = s.summary.scores.iter().map(point).collect();
+        let points: Vec<DetectorPoint> = s.summary.scores.iter().map(DetectorPoint::from).collect();
         let Some(i) = first_alarm(&points, ctx.rule)? else {
             continue;
         };
