@@ -1,7 +1,8 @@
 //! The detectors beyond the paper, per frame at 320x240 (issue "detection beyond the
 //! paper"; budget: at most 5 ms per frame on one core): the scene residual `e_r` (expected
 //! image flow from two camera poses, the robot's masks grown, normal-flow residual cells,
-//! nominal normalisation and block pooling) and the per-pixel body residual.
+//! nominal normalisation and block pooling), the per-pixel body residual and the kinematic
+//! novelty `e_k` (nearest of the nominal robot states).
 
 // criterion_group! generates undocumented items.
 #![allow(missing_docs)]
@@ -11,7 +12,7 @@
 use criterion::{Criterion, criterion_group, criterion_main};
 use nalgebra::{Isometry3, Translation3, UnitQuaternion};
 use std::hint::black_box;
-use vamos::eval::{CellStats, Pooling, pool_cells};
+use vamos::eval::{CellStats, Pooling, StateReference, pool_cells};
 use vamos::pipeline::residual::{body_residual, cell_grid, grow_union, scene_cells};
 use vamos::robot::Intrinsics;
 use vamos::robot::camera_motion::expected_image_flow;
@@ -83,6 +84,27 @@ fn bench_residual(c: &mut Criterion) {
     c.bench_function("residual/body_quantile_320x240", |b| {
         b.iter(|| black_box(body_residual(&rendered, &mask, &observed, 0.9, 0.5)))
     });
+    // e_k: 40 nominal episodes of 110 frames; the default state (10 joints, positions and
+    // velocities: 20 values) and the `links` state of a 15-link robot (270 values).
+    for (name, dims) in [("kinematics_e_k_joints", 20), ("kinematics_e_k_links", 270)] {
+        let episodes: Vec<Vec<Vec<f32>>> = (0..40)
+            .map(|e| {
+                (0..110)
+                    .map(|f| {
+                        (0..dims)
+                            .map(|d| ((e * 7 + f * 13 + d * 31) % 97) as f32 * 0.01)
+                            .collect()
+                    })
+                    .collect()
+            })
+            .collect();
+        let reference = StateReference::fit(&episodes, dims, None).expect("states");
+        let query: Vec<f32> = (0..dims).map(|d| (d % 5) as f32 * 0.2).collect();
+        c.bench_function(
+            &format!("residual/{name}_{}x{dims}", reference.len()),
+            |b| b.iter(|| black_box(reference.distance(&query))),
+        );
+    }
 }
 
 criterion_group!(benches, bench_residual);

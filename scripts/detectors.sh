@@ -6,7 +6,10 @@
 #   scripts/detectors.sh SIM_DIR OUT_DIR [ROW...]
 #
 # Rows: paper, all, all_quantile, scene_camera, scene, scene_phase, all_phase,
-# scene_phase_w3, default (a profile that sets nothing: what a user gets; default: all). Each row leaves
+# scene_phase_w3 (each without the kinematic novelty e_k), kinematics (e_k alone),
+# scene_kinematics, scene_phase_kinematics_w3, all_kinematics_positions (velocity_s = 0),
+# all_kinematics_links (state = "links"), all_kinematics_w3, all_phase_kinematics_w3,
+# default (a profile that sets nothing: what a user gets; default: all). Each row leaves
 # OUT_DIR/ROW/{profile.toml, profile.calibration.json, eval.json} and prints one line.
 # Needs the release binary (cargo build --release); about 90 s per row on 2 cores.
 set -eu
@@ -15,30 +18,41 @@ out=${2:?usage: scripts/detectors.sh SIM_DIR OUT_DIR [ROW...]}
 shift 2
 root=$(cd "$(dirname "$0")/.." && pwd)
 vamos=${VAMOS:-"$root/target/release/vamos"}
-rows=${*:-paper all all_quantile scene_camera scene scene_phase all_phase scene_phase_w3 default}
+rows=${*:-paper all all_quantile scene_camera scene scene_phase all_phase scene_phase_w3 kinematics scene_kinematics scene_phase_kinematics_w3 all_kinematics_positions all_kinematics_links all_kinematics_w3 all_phase_kinematics_w3 default}
 # The dataset's robot (vamos-sim writes one URDF into SIM_DIR/robot).
 urdf=$(ls "$sim"/robot/*.urdf | head -n 1)
 for row in $rows; do
     case $row in
-        paper) extra='fusion = "paper"' ;;
-        all) extra='fusion = "calibrated"' ;;
+        paper) extra='fusion = "paper"
+[pipeline.detectors]
+kinematics = false' ;;
+        all) extra='fusion = "calibrated"
+[pipeline.detectors]
+kinematics = false' ;;
         all_quantile) extra='fusion = "calibrated"
+[pipeline.detectors]
+kinematics = false
 [pipeline.residual]
 body_error = "quantile"' ;;
         scene_camera) extra='fusion = "calibrated"
 [pipeline.detectors]
-body = false' ;;
+body = false
+kinematics = false' ;;
         scene) extra='fusion = "calibrated"
 [pipeline.detectors]
 camera = false
-body = false' ;;
+body = false
+kinematics = false' ;;
         scene_phase) extra='fusion = "calibrated"
 [pipeline.detectors]
 camera = false
 body = false
+kinematics = false
 [pipeline.residual]
 phase_window_s = 1.0' ;;
         all_phase) extra='fusion = "calibrated"
+[pipeline.detectors]
+kinematics = false
 [pipeline.residual]
 phase_window_s = 1.0' ;;
         scene_phase_w3) extra='fusion = "calibrated"
@@ -46,8 +60,37 @@ temporal_window = 3
 [pipeline.detectors]
 camera = false
 body = false
+kinematics = false
 [pipeline.residual]
 phase_window_s = 1.0' ;;
+        kinematics) extra='fusion = "calibrated"
+[pipeline.detectors]
+camera = false
+body = false
+scene = false' ;;
+        scene_kinematics) extra='fusion = "calibrated"
+[pipeline.detectors]
+camera = false
+body = false' ;;
+        scene_phase_kinematics_w3) extra='fusion = "calibrated"
+temporal_window = 3
+[pipeline.detectors]
+camera = false
+body = false
+[pipeline.residual]
+phase_window_s = 1.0' ;;
+        all_kinematics_positions) extra='fusion = "calibrated"
+[pipeline.kinematics]
+velocity_s = 0.0' ;;
+        all_phase_kinematics_w3) extra='fusion = "calibrated"
+temporal_window = 3
+[pipeline.residual]
+phase_window_s = 1.0' ;;
+        all_kinematics_w3) extra='fusion = "calibrated"
+temporal_window = 3' ;;
+        all_kinematics_links) extra='fusion = "calibrated"
+[pipeline.kinematics]
+state = "links"' ;;
         default) extra='' ;;
         *) echo "unknown row $row" >&2; exit 2 ;;
     esac

@@ -12,6 +12,7 @@ const DETECTORS = [
   { key: 'e_b', label: 'e_b body motion (px)', thr: 'e_b', color: '#6a1b9a' },
   { key: 'e_o', label: 'e_o flow prediction', thr: 'e_o', color: '#ef6c00' },
   { key: 'e_r', label: 'e_r scene residual', thr: 'e_r', color: '#00897b' },
+  { key: 'e_k', label: 'e_k kinematic novelty (m)', thr: 'e_k', color: '#827717' },
 ];
 
 const state = {
@@ -330,7 +331,7 @@ function renderAlarms(alarms) {
     const t = a.thresholds;
     facts.appendChild(el('div', 'at start: score ' + fmt(a.start.score) + ' (threshold ' + fmt(t.alarm) + '), e_c ' + fmt(a.start.e_c) +
       ' (' + fmt(t.e_c) + '), e_b ' + fmt(a.start.e_b) + ' (' + fmt(t.e_b) + '), e_o ' + fmt(a.start.e_o) + ' (' + fmt(t.e_o) + '), e_r ' +
-      fmt(a.start.e_r) + ' (' + fmt(t.e_r) + ')'));
+      fmt(a.start.e_r) + ' (' + fmt(t.e_r) + '), e_k ' + fmt(a.start.e_k) + ' (' + fmt(t.e_k) + ')'));
     facts.appendChild(el('div', a.false_alarm ? 'marked as a false alarm (' + a.false_alarm.by_role + ')' : a.id, 'muted'));
     li.appendChild(facts);
     const b = el('button', a.false_alarm ? 'False alarm' : 'Mark false alarm', 'mark');
@@ -414,8 +415,8 @@ function calibrationSummary(c) {
 function proposal(j) {
   const p = j.proposal;
   const box = el('div', null, 'proposal');
-  const rows = ['alarm', 'e_c', 'e_b', 'e_o', 'e_r']
-    .filter((k) => p.current[k] !== null || p.proposed[k] !== null)
+  const rows = ['alarm', 'e_c', 'e_b', 'e_o', 'e_r', 'e_k']
+    .filter((k) => p.current[k] != null || p.proposed[k] != null)
     .map((k) => k + ' ' + fmt(p.current[k]) + ' \u2192 ' + fmt(p.proposed[k]));
   box.appendChild(el('div', 'thresholds: ' + rows.join(', ')));
   box.appendChild(el('div', p.episodes.length + ' nominal episode(s), largest score ' +

@@ -14,6 +14,7 @@ pub fn detector_name(code: i32) -> Option<&'static str> {
         Ok(Detector::Body) => Some("body"),
         Ok(Detector::Flow) => Some("flow"),
         Ok(Detector::Scene) => Some("scene"),
+        Ok(Detector::Kinematics) => Some("kinematics"),
         _ => None,
     }
 }
@@ -29,6 +30,7 @@ pub fn score_json(s: &FrameScore) -> serde_json::Value {
         "e_b": s.e_b,
         "e_o": s.e_o,
         "e_r": s.e_r,
+        "e_k": s.e_k,
         "anomaly": s.anomaly,
         "detector": detector_name(s.detector),
         "warming_up": s.warming_up,

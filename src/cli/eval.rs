@@ -140,6 +140,8 @@ pub struct DetectorPoint {
     pub e_o: Option<f64>,
     /// Scene residual.
     pub e_r: Option<f64>,
+    /// Kinematic novelty, metres.
+    pub e_k: Option<f64>,
     /// The flow predictor is still warming up.
     pub warming_up: bool,
     /// The frame is flagged (`score >= alarm threshold`).
@@ -155,6 +157,7 @@ impl From<&vamos::pipeline::FrameScore> for DetectorPoint {
             e_b: f.e_b,
             e_o: f.e_o,
             e_r: f.e_r,
+            e_k: f.e_k,
             warming_up: f.warming_up,
             anomaly: f.anomaly,
         }
@@ -170,6 +173,7 @@ impl From<&vamos::api::proto::FrameScore> for DetectorPoint {
             e_b: f.e_b,
             e_o: f.e_o,
             e_r: f.e_r,
+            e_k: f.e_k,
             warming_up: f.warming_up,
             anomaly: f.anomaly,
         }
@@ -240,11 +244,12 @@ pub fn write_detector_plots(
                 .collect()
         };
         let score = series(|f| Some(f.score));
-        let (e_c, e_b, e_o, e_r) = (
+        let (e_c, e_b, e_o, e_r, e_k) = (
             series(|f| f.e_c),
             series(|f| f.e_b),
             series(|f| f.e_o),
             series(|f| f.e_r),
+            series(|f| f.e_k),
         );
         let warming: Vec<bool> = e.points.iter().map(|f| f.warming_up).collect();
         let first_alarm = first_alarm(&e.points, rule)?.and_then(|i| stamps.get(i).copied());
@@ -281,6 +286,12 @@ pub fn write_detector_plots(
                 label: "e_r scene",
                 values: &e_r,
                 threshold: thresholds.e_r,
+                log_y: false,
+            },
+            Panel {
+                label: "e_k kinematics (m)",
+                values: &e_k,
+                threshold: thresholds.e_k,
                 log_y: false,
             },
         ];

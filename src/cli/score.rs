@@ -187,6 +187,7 @@ fn write_frame(
             e_b: s.e_b,
             e_o: s.e_o,
             e_r: s.e_r,
+            e_k: s.e_k,
             heatmap: s.heatmap.as_deref(),
             anomaly_map: map.map(|m| (m.width as u32, m.height as u32, m.pixels.as_slice())),
             thresholds_json: thresholds_json.as_deref(),

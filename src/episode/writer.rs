@@ -48,6 +48,8 @@ pub struct ScoreTopics<'a> {
     pub e_o: Option<f64>,
     /// Scene-motion residual (`/vamos/e_r`), when defined.
     pub e_r: Option<f64>,
+    /// Kinematic novelty (`/vamos/e_k`, metres), when defined.
+    pub e_k: Option<f64>,
     /// Square squared-error map of the best prediction (`/vamos/heatmap`), when kept.
     pub heatmap: Option<&'a [f32]>,
     /// The frame's anomaly map `(width, height, mono8 pixels)` (`/vamos/anomaly_map`,
@@ -390,6 +392,7 @@ impl ScoreBagWriter {
             ("/vamos/e_b", s.e_b),
             ("/vamos/e_o", s.e_o),
             ("/vamos/e_r", s.e_r),
+            ("/vamos/e_k", s.e_k),
         ] {
             if let Some(v) = v {
                 self.write_f64(topic, t, v)?;

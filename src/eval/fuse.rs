@@ -28,6 +28,7 @@
 //! triggers with ratio 1.
 
 use super::nominal::{CellStats, NominalScales, Scale};
+use super::novelty::StateReference;
 use serde::{Deserialize, Serialize};
 
 /// Lower edge of the triggered band: every triggered score is at least this plus 1
@@ -50,6 +51,8 @@ pub enum Detector {
     Flow,
     /// Scene-motion residual e_r (calibrated fusion only).
     Scene,
+    /// Kinematic novelty e_k (calibrated fusion only).
+    Kinematics,
 }
 
 /// How the detectors' values become one score.
@@ -89,11 +92,14 @@ pub struct Components {
     pub e_r: Option<f64>,
     /// Flow-prediction error.
     pub e_o: Option<f64>,
+    /// Kinematic novelty.
+    pub e_k: Option<f64>,
 }
 
 /// What a scorer takes from the calibration: the paper's per-component thresholds
 /// (maxima over the training episodes; `None` disables that trigger), the detectors'
-/// nominal scales (calibrated fusion) and the scene residual's per-cell statistics.
+/// nominal scales (calibrated fusion), the scene residual's per-cell statistics and the
+/// nominal robot states of the kinematic novelty.
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Thresholds {
@@ -107,6 +113,9 @@ pub struct Thresholds {
     /// Per-cell nominal statistics of the scene residual.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub scene: Option<CellStats>,
+    /// The training episodes' robot states (kinematic novelty).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub kinematics: Option<StateReference>,
 }
 
 impl Thresholds {
@@ -146,6 +155,9 @@ pub struct DetectorThresholds {
     /// e_r, the scene residual.
     #[serde(default)]
     pub e_r: Option<f64>,
+    /// e_k, the kinematic novelty, metres.
+    #[serde(default)]
+    pub e_k: Option<f64>,
 }
 
 impl DetectorThresholds {
@@ -161,6 +173,7 @@ impl DetectorThresholds {
                 e_b: finite(thresholds.e_b),
                 e_o: alarm.filter(|a| *a <= UNTRIGGERED_MAX),
                 e_r: None,
+                e_k: None,
             },
             Fusion::Calibrated => {
                 let scales = thresholds.scales.unwrap_or_default();
@@ -174,6 +187,7 @@ impl DetectorThresholds {
                     e_b: raw(scales.e_b),
                     e_o: raw(scales.e_o),
                     e_r: raw(scales.e_r),
+                    e_k: raw(scales.e_k),
                 }
             }
         }
@@ -279,6 +293,7 @@ pub fn fuse_calibrated(c: &Components, scales: Option<&NominalScales>) -> Fused 
         (Detector::Body, c.e_b, s.e_b),
         (Detector::Scene, c.e_r, s.e_r),
         (Detector::Flow, c.e_o, s.e_o),
+        (Detector::Kinematics, c.e_k, s.e_k),
     ];
     let mut best: Option<(Detector, f64)> = None;
     for (detector, value, scale) in parts {
@@ -360,15 +375,12 @@ mod tests {
                 e_b: scale(1.0, 2.0),
                 e_r: scale(0.2, 0.1),
                 e_o: None,
+                e_k: scale(0.01, 0.04),
             }),
             scene: None,
+            kinematics: None,
         };
-        let none = Components {
-            e_c: None,
-            e_b: None,
-            e_r: None,
-            e_o: None,
-        };
+        let none = Components::default();
         // Calibrated: location + alarm * spread, the raw value without a scale.
         let d = DetectorThresholds::new(&t, 1.5, Fusion::Calibrated, false);
         assert_eq!((d.alarm, d.e_c, d.e_b), (Some(1.5), Some(2.0), Some(4.0)));
@@ -378,6 +390,7 @@ mod tests {
             (Components { e_b: d.e_b, ..none }, "e_b"),
             (Components { e_r: d.e_r, ..none }, "e_r"),
             (Components { e_o: d.e_o, ..none }, "e_o"),
+            (Components { e_k: d.e_k, ..none }, "e_k"),
         ] {
             let score = fuse_frame(&c, &t, Fusion::Calibrated).score;
             assert!((score - 1.5).abs() < 1e-12, "{name}: {score}");
@@ -411,6 +424,7 @@ mod tests {
         e_b: Some(4.0),
         scales: None,
         scene: None,
+        kinematics: None,
     };
 
     #[test]
@@ -475,12 +489,14 @@ mod tests {
                 spread: 0.5,
             }),
             e_o: None,
+            e_k: None,
         };
         let c = Components {
             e_c: Some(4.0),
             e_b: Some(0.2),
             e_r: Some(2.0),
             e_o: None,
+            e_k: None,
         };
         // e_c: 1.5; e_b: raw 0.2 (no scale); e_r: 3.0.
         let f = fuse_calibrated(&c, Some(&scales));

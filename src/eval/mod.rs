@@ -19,6 +19,7 @@ mod episodes;
 mod fuse;
 mod metrics;
 pub mod nominal;
+pub mod novelty;
 pub mod plot;
 
 pub use ablation::{AblationTable, AucPair, FusionLevel};
@@ -35,6 +36,7 @@ pub use fuse::{
 };
 pub use metrics::{PrPoint, RocPoint, average_precision, pr_curve, roc_auc, roc_curve};
 pub use nominal::{CellNorm, CellStats, NominalScales, PhaseCells, Pooling, Scale, pool_cells};
+pub use novelty::StateReference;
 
 use std::path::PathBuf;
 

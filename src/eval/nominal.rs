@@ -83,16 +83,20 @@ pub struct NominalScales {
     /// Flow-prediction error.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub e_o: Option<Scale>,
+    /// Kinematic novelty.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub e_k: Option<Scale>,
 }
 
 impl NominalScales {
     /// Fits each detector's scale from its values over nominal frames.
-    pub fn fit(e_c: &[f64], e_b: &[f64], e_r: &[f64], e_o: &[f64]) -> NominalScales {
+    pub fn fit(e_c: &[f64], e_b: &[f64], e_r: &[f64], e_o: &[f64], e_k: &[f64]) -> NominalScales {
         NominalScales {
             e_c: Scale::fit(e_c),
             e_b: Scale::fit(e_b),
             e_r: Scale::fit(e_r),
             e_o: Scale::fit(e_o),
+            e_k: Scale::fit(e_k),
         }
     }
 }

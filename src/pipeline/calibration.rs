@@ -6,19 +6,22 @@
 //! 2. The scene residual's per-cell statistics are fitted on the training frames' cell
 //!    maps, their `e_r` pooled again with them, and each detector's nominal scale
 //!    (median, 99th percentile) fitted on the training frames (calibrated fusion).
+//!    The kinematic novelty's nominal states are the training frames' robot states; each
+//!    training frame's `e_k` is its distance to the *other* episodes' states (its own
+//!    would make it zero), and its scale is fitted on those.
 //! 3. With all that, the largest fused score over the training frames is the `max` alarm
 //!    threshold.
 //! 4. The held-out nominal episodes are scored with the thresholds; the split-conformal
 //!    threshold on their per-episode maximum fused score bounds the episode-level false-
 //!    alarm probability by `alpha` ([`crate::eval::conformal_threshold`]).
 
-use super::PipelineConfig;
 use super::offline::EpisodeScores;
 use super::profile::Calibration;
 use super::scorer::{FrameScore, phase_s};
+use super::{KinematicsParams, PipelineConfig};
 use crate::eval::{
-    CellStats, Components, NominalScales, Pooling, TRIGGER_BASE, Thresholds, Window,
-    conformal_threshold, fuse_frame, max_threshold, pool_cells,
+    CellStats, Components, NominalScales, Pooling, StateReference, TRIGGER_BASE, Thresholds,
+    Window, conformal_threshold, fuse_frame, max_threshold, novelty, pool_cells,
 };
 use std::path::{Path, PathBuf};
 use std::time::{SystemTime, UNIX_EPOCH};
@@ -95,30 +98,35 @@ pub fn calibrate<E>(
         })
         .collect();
     let e_r_values: Vec<f64> = e_r.iter().flatten().copied().collect();
+    let (kinematics, e_k) = fit_kinematics(&train, &pipeline.kinematics, &mut notes);
+    let e_k_values: Vec<f64> = e_k.iter().flatten().copied().collect();
     let scales = NominalScales::fit(
         &component(|f| f.e_c),
         &component(|f| f.e_b),
         &e_r_values,
         &component(|f| f.e_o),
+        &e_k_values,
     );
     let thresholds = Thresholds {
         e_c: max_threshold(&component(|f| f.e_c)),
         e_b: max_threshold(&component(|f| f.e_b)),
         scales: Some(scales),
         scene,
+        kinematics,
     };
     // The training frames' fused scores as the scorer gives them (windowed per episode).
     let mut window = Window::new(pipeline.temporal_window);
-    let mut e_r_of = e_r.iter();
+    let mut e_r_of = e_r.iter().zip(&e_k);
     let mut score_max = f64::NEG_INFINITY;
     for episode in &train {
         window.clear();
-        for (f, &e_r) in episode.frames.iter().zip(&mut e_r_of) {
+        for (f, (&e_r, &e_k)) in episode.frames.iter().zip(&mut e_r_of) {
             let c = Components {
                 e_c: f.e_c,
                 e_b: f.e_b,
                 e_r,
                 e_o: f.e_o,
+                e_k,
             };
             score_max = score_max.max(window.push(fuse_frame(&c, &thresholds, fusion)).score);
         }
@@ -252,6 +260,7 @@ pub fn revise(
                         e_b: f.e_b,
                         e_r: f.e_r,
                         e_o: f.e_o,
+                        e_k: f.e_k,
                     };
                     window
                         .push(fuse_frame(&c, &revised.thresholds, fusion))
@@ -344,6 +353,51 @@ fn fit_scene(
     }
 }
 
+/// The nominal robot states of the training episodes (scaled as `params` says) and each
+/// training frame's `e_k` against the other episodes' states (flattened like the
+/// episodes' frames; `None` for a frame without a state). No reference, with a note, when
+/// no frame has a state or no frame's distance can be measured (a single training
+/// episode).
+fn fit_kinematics(
+    train: &[EpisodeScores],
+    params: &KinematicsParams,
+    notes: &mut Vec<String>,
+) -> (Option<StateReference>, Vec<Option<f64>>) {
+    let frames = train.iter().map(|e| e.frames.len()).sum();
+    let Some(dims) = train
+        .iter()
+        .flat_map(|e| &e.frames)
+        .find_map(|f| f.kinematic_state.as_ref().map(Vec::len))
+    else {
+        return (None, vec![None; frames]);
+    };
+    let states: Vec<Vec<Vec<f32>>> = train
+        .iter()
+        .map(|e| {
+            e.frames
+                .iter()
+                .map(|f| f.kinematic_state.clone().unwrap_or_default())
+                .collect()
+        })
+        .collect();
+    let rows: Vec<&[f32]> = states.iter().flatten().map(Vec::as_slice).collect();
+    let scale = params.scale(&rows, dims);
+    let e_k: Vec<Option<f64>> = novelty::leave_one_episode_out(&states, dims, scale.as_deref())
+        .into_iter()
+        .flatten()
+        .map(|d| d.is_finite().then_some(d))
+        .collect();
+    if e_k.iter().all(Option::is_none) {
+        notes.push(
+            "no kinematic novelty (e_k): it needs robot states from at least two training \
+             episodes"
+                .into(),
+        );
+        return (None, vec![None; frames]);
+    }
+    (StateReference::fit(&states, dims, scale), e_k)
+}
+
 /// The fewest held-out episodes whose split-conformal rank `ceil((n + 1)(1 - alpha))` is
 /// below `n` (the threshold is then not simply their maximum): `n >= (2 - alpha) / alpha`.
 fn episodes_beyond_max(alpha: f64) -> usize {
@@ -377,6 +431,7 @@ mod tests {
                 e_b: None,
                 e_o: Some(0.01),
                 e_r: None,
+                e_k: None,
                 anomaly: false,
                 triggered: None,
                 warming_up: false,
@@ -388,6 +443,7 @@ mod tests {
                 scene_cells: None,
                 phase_s: 0.0,
                 scene_grid: (0, 0),
+                kinematic_state: None,
             })
             .collect();
         EpisodeScores {
@@ -454,6 +510,7 @@ mod tests {
                 e_b: None,
                 e_r: None,
                 e_o: f.e_o,
+                e_k: None,
             };
             f.score = fuse_frame(&c, t, Fusion::Paper).score;
         }

@@ -10,12 +10,15 @@
 //! - [`profile`]: what binds a robot, a camera, pipeline parameters, a model and the
 //!   calibrated thresholds, as a TOML file plus its calibration.
 //! - [`calibration`]: thresholds from nominal episodes (`vamos calibrate`, service jobs).
+//! - [`novelty`]: the robot's state (link positions and velocities) whose distance to
+//!   every nominal state is the kinematic novelty `e_k`.
 //! - [`dataset`]: the training dataset (`docs/model-bundle.md`) written from processed frames.
 
 pub mod attach;
 pub mod calibration;
 pub mod dataset;
 pub mod frames;
+pub mod novelty;
 pub mod offline;
 pub mod profile;
 pub mod residual;
@@ -32,6 +35,7 @@ pub use scorer::{
     FrameInput, FrameScore, JointInput, RobotSetup, Scorer, ScorerError, ScorerParts, StageTimings,
 };
 
+pub use novelty::{KinematicsParams, StateKind};
 pub use residual::{BodyError, ResidualParams};
 
 use crate::eval::Fusion;
@@ -54,6 +58,8 @@ pub struct PipelineConfig {
     pub detectors: DetectorSwitches,
     /// The scene and body residuals.
     pub residual: ResidualParams,
+    /// The robot state of the kinematic novelty `e_k`.
+    pub kinematics: KinematicsParams,
     /// Shapes attached to the robot's links (rendered and masked with the body).
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub attach: Vec<attach::Attachment>,
@@ -88,6 +94,8 @@ pub struct DetectorSwitches {
     pub flow: bool,
     /// Scene-motion residual `e_r`.
     pub scene: bool,
+    /// Kinematic novelty `e_k`.
+    pub kinematics: bool,
 }
 
 impl Default for DetectorSwitches {
@@ -97,6 +105,7 @@ impl Default for DetectorSwitches {
             body: true,
             flow: true,
             scene: true,
+            kinematics: true,
         }
     }
 }
@@ -114,6 +123,7 @@ impl PipelineConfig {
     pub fn check_limits(&self) -> Result<(), String> {
         self.frames.validate().map_err(|e| e.to_string())?;
         self.residual.validate()?;
+        self.kinematics.validate()?;
         if !(1..=MAX_TEMPORAL_WINDOW).contains(&self.temporal_window) {
             return Err(format!(
                 "pipeline parameter temporal_window = {} must lie in 1..={MAX_TEMPORAL_WINDOW} frames",
@@ -151,6 +161,7 @@ impl Default for PipelineConfig {
             camera_error: CameraErrorWeights::default(),
             detectors: DetectorSwitches::default(),
             residual: ResidualParams::default(),
+            kinematics: KinematicsParams::default(),
             attach: Vec::new(),
             fusion: Fusion::default(),
             temporal_window: 1,

@@ -185,6 +185,9 @@ pub struct FrameScore {
     /// Scene-motion residual: the pooled, nominal-normalised residual of the static
     /// scene (raw pixels before calibration).
     pub e_r: Option<f64>,
+    /// Kinematic novelty: distance from the robot's state to the nearest nominal state,
+    /// metres (none before calibration).
+    pub e_k: Option<f64>,
     /// The alarm: `score` reached the alarm threshold.
     pub anomaly: bool,
     /// Which detector's threshold the frame crossed, if any.
@@ -212,6 +215,9 @@ pub struct FrameScore {
     /// `(columns, rows)` of `scene_cells`.
     #[serde(skip)]
     pub scene_grid: (usize, usize),
+    /// The robot's state (what calibration keeps as the nominal states of `e_k`).
+    #[serde(skip)]
+    pub kinematic_state: Option<Vec<f32>>,
 }
 
 /// The state that moves the robot and renders it.
@@ -222,6 +228,9 @@ struct BodyState {
     out: RenderOutput,
     /// Previous processed frame: `base_from_link` and `camera_from_base`.
     previous: Option<(Vec<Isometry3<f64>>, Isometry3<f64>)>,
+    /// The previous processed frame's stamp and the positions part of its robot state
+    /// (`e_k`).
+    previous_positions: Option<(i64, Vec<f64>)>,
     /// The previous processed frame's body mask (empty when it had none).
     previous_mask: Vec<bool>,
 }
@@ -349,6 +358,7 @@ impl Scorer {
                     renderer,
                     out: RenderOutput::default(),
                     previous: None,
+                    previous_positions: None,
                     previous_mask: Vec::new(),
                 })
             }
@@ -398,6 +408,7 @@ impl Scorer {
             body: self.config.detectors.body && self.body.is_some(),
             flow: self.predictor.is_some(),
             scene: self.config.detectors.scene,
+            kinematics: self.config.detectors.kinematics && self.body.is_some(),
         }
     }
 
@@ -416,6 +427,7 @@ impl Scorer {
         self.processor.reset();
         if let Some(b) = &mut self.body {
             b.previous = None;
+            b.previous_positions = None;
             b.previous_mask.clear();
         }
         if let Some(p) = &mut self.predictor {
@@ -463,8 +475,13 @@ impl Scorer {
 
         // Robot pose and render at t.
         let t0 = Instant::now();
+        let mut joint_positions = None;
         let pose = match (&mut self.body, input.joints) {
-            (Some(body), Some(joints)) => Some(body.pose(joints)?),
+            (Some(body), Some(joints)) => {
+                let (links, camera_from_base, q) = body.pose(joints)?;
+                joint_positions = Some(q);
+                Some((links, camera_from_base))
+            }
             (Some(_), None) => {
                 if !self.warned_no_joints {
                     tracing::warn!(
@@ -532,18 +549,46 @@ impl Scorer {
         let processed = self.processor.push(input.image, mask)?;
         let frame = self.frames;
         self.frames += 1;
-        let (previous_pose, previous_mask) = match &mut self.body {
+        // The positions part of the robot's state for e_k.
+        let kinematic_positions = match (&pose, &joint_positions) {
+            (Some((links, _)), Some(q)) if self.config.detectors.kinematics => {
+                Some(self.config.kinematics.positions(q, links))
+            }
+            _ => None,
+        };
+        let (previous_pose, previous_mask, previous_positions) = match &mut self.body {
             Some(body) => {
                 let previous = body.previous.take();
                 body.previous = pose.clone();
+                let previous_positions = std::mem::replace(
+                    &mut body.previous_positions,
+                    kinematic_positions.clone().map(|p| (input.stamp_ns, p)),
+                );
                 let previous_mask = std::mem::take(&mut body.previous_mask);
                 if intrinsics.is_some() {
                     body.previous_mask.clone_from(&body.out.mask);
                 }
-                (previous, previous_mask)
+                (previous, previous_mask, previous_positions)
             }
-            None => (None, Vec::new()),
+            None => (None, Vec::new(), None),
         };
+        // The robot's state for e_k (positions and their change since the previous frame).
+        let t0 = Instant::now();
+        let kinematic_state = kinematic_positions.as_deref().and_then(|now| {
+            self.config.kinematics.state(
+                now,
+                previous_positions
+                    .as_ref()
+                    .map(|(then, before)| (before.as_slice(), phase_s(*then, input.stamp_ns))),
+            )
+        });
+        let e_k = kinematic_state.as_deref().and_then(|s| {
+            self.thresholds
+                .kinematics
+                .as_ref()
+                .and_then(|r| r.distance(s))
+        });
+        timings.kinematics_us += micros(t0);
         let Some(processed) = processed else {
             timings.total_us = micros(start);
             return Ok(Some(FrameScore {
@@ -555,6 +600,7 @@ impl Scorer {
                 e_b: None,
                 e_o: None,
                 e_r: None,
+                e_k,
                 anomaly: false,
                 triggered: None,
                 warming_up: true,
@@ -566,6 +612,7 @@ impl Scorer {
                 scene_cells: None,
                 scene_grid: (0, 0),
                 phase_s: phase_s(first_ns, input.stamp_ns),
+                kinematic_state,
             }));
         };
         timings.front_end = processed.timings;
@@ -682,7 +729,13 @@ impl Scorer {
         timings.model_us = micros(t0);
 
         let fused = self.window.push(fuse_frame(
-            &Components { e_c, e_b, e_r, e_o },
+            &Components {
+                e_c,
+                e_b,
+                e_r,
+                e_o,
+                e_k,
+            },
             &self.thresholds,
             self.config.fusion.resolve(self.predictor.is_some()),
         ));
@@ -696,6 +749,7 @@ impl Scorer {
             e_b,
             e_o,
             e_r,
+            e_k,
             anomaly: fused.score >= self.alarm_threshold,
             triggered: fused.triggered,
             warming_up,
@@ -707,6 +761,7 @@ impl Scorer {
             scene_cells,
             scene_grid,
             phase_s: phase_s(first_ns, input.stamp_ns),
+            kinematic_state,
         }))
     }
 
@@ -739,10 +794,13 @@ impl Scorer {
 
 impl BodyState {
     /// Maps the joint states and runs the kinematics: `(base_from_link, camera_from_base)`.
+    /// The links' poses, the camera's pose and the joint positions (joint order) of
+    /// `joints`.
+    #[allow(clippy::type_complexity)]
     fn pose(
         &mut self,
         joints: JointInput<'_>,
-    ) -> Result<(Vec<Isometry3<f64>>, Isometry3<f64>), ScorerError> {
+    ) -> Result<(Vec<Isometry3<f64>>, Isometry3<f64>, Vec<f64>), ScorerError> {
         let q = self.mapper.map(joints.names, joints.positions)?.positions;
         let links = self.setup.robot.forward(&q)?;
         let camera_from_base =
@@ -753,7 +811,7 @@ impl BodyState {
                     link: self.setup.mount.link,
                     poses: links.len(),
                 })?;
-        Ok((links, camera_from_base))
+        Ok((links, camera_from_base, q.as_slice().to_vec()))
     }
 }
 

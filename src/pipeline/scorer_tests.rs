@@ -193,6 +193,43 @@ fn motion_the_joints_do_not_show_triggers_the_camera_detector() {
 }
 
 #[test]
+fn joint_states_no_nominal_run_had_show_in_e_k() {
+    let setup = setup();
+    let step = 0.01;
+    // A nominal run: no reference yet, so no e_k, but every frame after the first has
+    // a state (positions and velocities need two frames).
+    let mut s = scorer(Some(setup.clone()), Thresholds::default(), 1);
+    let nominal = run(&mut s, &setup, 6, step, |k| step * k as f64);
+    assert!(nominal.iter().all(|f| f.e_k.is_none()));
+    assert!(nominal[0].kinematic_state.is_none());
+    let states: Vec<Vec<f32>> = nominal
+        .iter()
+        .filter_map(|f| f.kinematic_state.clone())
+        .collect();
+    assert_eq!(states.len(), 5);
+    let dims = states[0].len();
+    let reference = crate::eval::StateReference::fit(&[states], dims, None).unwrap();
+    let thresholds = Thresholds {
+        kinematics: Some(reference),
+        ..Thresholds::default()
+    };
+    // The same run again: every state is a nominal one.
+    let mut s = scorer(Some(setup.clone()), thresholds.clone(), 1);
+    let again = run(&mut s, &setup, 6, step, |k| step * k as f64);
+    for f in &again[1..] {
+        assert!(f.e_k.unwrap() < 1e-6, "{:?}", f.e_k);
+    }
+    // The head reads half a radian further round (moving as before): its state lies at
+    // least 0.45 rad (unscaled here) from every nominal one.
+    let mut s = scorer(Some(setup.clone()), thresholds, 1);
+    let turned = run(&mut s, &setup, 6, step, |k| 0.5 + step * k as f64);
+    for f in &turned[1..] {
+        let e_k = f.e_k.unwrap();
+        assert!(e_k > 0.44, "e_k {e_k}");
+    }
+}
+
+#[test]
 fn stride_stamps_and_missing_joints() {
     let texture = Texture::random(3);
     let mut s = scorer(None, Thresholds::default(), 2);

@@ -106,6 +106,7 @@ fn components(s: &FrameScore) -> AlarmComponents {
         e_b: finite(s.e_b),
         e_o: finite(s.e_o),
         e_r: finite(s.e_r),
+        e_k: finite(s.e_k),
     }
 }
 

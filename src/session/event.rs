@@ -91,6 +91,7 @@ pub fn detector_name(d: Detector) -> &'static str {
         Detector::Body => "body",
         Detector::Flow => "flow",
         Detector::Scene => "scene",
+        Detector::Kinematics => "kinematics",
     }
 }
 

@@ -154,6 +154,8 @@ pub struct FramePoint {
     pub e_o: Option<f64>,
     /// Scene residual.
     pub e_r: Option<f64>,
+    /// Kinematic novelty, metres.
+    pub e_k: Option<f64>,
     /// The frame's anomaly flag.
     pub anomaly: bool,
     /// The predictor was warming up.
@@ -179,6 +181,7 @@ impl FramePoint {
             e_b: finite(s.e_b),
             e_o: finite(s.e_o),
             e_r: finite(s.e_r),
+            e_k: finite(s.e_k),
             anomaly: s.anomaly,
             warming_up: s.warming_up,
             alarm,
@@ -254,6 +257,7 @@ mod tests {
             e_b: None,
             e_o: None,
             e_r: None,
+            e_k: None,
             anomaly: false,
             triggered: None,
             warming_up: false,
@@ -265,6 +269,7 @@ mod tests {
             scene_cells: None,
             scene_grid: (0, 0),
             phase_s: 0.0,
+            kinematic_state: None,
         }
     }
 

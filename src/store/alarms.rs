@@ -26,11 +26,14 @@ pub struct AlarmComponents {
     pub e_o: Option<f64>,
     /// Scene residual.
     pub e_r: Option<f64>,
+    /// Kinematic novelty, metres.
+    #[serde(default)]
+    pub e_k: Option<f64>,
 }
 
 /// The thresholds in force when an alarm started: the fused score's and each
 /// detector's own (absent: none, i.e. never crossed). Records stored before `e_o` and
-/// `e_r` were kept read with them absent.
+/// `e_r` (or `e_k`) were kept read with them absent.
 pub use crate::eval::DetectorThresholds as AlarmThresholds;
 
 /// An operator's verdict on an alarm.

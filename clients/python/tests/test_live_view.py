@@ -310,7 +310,7 @@ def _check_scored_bag(path: Path) -> None:
     (schema, thr), = topics["/vamos/thresholds"]
     assert schema == "std_msgs/msg/String" and json.loads(thr.data) == {
         # With a model the fusion is the paper's: e_o alarms at the alarm threshold itself.
-        "alarm": 0.0, "e_c": None, "e_b": None, "e_o": 0.0, "e_r": None}
+        "alarm": 0.0, "e_c": None, "e_b": None, "e_o": 0.0, "e_r": None, "e_k": None}
     maps = topics["/vamos/anomaly_map"]
     assert maps and len(maps) == len(topics["/vamos/e_o"])
     for schema, m in maps:

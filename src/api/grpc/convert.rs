@@ -52,6 +52,7 @@ pub fn detector_code(d: Option<Detector>) -> proto::Detector {
         Some(Detector::Body) => proto::Detector::Body,
         Some(Detector::Flow) => proto::Detector::Flow,
         Some(Detector::Scene) => proto::Detector::Scene,
+        Some(Detector::Kinematics) => proto::Detector::Kinematics,
         None => proto::Detector::Unspecified,
     }
 }
@@ -68,6 +69,7 @@ pub fn frame_score(f: &ScoredFrame) -> proto::FrameScore {
         e_b: s.e_b,
         e_o: s.e_o,
         e_r: s.e_r,
+        e_k: s.e_k,
         anomaly: s.anomaly,
         detector: detector_code(f.detector()) as i32,
         warming_up: s.warming_up,
@@ -87,6 +89,7 @@ fn detector_by_name(name: &str) -> proto::Detector {
         "body" => proto::Detector::Body,
         "flow" => proto::Detector::Flow,
         "scene" => proto::Detector::Scene,
+        "kinematics" => proto::Detector::Kinematics,
         _ => proto::Detector::Unspecified,
     }
 }
@@ -99,6 +102,7 @@ fn alarm_components(c: &AlarmComponents) -> proto::AlarmComponents {
         e_b: c.e_b,
         e_o: c.e_o,
         e_r: c.e_r,
+        e_k: c.e_k,
     }
 }
 
@@ -128,6 +132,7 @@ pub fn alarm_event(e: &AlarmEvent) -> proto::AlarmEvent {
         e_b_threshold: a.thresholds.e_b,
         e_o_threshold: a.thresholds.e_o,
         e_r_threshold: a.thresholds.e_r,
+        e_k_threshold: a.thresholds.e_k,
         start: Some(alarm_components(&a.start)),
         peak: Some(alarm_components(&a.peak)),
     }

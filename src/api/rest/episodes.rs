@@ -43,6 +43,7 @@ pub fn score_json(f: &ScoredFrame) -> serde_json::Value {
         "e_b": s.e_b,
         "e_o": s.e_o,
         "e_r": s.e_r,
+        "e_k": s.e_k,
         "anomaly": s.anomaly,
         "detector": f.detector().map(detector_name),
         "warming_up": s.warming_up,
@@ -186,6 +187,7 @@ fn scored_bag(
                     e_b: s.e_b,
                     e_o: s.e_o,
                     e_r: s.e_r,
+                    e_k: s.e_k,
                     heatmap: None,
                     anomaly_map: f
                         .anomaly_map
@@ -219,6 +221,7 @@ mod tests {
             (Some(Detector::Body), true),
             (Some(Detector::Camera), false),
             (Some(Detector::Scene), true),
+            (Some(Detector::Kinematics), true),
         ] {
             let f = ScoredFrame {
                 anomaly_map: None,
@@ -231,6 +234,7 @@ mod tests {
                     e_b: None,
                     e_o: Some(0.5),
                     e_r: Some(0.75),
+                    e_k: Some(0.125),
                     anomaly,
                     triggered,
                     warming_up: true,
@@ -242,6 +246,7 @@ mod tests {
                     scene_cells: None,
                     scene_grid: (0, 0),
                     phase_s: 0.0,
+                    kinematic_state: None,
                 },
                 latency_s: 0.02,
                 compute_s: 0.01,

@@ -113,6 +113,7 @@ def frame_score_fields(score: FrameScore, frame_id: str, session_id: str) -> dic
         "e_b": _nan_if_none(score.e_b),
         "e_o": _nan_if_none(score.e_o),
         "e_r": _nan_if_none(score.e_r),
+        "e_k": _nan_if_none(score.e_k),
         "warming_up": bool(score.warming_up),
         "frame": int(score.frame),
         "latency_s": float(score.latency_s),

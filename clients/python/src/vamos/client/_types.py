@@ -33,7 +33,7 @@ class EpisodeDamaged(VamosError):
         self.scores = scores
 
 
-_DETECTORS = {1: "camera", 2: "body", 3: "flow", 4: "scene"}
+_DETECTORS = {1: "camera", 2: "body", 3: "flow", 4: "scene", 5: "kinematics"}
 _EVENT_KINDS = {
     1: "opened",
     2: "warming_up",
@@ -66,11 +66,13 @@ class FrameScore:
     anomaly: bool
     """Whether the frame is flagged anomalous."""
     detector: Optional[str]
-    """Which detector set the score: ``"camera"``, ``"body"``, ``"flow"``, ``"scene"`` or None."""
+    """Which detector set the score: ``"camera"``, ``"body"``, ``"flow"``, ``"scene"``, ``"kinematics"`` or None."""
     warming_up: bool
     """The flow predictor is still collecting its history."""
     e_r: Optional[float] = None
     """Scene-motion residual (pooled, normalised by nominal per-cell statistics)."""
+    e_k: Optional[float] = None
+    """Kinematic novelty: distance from the robot's state to the nearest nominal one, metres."""
     latency_s: float = 0.0
     """Server time from the image's arrival to its score, seconds."""
     compute_s: float = 0.0
@@ -93,6 +95,7 @@ class FrameScore:
             detector=_DETECTORS.get(int(m.detector)),
             warming_up=bool(m.warming_up),
             e_r=opt("e_r"),
+            e_k=opt("e_k"),
             latency_s=float(m.latency_s),
             compute_s=float(m.compute_s),
         )
@@ -101,7 +104,7 @@ class FrameScore:
         return {
             "stamp_ns": self.stamp_ns, "index": self.index, "frame": self.frame,
             "score": self.score, "e_c": self.e_c, "e_b": self.e_b, "e_o": self.e_o,
-            "e_r": self.e_r, "anomaly": self.anomaly, "detector": self.detector,
+            "e_r": self.e_r, "e_k": self.e_k, "anomaly": self.anomaly, "detector": self.detector,
             "warming_up": self.warming_up, "latency_s": self.latency_s,
             "compute_s": self.compute_s,
         }

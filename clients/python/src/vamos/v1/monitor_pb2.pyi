@@ -14,11 +14,13 @@ class Detector(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
     DETECTOR_BODY: _ClassVar[Detector]
     DETECTOR_FLOW: _ClassVar[Detector]
     DETECTOR_SCENE: _ClassVar[Detector]
+    DETECTOR_KINEMATICS: _ClassVar[Detector]
 DETECTOR_UNSPECIFIED: Detector
 DETECTOR_CAMERA: Detector
 DETECTOR_BODY: Detector
 DETECTOR_FLOW: Detector
 DETECTOR_SCENE: Detector
+DETECTOR_KINEMATICS: Detector
 
 class StreamRequest(_message.Message):
     __slots__ = ("open", "image", "joints", "phase")
@@ -115,7 +117,7 @@ class StreamResponse(_message.Message):
     def __init__(self, score: _Optional[_Union[FrameScore, _Mapping]] = ..., event: _Optional[_Union[SessionEvent, _Mapping]] = ..., alarm: _Optional[_Union[AlarmEvent, _Mapping]] = ...) -> None: ...
 
 class FrameScore(_message.Message):
-    __slots__ = ("stamp_ns", "index", "frame", "score", "e_c", "e_b", "e_o", "anomaly", "detector", "warming_up", "latency_s", "compute_s", "e_r", "anomaly_map")
+    __slots__ = ("stamp_ns", "index", "frame", "score", "e_c", "e_b", "e_o", "anomaly", "detector", "warming_up", "latency_s", "compute_s", "e_r", "anomaly_map", "e_k")
     STAMP_NS_FIELD_NUMBER: _ClassVar[int]
     INDEX_FIELD_NUMBER: _ClassVar[int]
     FRAME_FIELD_NUMBER: _ClassVar[int]
@@ -130,6 +132,7 @@ class FrameScore(_message.Message):
     COMPUTE_S_FIELD_NUMBER: _ClassVar[int]
     E_R_FIELD_NUMBER: _ClassVar[int]
     ANOMALY_MAP_FIELD_NUMBER: _ClassVar[int]
+    E_K_FIELD_NUMBER: _ClassVar[int]
     stamp_ns: int
     index: int
     frame: int
@@ -144,26 +147,29 @@ class FrameScore(_message.Message):
     compute_s: float
     e_r: float
     anomaly_map: bytes
-    def __init__(self, stamp_ns: _Optional[int] = ..., index: _Optional[int] = ..., frame: _Optional[int] = ..., score: _Optional[float] = ..., e_c: _Optional[float] = ..., e_b: _Optional[float] = ..., e_o: _Optional[float] = ..., anomaly: _Optional[bool] = ..., detector: _Optional[_Union[Detector, str]] = ..., warming_up: _Optional[bool] = ..., latency_s: _Optional[float] = ..., compute_s: _Optional[float] = ..., e_r: _Optional[float] = ..., anomaly_map: _Optional[bytes] = ...) -> None: ...
+    e_k: float
+    def __init__(self, stamp_ns: _Optional[int] = ..., index: _Optional[int] = ..., frame: _Optional[int] = ..., score: _Optional[float] = ..., e_c: _Optional[float] = ..., e_b: _Optional[float] = ..., e_o: _Optional[float] = ..., anomaly: _Optional[bool] = ..., detector: _Optional[_Union[Detector, str]] = ..., warming_up: _Optional[bool] = ..., latency_s: _Optional[float] = ..., compute_s: _Optional[float] = ..., e_r: _Optional[float] = ..., anomaly_map: _Optional[bytes] = ..., e_k: _Optional[float] = ...) -> None: ...
 
 class AlarmComponents(_message.Message):
-    __slots__ = ("stamp_ns", "score", "e_c", "e_b", "e_o", "e_r")
+    __slots__ = ("stamp_ns", "score", "e_c", "e_b", "e_o", "e_r", "e_k")
     STAMP_NS_FIELD_NUMBER: _ClassVar[int]
     SCORE_FIELD_NUMBER: _ClassVar[int]
     E_C_FIELD_NUMBER: _ClassVar[int]
     E_B_FIELD_NUMBER: _ClassVar[int]
     E_O_FIELD_NUMBER: _ClassVar[int]
     E_R_FIELD_NUMBER: _ClassVar[int]
+    E_K_FIELD_NUMBER: _ClassVar[int]
     stamp_ns: int
     score: float
     e_c: float
     e_b: float
     e_o: float
     e_r: float
-    def __init__(self, stamp_ns: _Optional[int] = ..., score: _Optional[float] = ..., e_c: _Optional[float] = ..., e_b: _Optional[float] = ..., e_o: _Optional[float] = ..., e_r: _Optional[float] = ...) -> None: ...
+    e_k: float
+    def __init__(self, stamp_ns: _Optional[int] = ..., score: _Optional[float] = ..., e_c: _Optional[float] = ..., e_b: _Optional[float] = ..., e_o: _Optional[float] = ..., e_r: _Optional[float] = ..., e_k: _Optional[float] = ...) -> None: ...
 
 class AlarmEvent(_message.Message):
-    __slots__ = ("edge", "alarm_id", "session_id", "detector", "detectors", "start_frame", "end_frame", "end_stamp_ns", "frames_flagged", "alarm_threshold", "e_c_threshold", "e_b_threshold", "start", "peak", "e_o_threshold", "e_r_threshold")
+    __slots__ = ("edge", "alarm_id", "session_id", "detector", "detectors", "start_frame", "end_frame", "end_stamp_ns", "frames_flagged", "alarm_threshold", "e_c_threshold", "e_b_threshold", "start", "peak", "e_o_threshold", "e_r_threshold", "e_k_threshold")
     class Edge(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
         __slots__ = ()
         EDGE_UNSPECIFIED: _ClassVar[AlarmEvent.Edge]
@@ -188,6 +194,7 @@ class AlarmEvent(_message.Message):
     PEAK_FIELD_NUMBER: _ClassVar[int]
     E_O_THRESHOLD_FIELD_NUMBER: _ClassVar[int]
     E_R_THRESHOLD_FIELD_NUMBER: _ClassVar[int]
+    E_K_THRESHOLD_FIELD_NUMBER: _ClassVar[int]
     edge: AlarmEvent.Edge
     alarm_id: str
     session_id: str
@@ -204,7 +211,8 @@ class AlarmEvent(_message.Message):
     peak: AlarmComponents
     e_o_threshold: float
     e_r_threshold: float
-    def __init__(self, edge: _Optional[_Union[AlarmEvent.Edge, str]] = ..., alarm_id: _Optional[str] = ..., session_id: _Optional[str] = ..., detector: _Optional[_Union[Detector, str]] = ..., detectors: _Optional[_Iterable[_Union[Detector, str]]] = ..., start_frame: _Optional[int] = ..., end_frame: _Optional[int] = ..., end_stamp_ns: _Optional[int] = ..., frames_flagged: _Optional[int] = ..., alarm_threshold: _Optional[float] = ..., e_c_threshold: _Optional[float] = ..., e_b_threshold: _Optional[float] = ..., start: _Optional[_Union[AlarmComponents, _Mapping]] = ..., peak: _Optional[_Union[AlarmComponents, _Mapping]] = ..., e_o_threshold: _Optional[float] = ..., e_r_threshold: _Optional[float] = ...) -> None: ...
+    e_k_threshold: float
+    def __init__(self, edge: _Optional[_Union[AlarmEvent.Edge, str]] = ..., alarm_id: _Optional[str] = ..., session_id: _Optional[str] = ..., detector: _Optional[_Union[Detector, str]] = ..., detectors: _Optional[_Iterable[_Union[Detector, str]]] = ..., start_frame: _Optional[int] = ..., end_frame: _Optional[int] = ..., end_stamp_ns: _Optional[int] = ..., frames_flagged: _Optional[int] = ..., alarm_threshold: _Optional[float] = ..., e_c_threshold: _Optional[float] = ..., e_b_threshold: _Optional[float] = ..., start: _Optional[_Union[AlarmComponents, _Mapping]] = ..., peak: _Optional[_Union[AlarmComponents, _Mapping]] = ..., e_o_threshold: _Optional[float] = ..., e_r_threshold: _Optional[float] = ..., e_k_threshold: _Optional[float] = ...) -> None: ...
 
 class SessionEvent(_message.Message):
     __slots__ = ("kind", "session_id", "detail", "stamp_ns", "count")
