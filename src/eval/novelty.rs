@@ -214,6 +214,36 @@ impl StateReference {
         StateReference::try_from(EncodedStates::encode(&states, dims, scale)).ok()
     }
 
+    /// This reference with the states of `episodes` (as the pipeline makes them: scaled
+    /// here like the reference's own, thinned, capped) added: what a revision from
+    /// episodes judged nominal learns. `None` when the result cannot be encoded.
+    pub fn extended(&self, episodes: &[Vec<Vec<f32>>]) -> Option<StateReference> {
+        let dims = self.dims();
+        let scaled = scaled(episodes, dims, self.scale())?;
+        let mut states = self.states.clone();
+        for episode in &scaled {
+            for s in thin(episode, dims) {
+                states.extend_from_slice(s);
+            }
+        }
+        let count = states.len() / dims;
+        if count > MAX_STATES {
+            let step = count.div_ceil(MAX_STATES);
+            states = states
+                .chunks_exact(dims)
+                .step_by(step)
+                .flatten()
+                .copied()
+                .collect();
+        }
+        StateReference::try_from(EncodedStates::encode(
+            &states,
+            dims,
+            self.encoded.scale.clone(),
+        ))
+        .ok()
+    }
+
     /// Values per state.
     pub fn dims(&self) -> usize {
         self.encoded.dims
@@ -429,6 +459,18 @@ mod tests {
         assert!(StateReference::fit(&[line(3, 0.0)], 2, Some(vec![0.0, 1.0])).is_none());
         let bad = leave_one_episode_out(&[line(3, 0.0), line(3, 0.5)], 2, Some(&[1.0]));
         assert!(bad.iter().flatten().all(|d| d.is_nan()));
+    }
+
+    #[test]
+    fn an_extended_reference_knows_the_new_states_and_keeps_the_old() {
+        let scale = vec![0.5, 1.0];
+        let r = StateReference::fit(&[line(11, 0.0)], 2, Some(scale.clone())).unwrap();
+        assert!(r.distance(&[0.05, 0.5]).unwrap() > 0.49);
+        let wider = r.extended(&[line(11, 0.5)]).unwrap();
+        assert_eq!(wider.len(), 22);
+        assert_eq!(wider.scale(), Some(scale.as_slice()));
+        assert!(wider.distance(&[0.05, 0.5]).unwrap() < 1e-4);
+        assert!(wider.distance(&[0.05, 0.0]).unwrap() < 1e-4);
     }
 
     #[test]

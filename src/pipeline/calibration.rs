@@ -205,7 +205,9 @@ pub struct Revision {
 /// resolved on `flow_model`):
 ///
 /// 1. `e_c` and `e_b` thresholds are the paper's nominal maxima: where these episodes
-///    reach them, they are raised just above these episodes' maxima;
+///    reach them, they are raised just above these episodes' maxima; their robot states
+///    join the kinematic novelty's nominal states, and each episode's `e_k` is measured
+///    again against the old states and the other episodes' ([`learn_states`]);
 /// 2. each episode's largest fused score is recomputed from its frames' detector values
 ///    with the revised thresholds, the same fusion and temporal window as the scorer's;
 /// 3. the `max` alarm threshold (`score_max`) is raised to the largest of them; the
@@ -246,21 +248,24 @@ pub fn revise(
             *t = m;
         }
     }
+    let e_k = learn_states(calibration, &mut revised, nominal, &mut notes);
     let mut window = Window::new(pipeline.temporal_window);
     let episodes: Vec<(String, f64, f64)> = nominal
         .iter()
-        .map(|e| {
+        .zip(&e_k)
+        .map(|(e, e_k)| {
             window.clear();
             let after = e
                 .frames
                 .iter()
-                .map(|f| {
+                .zip(e_k)
+                .map(|(f, &e_k)| {
                     let c = Components {
                         e_c: f.e_c,
                         e_b: f.e_b,
                         e_r: f.e_r,
                         e_o: f.e_o,
-                        e_k: f.e_k,
+                        e_k,
                     };
                     window
                         .push(fuse_frame(&c, &revised.thresholds, fusion))
@@ -323,6 +328,72 @@ pub fn revise(
         episodes,
         notes,
     }
+}
+
+/// The kinematic novelty's side of a revision: the nominal episodes' robot states join
+/// the reference of `revised` (a robot doing what an operator judged nominal is then not
+/// novel), and each episode's `e_k` is measured again against the old reference and the
+/// *other* nominal episodes' states (as a held-out episode would be). Returns each
+/// episode's frames' `e_k` (as scored when the calibration has no reference or the
+/// frames no state).
+fn learn_states(
+    calibration: &Calibration,
+    revised: &mut Calibration,
+    nominal: &[EpisodeScores],
+    notes: &mut Vec<String>,
+) -> Vec<Vec<Option<f64>>> {
+    let as_scored: Vec<Vec<Option<f64>>> = nominal
+        .iter()
+        .map(|e| e.frames.iter().map(|f| f.e_k).collect())
+        .collect();
+    let Some(reference) = calibration.thresholds.kinematics.as_ref() else {
+        return as_scored;
+    };
+    let states: Vec<Vec<Vec<f32>>> = nominal
+        .iter()
+        .map(|e| {
+            e.frames
+                .iter()
+                .map(|f| f.kinematic_state.clone().unwrap_or_default())
+                .collect()
+        })
+        .collect();
+    let dims = reference.dims();
+    if !states.iter().flatten().any(|s| s.len() == dims) {
+        return as_scored;
+    }
+    let Some(learned) = reference.extended(&states) else {
+        return as_scored;
+    };
+    let e_k = states
+        .iter()
+        .enumerate()
+        .map(|(i, episode)| {
+            let others: Vec<Vec<Vec<f32>>> = states
+                .iter()
+                .enumerate()
+                .filter(|&(j, _)| j != i)
+                .map(|(_, e)| e.clone())
+                .collect();
+            let against = reference.extended(&others);
+            episode
+                .iter()
+                .zip(&as_scored[i])
+                .map(|(s, &scored)| match &against {
+                    Some(r) if s.len() == dims => r.distance(s),
+                    _ => scored,
+                })
+                .collect()
+        })
+        .collect();
+    notes.push(format!(
+        "the kinematic novelty's nominal states: {} -> {} (these episodes' robot states \
+         join them)",
+        reference.len(),
+        learned.len()
+    ));
+    revised.thresholds.kinematics = Some(learned);
+    e_k
 }
 
 /// Per-cell statistics of the scene residual from the training frames' cell maps (all of
@@ -574,6 +645,75 @@ mod tests {
             r.notes
         );
         assert_eq!(r.calibration.score_max, 0.5);
+    }
+
+    #[test]
+    fn a_revision_learns_the_robot_states_of_the_nominal_episodes() {
+        let pipeline = PipelineConfig {
+            fusion: Fusion::Calibrated,
+            ..PipelineConfig::default()
+        };
+        let line = |y: f32| -> Vec<Vec<f32>> { (0..10).map(|i| vec![i as f32 * 0.1, y]).collect() };
+        let reference = StateReference::fit(&[line(0.0)], 2, None).unwrap();
+        let scales = NominalScales {
+            e_k: Some(crate::eval::Scale {
+                location: 0.0,
+                spread: 0.1,
+            }),
+            ..NominalScales::default()
+        };
+        let current = Calibration {
+            created_unix_s: 1,
+            model_sha256: None,
+            training_episodes: vec!["t".into()],
+            calibration_episodes: vec![],
+            training_frames: 10,
+            thresholds: Thresholds {
+                scales: Some(scales),
+                kinematics: Some(reference.clone()),
+                ..Thresholds::default()
+            },
+            score_max: 1.0,
+            conformal: None,
+        };
+        // Two runs 0.5 away from every training state: e_k 0.5, calibrated score 5.
+        let run = |name: &str, y: f32| {
+            let mut e = episode(name, &[0.0; 10]);
+            for (f, s) in e.frames.iter_mut().zip(line(y)) {
+                f.e_k = reference.distance(&s);
+                f.kinematic_state = Some(s);
+                f.score = fuse_frame(
+                    &Components {
+                        e_k: f.e_k,
+                        ..Components::default()
+                    },
+                    &current.thresholds,
+                    Fusion::Calibrated,
+                )
+                .score;
+            }
+            e
+        };
+        let runs = [run("a", 0.5), run("b", 0.52)];
+        assert!((episode_max(&runs[0]) - 5.0).abs() < 1e-3);
+        let r = revise(&current, &pipeline, false, &runs);
+        // Each run against the training states and the other run: 0.02 away, score 0.2.
+        for (name, before, after) in &r.episodes {
+            assert!(*before > 4.9, "{name}: {before}");
+            assert!((after - 0.2).abs() < 1e-3, "{name}: {after}");
+        }
+        assert_eq!(
+            r.calibration.score_max, 1.0,
+            "nothing above the training maximum"
+        );
+        let learned = r.calibration.thresholds.kinematics.as_ref().unwrap();
+        assert_eq!(learned.len(), 30);
+        assert!(learned.distance(&[0.3, 0.52]).unwrap() < 1e-4);
+        assert!(
+            r.notes.iter().any(|n| n.contains("10 -> 30")),
+            "{:?}",
+            r.notes
+        );
     }
 
     #[test]
