@@ -794,8 +794,8 @@ impl Scorer {
 
 impl BodyState {
     /// Maps the joint states and runs the kinematics: `(base_from_link, camera_from_base)`.
-    /// The links' poses, the camera's pose and the joint positions (joint order) of
-    /// `joints`.
+    /// The links' poses, the camera's pose and the positions of the joints that move of
+    /// their own (not fixed, not mimic; joint order) of `joints`.
     #[allow(clippy::type_complexity)]
     fn pose(
         &mut self,
@@ -811,7 +811,16 @@ impl BodyState {
                     link: self.setup.mount.link,
                     poses: links.len(),
                 })?;
-        Ok((links, camera_from_base, q.as_slice().to_vec()))
+        let own = self
+            .setup
+            .robot
+            .joints()
+            .iter()
+            .zip(q.as_slice())
+            .filter(|(j, _)| j.kind.is_moving() && j.mimic.is_none())
+            .map(|(_, &v)| v)
+            .collect();
+        Ok((links, camera_from_base, own))
     }
 }
 

@@ -118,6 +118,8 @@ fn score_calibrate_eval_on_simulated_episodes() {
                 .iter()
                 .all(|f| f["e_c"].is_f64() && f["e_b"].is_f64())
         );
+        // No kinematic novelty before calibration: no nominal states yet.
+        assert!(frames.iter().all(|f| f["e_k"].is_null()));
         train_frames.extend(frames);
     }
 
@@ -151,6 +153,20 @@ fn score_calibrate_eval_on_simulated_episodes() {
     )
     .unwrap();
     assert_eq!(saved, cal);
+    // The kinematic novelty's nominal states: the training frames' joint positions and
+    // velocities (10 joints), each scaled by its nominal range; e_k's scale from each
+    // training frame against the other episode.
+    let states = &cal["thresholds"]["kinematics"];
+    assert_eq!(states["dims"], 20);
+    let kept = states["count"].as_u64().unwrap();
+    assert!(kept > 20 && kept < train_frames.len() as u64, "{kept}");
+    assert_eq!(states["scale"].as_array().unwrap().len(), 20);
+    assert!(
+        cal["thresholds"]["scales"]["e_k"]["spread"]
+            .as_f64()
+            .unwrap()
+            > 0.0
+    );
     let conformal = &cal["conformal"];
     assert_eq!(conformal["n"], 1);
     assert_eq!(conformal["rank_k"], 1);
@@ -172,6 +188,27 @@ fn score_calibrate_eval_on_simulated_episodes() {
     let nominal = jsonl(&dir.join("out/test_0000.scores.jsonl"));
     let nominal_max = max_of(&nominal, "score");
     assert_eq!(conformal["order_statistic"].as_f64().unwrap(), nominal_max);
+    // Calibrated: every frame after the first (velocities need two) has e_k.
+    assert!(nominal[0]["e_k"].is_null());
+    assert!(nominal[1..].iter().all(|f| f["e_k"].is_f64()));
+    assert!(max_of(&nominal[1..], "e_k") > 0.0);
+    // A training episode's states are the nominal states (each within the thinning
+    // spacing, 0.002, of one kept): scored again, its e_k stays below that.
+    let first = summaries[0]["episode"].as_str().unwrap();
+    vamos(
+        dir,
+        &[
+            "score",
+            "--profile",
+            "profile.toml",
+            &format!("train/{first}.mcap"),
+            "-o",
+            "train_again",
+        ],
+    );
+    let again = jsonl(&dir.join(format!("train_again/{first}.scores.jsonl")));
+    let e_k = max_of(&again[1..], "e_k");
+    assert!((0.0..0.0021).contains(&e_k), "{e_k}");
     assert!(conformal["threshold"].as_f64().unwrap() > nominal_max);
     // The scored bag: the input images and one score per frame, readable by the reader.
     let bag = McapEpisode::open(
@@ -188,6 +225,7 @@ fn score_calibrate_eval_on_simulated_episodes() {
     };
     assert_eq!(count("/vamos/score"), summary["frames"].as_u64().unwrap());
     assert_eq!(count("/vamos/anomaly"), count("/vamos/score"));
+    assert_eq!(count("/vamos/e_k"), count("/vamos/score") - 1);
     assert_eq!(count("/camera/image_raw"), count("/vamos/score"));
 
     // 4. Evaluation on the labelled test episodes.
