@@ -12,7 +12,7 @@ const DETECTORS = [
   { key: 'e_b', label: 'e_b body motion (px)', thr: 'e_b', color: '#6a1b9a' },
   { key: 'e_o', label: 'e_o flow prediction', thr: 'e_o', color: '#ef6c00' },
   { key: 'e_r', label: 'e_r scene residual', thr: 'e_r', color: '#00897b' },
-  { key: 'e_k', label: 'e_k kinematic novelty (m)', thr: 'e_k', color: '#827717' },
+  { key: 'e_k', label: 'e_k kinematic novelty', thr: 'e_k', color: '#827717' },
 ];
 
 const state = {

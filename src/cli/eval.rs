@@ -140,7 +140,7 @@ pub struct DetectorPoint {
     pub e_o: Option<f64>,
     /// Scene residual.
     pub e_r: Option<f64>,
-    /// Kinematic novelty, metres.
+    /// Kinematic novelty (nominal joint ranges; metres for `state = "links"`).
     pub e_k: Option<f64>,
     /// The flow predictor is still warming up.
     pub warming_up: bool,
@@ -289,7 +289,7 @@ pub fn write_detector_plots(
                 log_y: false,
             },
             Panel {
-                label: "e_k kinematics (m)",
+                label: "e_k kinematics",
                 values: &e_k,
                 threshold: thresholds.e_k,
                 log_y: false,

@@ -48,7 +48,7 @@ pub struct ScoreTopics<'a> {
     pub e_o: Option<f64>,
     /// Scene-motion residual (`/vamos/e_r`), when defined.
     pub e_r: Option<f64>,
-    /// Kinematic novelty (`/vamos/e_k`, metres), when defined.
+    /// Kinematic novelty (`/vamos/e_k`), when defined.
     pub e_k: Option<f64>,
     /// Square squared-error map of the best prediction (`/vamos/heatmap`), when kept.
     pub heatmap: Option<&'a [f32]>,

@@ -155,7 +155,7 @@ pub struct DetectorThresholds {
     /// e_r, the scene residual.
     #[serde(default)]
     pub e_r: Option<f64>,
-    /// e_k, the kinematic novelty, metres.
+    /// e_k, the kinematic novelty.
     #[serde(default)]
     pub e_k: Option<f64>,
 }

@@ -185,8 +185,8 @@ pub struct FrameScore {
     /// Scene-motion residual: the pooled, nominal-normalised residual of the static
     /// scene (raw pixels before calibration).
     pub e_r: Option<f64>,
-    /// Kinematic novelty: distance from the robot's state to the nearest nominal state,
-    /// metres (none before calibration).
+    /// Kinematic novelty: distance from the robot's state to the nearest nominal state, in
+    /// nominal joint ranges (metres for `state = "links"`; none before calibration).
     pub e_k: Option<f64>,
     /// The alarm: `score` reached the alarm threshold.
     pub anomaly: bool,

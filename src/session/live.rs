@@ -154,7 +154,7 @@ pub struct FramePoint {
     pub e_o: Option<f64>,
     /// Scene residual.
     pub e_r: Option<f64>,
-    /// Kinematic novelty, metres.
+    /// Kinematic novelty (nominal joint ranges; metres for `state = "links"`).
     pub e_k: Option<f64>,
     /// The frame's anomaly flag.
     pub anomaly: bool,

@@ -26,7 +26,7 @@ pub struct AlarmComponents {
     pub e_o: Option<f64>,
     /// Scene residual.
     pub e_r: Option<f64>,
-    /// Kinematic novelty, metres.
+    /// Kinematic novelty (nominal joint ranges; metres for `state = "links"`).
     #[serde(default)]
     pub e_k: Option<f64>,
 }

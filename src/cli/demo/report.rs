@@ -128,7 +128,7 @@ pub(super) fn write_report(
     ));
     md.push_str(&format!(
         "Alarm when the fused score reaches {}, i.e. when one detector alone reaches its own \
-         threshold: e_c {}, e_b {}, e_o {}, e_r {}, e_k {} m (-: it cannot alarm alone); an alarm \
+         threshold: e_c {}, e_b {}, e_o {}, e_r {}, e_k {} (-: it cannot alarm alone); an alarm \
          starts after {} flagged frames of {}.\n\n",
         fmt_threshold(alarm),
         opt(thresholds.e_c, 3),

@@ -72,7 +72,8 @@ class FrameScore:
     e_r: Optional[float] = None
     """Scene-motion residual (pooled, normalised by nominal per-cell statistics)."""
     e_k: Optional[float] = None
-    """Kinematic novelty: distance from the robot's state to the nearest nominal one, metres."""
+    """Kinematic novelty: distance from the robot's state to the nearest nominal one (in nominal
+    joint ranges; metres with ``state = "links"``)."""
     latency_s: float = 0.0
     """Server time from the image's arrival to its score, seconds."""
     compute_s: float = 0.0
