@@ -349,15 +349,7 @@ fn learn_states(
     let Some(reference) = calibration.thresholds.kinematics.as_ref() else {
         return as_scored;
     };
-    let states: Vec<Vec<Vec<f32>>> = nominal
-        .iter()
-        .map(|e| {
-            e.frames
-                .iter()
-                .map(|f| f.kinematic_state.clone().unwrap_or_default())
-                .collect()
-        })
-        .collect();
+    let states = robot_states(nominal);
     let dims = reference.dims();
     if !states.iter().flatten().any(|s| s.len() == dims) {
         return as_scored;
@@ -424,6 +416,20 @@ fn fit_scene(
     }
 }
 
+/// Each episode's frames' robot states (empty for a frame without one, which the state
+/// reference skips).
+fn robot_states(episodes: &[EpisodeScores]) -> Vec<Vec<Vec<f32>>> {
+    episodes
+        .iter()
+        .map(|e| {
+            e.frames
+                .iter()
+                .map(|f| f.kinematic_state.clone().unwrap_or_default())
+                .collect()
+        })
+        .collect()
+}
+
 /// The nominal robot states of the training episodes (scaled as `params` says) and each
 /// training frame's `e_k` against the other episodes' states (flattened like the
 /// episodes' frames; `None` for a frame without a state). No reference, with a note, when
@@ -442,15 +448,7 @@ fn fit_kinematics(
     else {
         return (None, vec![None; frames]);
     };
-    let states: Vec<Vec<Vec<f32>>> = train
-        .iter()
-        .map(|e| {
-            e.frames
-                .iter()
-                .map(|f| f.kinematic_state.clone().unwrap_or_default())
-                .collect()
-        })
-        .collect();
+    let states = robot_states(train);
     let rows: Vec<&[f32]> = states.iter().flatten().map(Vec::as_slice).collect();
     let scale = params.scale(&rows, dims);
     let e_k: Vec<Option<f64>> = novelty::leave_one_episode_out(&states, dims, scale.as_deref())
