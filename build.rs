@@ -1,8 +1,6 @@
 //! Build-time code generation:
 //! - the gRPC code of `proto/vamos/v1` with protox (pure Rust, no system `protoc`), and
 //!   the encoded descriptor set that server reflection serves;
-//! - the ONNX schema (`proto/third_party/onnx/onnx.proto`, vendored) as prost types for
-//!   `src/model/onnx_proto.rs` (`OUT_DIR/onnx.rs`);
 //! - the list of `vamos demo`'s embedded assets (every file under `assets/demo`, made by
 //!   `assets/demo/make_demo_assets.sh`), as `include_bytes!` entries.
 
@@ -20,17 +18,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     tonic_prost_build::configure()
         .type_attribute(".", "#[allow(clippy::all, missing_docs)]")
         .compile_fds(fds)?;
-    onnx_schema()?;
     demo_assets(&out)?;
-    Ok(())
-}
-
-/// Generates `onnx.rs` (package `onnx`) from the vendored ONNX schema.
-fn onnx_schema() -> Result<(), Box<dyn std::error::Error>> {
-    let proto = "proto/third_party/onnx/onnx.proto";
-    println!("cargo:rerun-if-changed={proto}");
-    let fds = protox::compile([proto], ["proto/third_party/onnx"])?;
-    prost_build::Config::new().compile_fds(fds)?;
     Ok(())
 }
 

@@ -3,7 +3,7 @@
 
 For each size and case, renders a synthetic pair with exact ground truth (the generator
 of the golden fixtures, ``tests/fixtures/flowgen.py``, which mirrors
-``src/vision/synthetic.rs``), quantises it to 8-bit PNGs and runs:
+``crates/vamos-vision/src/synthetic.rs``), quantises it to 8-bit PNGs and runs:
 
 * OpenCV DualTVL1 (``cv2.optflow.createOptFlow_DualTVL1()``, all defaults: tau 0.25,
   lambda 0.15, theta 0.3, nscales 5, warps 5, epsilon 0.01, inner 30, outer 10,

@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # All of vamos's tests, with their set-up: the README's test command.
-#  1. Rust: `cargo test --release --locked --features wgpu` (unit, integration, doc tests;
+#  1. Rust: `cargo test --release --locked --workspace --features vamos/wgpu` (every crate's
+#     unit, integration and doc tests;
 #     the feature adds the GPU render back-end, whose tests compare it with the CPU one on
 #     any wgpu adapter, Mesa's lavapipe on a GPU-less host, and say SKIPPED when there is
 #     none unless VAMOS_REQUIRE_GPU_TESTS=1). The model tests load ONNX Runtime; when it is
@@ -14,7 +15,7 @@ set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 
 echo "== Rust tests"
-cargo test --release --locked --features wgpu
+cargo test --release --locked --workspace --features vamos/wgpu
 
 echo "== Python environment (.venv)"
 PYTHON="${PYTHON:-python3}"

@@ -261,19 +261,16 @@ pub fn model_bundle(data: &[u8]) {
     match kind % 3 {
         0 => {
             if let Ok(b) = Bundle::from_bytes(bytes) {
-                let _ = crate::model::onnx_proto::read_header(&b.encoder);
-                let _ = crate::model::onnx_proto::read_header(&b.head);
+                crate::model::onnx_proto::fuzz_header(&b.encoder);
+                crate::model::onnx_proto::fuzz_header(&b.head);
             }
         }
         1 => {
             let _ = Manifest::parse(bytes);
         }
         _ => {
-            let _ = crate::model::onnx_proto::read_header(bytes);
-            // The native head's reading of head.onnx (the paper's C 32 and L 6).
-            if let Ok(graph) = crate::model::onnx_proto::read_graph(bytes) {
-                let _ = crate::model::head::NativeHead::from_onnx(&graph, 32, 6, 64);
-            }
+            crate::model::onnx_proto::fuzz_header(bytes);
+            crate::model::onnx_proto::fuzz_native_head(bytes);
         }
     }
 }

@@ -41,16 +41,16 @@
 pub mod api;
 pub mod client;
 pub mod config;
-pub mod episode;
-pub mod eval;
+pub use vamos_core::episode;
+pub use vamos_core::eval;
 #[doc(hidden)]
 pub mod fuzz;
-pub mod model;
-pub mod pipeline;
-pub mod robot;
+pub use vamos_core::pipeline;
+pub use vamos_model as model;
+pub use vamos_robot as robot;
 pub mod service;
 pub mod session;
-pub mod setup;
+pub use vamos_core::setup;
 pub mod store;
 pub mod telemetry;
-pub mod vision;
+pub use vamos_vision as vision;

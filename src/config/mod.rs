@@ -15,9 +15,7 @@ use crate::robot::render::RenderConfig;
 pub mod service;
 
 use crate::telemetry::LogConfig;
-use crate::vision::flow::FlowParams;
-use crate::vision::preprocess::NetworkInputParams;
-use crate::vision::registration::RegistrationParams;
+pub use crate::vision::VisionConfig;
 use figment::Figment;
 use figment::providers::{Format, Serialized, Toml};
 use serde::{Deserialize, Serialize};
@@ -64,20 +62,6 @@ pub enum ConfigError {
     Invalid(String),
 }
 
-/// The `[vision]` section: parameters of the vision kernels.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct VisionConfig {
-    /// Worker threads for the vision kernels; 0 = one per core.
-    pub threads: usize,
-    /// TV-L1 optical flow.
-    pub flow: FlowParams,
-    /// Fourier-Mellin registration.
-    pub registration: RegistrationParams,
-    /// Flow -> network input.
-    pub network_input: NetworkInputParams,
-}
-
 /// All settings of the `vamos` binary.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -98,6 +82,19 @@ pub struct Settings {
     pub episode: EpisodeConfig,
     /// The server (`vamos serve`).
     pub service: ServiceConfig,
+}
+
+impl From<&Settings> for crate::setup::CoreSettings {
+    fn from(s: &Settings) -> Self {
+        Self {
+            vision: s.vision.clone(),
+            pipeline: s.pipeline.clone(),
+            robot: s.robot.clone(),
+            render: s.render.clone(),
+            model: s.model.clone(),
+            episode: s.episode.clone(),
+        }
+    }
 }
 
 impl Settings {
@@ -184,7 +181,7 @@ mod tests {
     fn defaults_are_the_recommended_values() {
         let s = Settings::load_with_env(None, env(&[])).unwrap();
         assert_eq!(s, Settings::default());
-        assert_eq!(s.vision.flow, FlowParams::default());
+        assert_eq!(s.vision.flow, crate::vision::flow::FlowParams::default());
     }
 
     #[test]

@@ -1,0 +1,418 @@
+//! Tests of the scorer: a pan head over a textured scene whose images move exactly as its
+//! joint states say (nominal) or move while the joint states stand still (anomaly).
+
+use super::*;
+use vamos_robot::camera_motion::{CameraMotionParams, expected_camera_motion};
+use vamos_robot::render::RenderBackend;
+use vamos_robot::{CameraConvention, RobotConfig};
+use vamos_vision::synthetic::Texture;
+
+const W: usize = 160;
+const H: usize = 120;
+
+/// A base with a panning head (optical camera frame) and a box 0.8 m in front of it.
+const URDF: &str = r#"<robot name="pan_head">
+  <link name="base"/>
+  <link name="head"/>
+  <link name="camera_optical"/>
+  <link name="box">
+    <visual><geometry><box size="0.1 0.3 0.3"/></geometry></visual>
+  </link>
+  <joint name="pan" type="revolute">
+    <parent link="base"/><child link="head"/><axis xyz="0 0 1"/>
+    <limit lower="-3" upper="3" effort="1" velocity="1"/>
+  </joint>
+  <joint name="optical" type="fixed">
+    <parent link="head"/><child link="camera_optical"/>
+    <origin rpy="-1.5707963267948966 0 -1.5707963267948966"/>
+  </joint>
+  <joint name="box_fixed" type="fixed">
+    <parent link="base"/><child link="box"/>
+    <origin xyz="0.8 0.25 0"/>
+  </joint>
+</robot>"#;
+
+fn setup() -> RobotSetup {
+    let robot = Robot::from_urdf_str(URDF, None, &RobotConfig::default()).unwrap();
+    let mount = robot
+        .camera("camera_optical", CameraConvention::Optical)
+        .unwrap();
+    RobotSetup {
+        robot: Arc::new(robot),
+        mount,
+        intrinsics: Some(Intrinsics::from_fov(W as u32, H as u32, 60.0).unwrap()),
+    }
+}
+
+fn scorer(robot: Option<RobotSetup>, thresholds: Thresholds, stride: usize) -> Scorer {
+    let mut config = PipelineConfig {
+        stride,
+        // The paper's bands (the tests below read `triggered` as the paper's trigger).
+        fusion: crate::eval::Fusion::Paper,
+        ..PipelineConfig::default()
+    };
+    config.frames.width = W;
+    config.frames.height = H;
+    Scorer::new(ScorerParts {
+        config,
+        flow: FlowParams::realtime(),
+        registration: RegistrationParams::default(),
+        network: NetworkInputParams::default(),
+        render: RenderConfig {
+            backend: RenderBackend::Cpu,
+            ..RenderConfig::default()
+        },
+        robot,
+        model: None,
+        samples: 0,
+        seed: 0,
+        thresholds,
+        // Alarm on any triggered frame.
+        alarm_threshold: crate::eval::TRIGGER_BASE,
+        heatmaps: false,
+    })
+    .unwrap()
+}
+
+/// The image shift (tx, ty) of the pan from `from_rad` to `to_rad`, from the same
+/// kinematics the scorer uses.
+fn expected_shift(setup: &RobotSetup, from_rad: f64, to_rad: f64) -> (f64, f64) {
+    let pose = |q: f64| {
+        let q = setup
+            .robot
+            .joint_mapper()
+            .map(&names(), &[q])
+            .unwrap()
+            .positions;
+        let links = setup.robot.forward(&q).unwrap();
+        setup.mount.camera_from_base(&links).unwrap()
+    };
+    let k = setup.intrinsics.unwrap();
+    let m = expected_camera_motion(
+        &pose(from_rad),
+        &pose(to_rad),
+        &k,
+        Depth::Assumed,
+        &CameraMotionParams::default(),
+    )
+    .unwrap();
+    (m.transform.tx_px, m.transform.ty_px)
+}
+
+/// Frame `k` of a scene whose content has moved by `(sx, sy)` pixels.
+fn frame(texture: &Texture, sx: f64, sy: f64) -> GrayImage {
+    GrayImage::from_fn(W, H, |x, y| {
+        texture.eval(x as f64 - sx, y as f64 - sy) as f32
+    })
+}
+
+fn names() -> Vec<String> {
+    vec!["pan".to_string()]
+}
+
+/// Runs `frames` frames panning by `step_rad` per frame; the joint states report
+/// `reported(k)`. Returns the scores of the processed frames.
+fn run(
+    s: &mut Scorer,
+    setup: &RobotSetup,
+    frames: usize,
+    step_rad: f64,
+    reported: impl Fn(usize) -> f64,
+) -> Vec<FrameScore> {
+    let texture = Texture::random(11);
+    let names = names();
+    let mut out = Vec::new();
+    for k in 0..frames {
+        let (sx, sy) = expected_shift(setup, 0.0, step_rad * k as f64);
+        let image = frame(&texture, sx, sy);
+        let q = [reported(k)];
+        let score = s
+            .push(&FrameInput {
+                stamp_ns: k as i64 * 100_000_000,
+                image: &image,
+                joints: Some(JointInput {
+                    names: &names,
+                    positions: &q,
+                }),
+                intrinsics: None,
+            })
+            .unwrap();
+        out.extend(score);
+    }
+    out
+}
+
+#[test]
+fn nominal_pan_gives_small_errors_and_no_trigger() {
+    let setup = setup();
+    let thresholds = Thresholds::paper(Some(0.8), None);
+    let mut s = scorer(Some(setup.clone()), thresholds, 1);
+    let step = 0.01;
+    let scores = run(&mut s, &setup, 5, step, |k| step * k as f64);
+    assert_eq!(scores.len(), 5);
+    assert!(scores[0].warming_up && scores[0].e_c.is_none());
+    let (sx, _) = expected_shift(&setup, 0.0, step);
+    assert!(
+        sx.abs() > 1.0,
+        "the pan moves the image by {sx} px per frame"
+    );
+    for f in &scores[1..] {
+        let e_c = f.e_c.unwrap();
+        assert!(e_c < 0.3, "nominal e_c {e_c} (frame {})", f.frame);
+        let e_b = f.e_b.expect("the box is in view");
+        assert!(e_b < 0.5, "nominal e_b {e_b}");
+        assert!(f.body_pixels > 100, "{}", f.body_pixels);
+        assert_eq!(f.triggered, None);
+        assert!(!f.anomaly);
+        assert!(f.e_o.is_none(), "no model");
+    }
+}
+
+#[test]
+fn motion_the_joints_do_not_show_triggers_the_camera_detector() {
+    let setup = setup();
+    let thresholds = Thresholds::paper(Some(0.8), None);
+    let mut s = scorer(Some(setup.clone()), thresholds, 1);
+    let step = 0.01;
+    let (sx, sy) = expected_shift(&setup, 0.0, step);
+    let shift = sx.abs() + sy.abs();
+    // The camera is pushed: the image pans, the joint states stay at 0.
+    let scores = run(&mut s, &setup, 4, step, |_| 0.0);
+    for f in &scores[1..] {
+        let e_c = f.e_c.unwrap();
+        assert!(
+            (e_c - shift).abs() < 0.35,
+            "e_c {e_c} should be the unexplained shift {shift}"
+        );
+        let e_b = f.e_b.unwrap();
+        assert!((e_b - shift).abs() < 0.5, "e_b {e_b} vs {shift}");
+        assert_eq!(f.triggered, Some(Detector::Camera));
+        assert!(f.score > 1.0, "a triggered frame outranks e_o: {}", f.score);
+        assert!(f.anomaly, "{}", f.score);
+    }
+}
+
+#[test]
+fn joint_states_no_nominal_run_had_show_in_e_k() {
+    let setup = setup();
+    let step = 0.01;
+    // A nominal run: no reference yet, so no e_k, but every frame after the first has
+    // a state (positions and velocities need two frames).
+    let mut s = scorer(Some(setup.clone()), Thresholds::default(), 1);
+    let nominal = run(&mut s, &setup, 6, step, |k| step * k as f64);
+    assert!(nominal.iter().all(|f| f.e_k.is_none()));
+    assert!(nominal[0].kinematic_state.is_none());
+    let states: Vec<Vec<f32>> = nominal
+        .iter()
+        .filter_map(|f| f.kinematic_state.clone())
+        .collect();
+    assert_eq!(states.len(), 5);
+    let dims = states[0].len();
+    let reference = crate::eval::StateReference::fit(&[states], dims, None).unwrap();
+    let thresholds = Thresholds {
+        kinematics: Some(reference),
+        ..Thresholds::default()
+    };
+    // The same run again: every state is a nominal one.
+    let mut s = scorer(Some(setup.clone()), thresholds.clone(), 1);
+    let again = run(&mut s, &setup, 6, step, |k| step * k as f64);
+    for f in &again[1..] {
+        assert!(f.e_k.unwrap() < 1e-6, "{:?}", f.e_k);
+    }
+    // The head reads half a radian further round (moving as before): its state lies at
+    // least 0.45 rad (unscaled here) from every nominal one.
+    let mut s = scorer(Some(setup.clone()), thresholds, 1);
+    let turned = run(&mut s, &setup, 6, step, |k| 0.5 + step * k as f64);
+    for f in &turned[1..] {
+        let e_k = f.e_k.unwrap();
+        assert!(e_k > 0.44, "e_k {e_k}");
+    }
+}
+
+#[test]
+fn stride_stamps_and_missing_joints() {
+    let texture = Texture::random(3);
+    let mut s = scorer(None, Thresholds::default(), 2);
+    let image = frame(&texture, 0.0, 0.0);
+    let input = |stamp_ns| FrameInput {
+        stamp_ns,
+        image: &image,
+        joints: None,
+        intrinsics: None,
+    };
+    let first = s.push(&input(0)).unwrap().unwrap();
+    assert_eq!((first.index, first.frame), (0, 0));
+    assert!(
+        s.push(&input(10)).unwrap().is_none(),
+        "skipped by the stride"
+    );
+    let e = s.push(&input(10)).unwrap_err();
+    assert!(
+        matches!(e, ScorerError::StampNotIncreasing { index: 2, .. }),
+        "{e}"
+    );
+    let next = s.push(&input(30)).unwrap();
+    // Image 3 is odd: skipped; the refused image 2 still counted.
+    assert!(next.is_none());
+    let f = s.push(&input(40)).unwrap().unwrap();
+    assert_eq!((f.index, f.frame), (4, 1));
+    assert!(f.e_c.is_none() && f.e_b.is_none() && f.e_o.is_none());
+    assert!(!f.warming_up, "no model: nothing to warm up");
+    assert_eq!(f.score, 0.0);
+    // A robot profile whose frames come without joint states scores them anyway.
+    let setup = setup();
+    let mut s = scorer(Some(setup), Thresholds::default(), 1);
+    s.push(&input(0)).unwrap();
+    let f = s.push(&input(1)).unwrap().unwrap();
+    assert!(f.e_c.is_none() && f.e_b.is_none());
+    assert_eq!(f.body_pixels, 0);
+}
+
+#[test]
+fn masked_variant_needs_a_robot_and_bad_joints_are_errors() {
+    let mut config = PipelineConfig::default();
+    config.frames.variant = super::super::FlowVariant::Masked;
+    let parts = |robot| ScorerParts {
+        config: config.clone(),
+        flow: FlowParams::realtime(),
+        registration: RegistrationParams::default(),
+        network: NetworkInputParams::default(),
+        render: RenderConfig::default(),
+        robot,
+        model: None,
+        samples: 0,
+        seed: 0,
+        thresholds: Thresholds::default(),
+        alarm_threshold: f64::INFINITY,
+        heatmaps: false,
+    };
+    assert!(matches!(
+        Scorer::new(parts(None)),
+        Err(ScorerError::Config(_))
+    ));
+    let setup = setup();
+    let mut s = scorer(Some(setup), Thresholds::default(), 1);
+    let image = frame(&Texture::random(1), 0.0, 0.0);
+    let names = names();
+    let e = s
+        .push(&FrameInput {
+            stamp_ns: 0,
+            image: &image,
+            joints: Some(JointInput {
+                names: &names,
+                positions: &[f64::NAN],
+            }),
+            intrinsics: None,
+        })
+        .unwrap_err();
+    assert!(matches!(e, ScorerError::Robot(_)), "{e}");
+}
+
+#[test]
+fn a_small_object_falling_in_the_static_scene_shows_in_e_r() {
+    let setup = setup();
+    let mut s = scorer(Some(setup.clone()), Thresholds::paper(Some(0.8), None), 1);
+    let (texture, object) = (Texture::random(11), Texture::random(5));
+    let step = 0.01;
+    let names = names();
+    let mut scores = Vec::new();
+    for k in 0..8usize {
+        let (sx, sy) = expected_shift(&setup, 0.0, step * k as f64);
+        // A 24x24 px object right of the box (two cells by two: the scene residual needs a
+        // whole 2x2 block of cells to move), falling 3 px per frame from frame 5 on.
+        let drop = 3.0 * k.saturating_sub(4) as f64;
+        let image = GrayImage::from_fn(W, H, |x, y| {
+            let (u, v) = (x as f64 - sx, y as f64 - sy);
+            let (ou, ov) = (u - 110.0, v - 30.0 - drop);
+            if (0.0..24.0).contains(&ou) && (0.0..24.0).contains(&ov) {
+                (255.0 - object.eval(ou * 2.0, ov * 2.0)) as f32
+            } else {
+                texture.eval(u, v) as f32
+            }
+        });
+        let q = [step * k as f64];
+        let f = s
+            .push(&FrameInput {
+                stamp_ns: k as i64 * 100_000_000,
+                image: &image,
+                joints: Some(JointInput {
+                    names: &names,
+                    positions: &q,
+                }),
+                intrinsics: None,
+            })
+            .unwrap()
+            .unwrap();
+        scores.push(f);
+    }
+    let e_r = |k: usize| scores[k].e_r.expect("scene residual");
+    let nominal = (1..5).map(e_r).fold(0.0, f64::max);
+    let falling = (5..8).map(e_r).fold(f64::INFINITY, f64::min);
+    assert!(
+        falling > 2.0 * nominal,
+        "falling object e_r {falling} vs nominal max {nominal}"
+    );
+    // The cells keep where it happened: the block of 2x2 cells whose smallest value is the
+    // largest (what e_r pools) lies on the object.
+    let f = &scores[6];
+    let (columns, rows) = f.scene_grid;
+    let cells = f.scene_cells.as_ref().unwrap();
+    let mut best = (f32::MIN, 0, 0);
+    for r in 0..rows - 1 {
+        for c in 0..columns - 1 {
+            let block = [
+                cells[r * columns + c],
+                cells[r * columns + c + 1],
+                cells[(r + 1) * columns + c],
+                cells[(r + 1) * columns + c + 1],
+            ];
+            let m = block.iter().copied().fold(f32::INFINITY, f32::min);
+            if m.is_finite() && m > best.0 {
+                best = (m, c, r);
+            }
+        }
+    }
+    let (cx, cy) = (best.1 * 8 + 8, best.2 * 8 + 8);
+    assert!(
+        (100..148).contains(&cx) && (24..72).contains(&cy),
+        "worst block at ({cx}, {cy})"
+    );
+    // The paper's camera and body detectors do not see it.
+    assert!(scores[5..].iter().all(|f| f.e_c.unwrap() < 0.8));
+}
+
+#[test]
+fn the_expected_image_flow_of_a_pan_is_the_rotation_homography() {
+    let setup = setup();
+    let pose = |q: f64| {
+        let q = setup
+            .robot
+            .joint_mapper()
+            .map(&names(), &[q])
+            .unwrap()
+            .positions;
+        let links = setup.robot.forward(&q).unwrap();
+        setup.mount.camera_from_base(&links).unwrap()
+    };
+    let k = setup.intrinsics.unwrap();
+    let mut flow = FlowField::zeros(0, 0);
+    expected_image_flow(&pose(0.0), &pose(0.02), &k, 1.0, &mut flow).unwrap();
+    assert_eq!(flow.size(), (W, H));
+    // A pure rotation: the depth does not matter.
+    let mut far = FlowField::zeros(0, 0);
+    expected_image_flow(&pose(0.0), &pose(0.02), &k, 50.0, &mut far).unwrap();
+    for (a, b) in flow.u.iter().zip(&far.u) {
+        assert!((a - b).abs() < 1e-4);
+    }
+    // Near the centre the flow is the shift the similarity fit predicts; towards the edges
+    // a pan moves pixels further (f / cos^2).
+    let (sx, _) = expected_shift(&setup, 0.0, 0.02);
+    let centre = flow.get(W / 2, H / 2).0 as f64;
+    assert!((centre - sx).abs() < 0.1 * sx.abs(), "{centre} vs {sx}");
+    let edge = flow.get(0, H / 2).0 as f64;
+    assert!(edge.abs() > centre.abs() * 1.1, "{edge} vs {centre}");
+    assert!(
+        expected_image_flow(&pose(0.0), &pose(0.02), &k, 0.0, &mut flow).is_err(),
+        "depth 0"
+    );
+}

@@ -1,0 +1,221 @@
+//! A profile loaded with its robot and model, ready to make [`Scorer`]s: what `vamos
+//! score`, `calibrate`, `eval` and the service's sessions share.
+
+use crate::episode::EpisodeConfig;
+use crate::eval::Thresholds;
+use crate::pipeline::{
+    PipelineConfig, Profile, ProfileError, RobotSetup, Scorer, ScorerError, ScorerParts,
+};
+use std::path::PathBuf;
+use std::sync::Arc;
+use vamos_model::{FlowModel, ModelConfig, ModelError};
+use vamos_robot::render::RenderConfig;
+use vamos_robot::{Robot, RobotConfig, RobotError};
+use vamos_vision::VisionConfig;
+use vamos_vision::flow::{FlowError, FlowParams};
+
+/// Errors of loading a profile's parts.
+#[derive(Debug, thiserror::Error)]
+pub enum SetupError {
+    /// The profile, its camera or its calibration.
+    #[error(transparent)]
+    Profile(#[from] ProfileError),
+    /// The robot description.
+    #[error("cannot load robot {path}: {source}")]
+    Robot {
+        /// Its path.
+        path: PathBuf,
+        /// Why.
+        source: RobotError,
+    },
+    /// The profile names a robot without a camera.
+    #[error("profile {profile} names a robot but no camera: add `camera = \"camera.json\"`")]
+    NoCamera {
+        /// The profile's path.
+        profile: PathBuf,
+    },
+    /// The model bundle.
+    #[error("cannot load model {path}: {source}")]
+    Model {
+        /// Its path.
+        path: PathBuf,
+        /// Why.
+        source: ModelError,
+    },
+    /// The TV-L1 preset.
+    #[error(transparent)]
+    Flow(#[from] FlowError),
+    /// The scorer refused its parts.
+    #[error(transparent)]
+    Scorer(#[from] ScorerError),
+}
+
+/// The settings sections the core falls back on and builds scorers with: everything of
+/// the `vamos` settings but the server's `[service]` and the `[log]` sections.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct CoreSettings {
+    /// Vision kernels (`[vision]`).
+    pub vision: VisionConfig,
+    /// The detection pipeline (`[pipeline]`): a profile without its own uses these.
+    pub pipeline: PipelineConfig,
+    /// Robot descriptions (`[robot]`).
+    pub robot: RobotConfig,
+    /// Rendering of the robot body (`[render]`).
+    pub render: RenderConfig,
+    /// The flow predictor (`[model]`).
+    pub model: ModelConfig,
+    /// Recorded episodes (`[episode]`).
+    pub episode: EpisodeConfig,
+}
+
+/// A profile with its robot and model loaded.
+#[derive(Clone)]
+pub struct Setup {
+    /// The settings it was loaded with.
+    pub settings: CoreSettings,
+    /// The profile.
+    pub profile: Profile,
+    /// Pipeline parameters in force (the profile's, else the settings').
+    pub config: PipelineConfig,
+    /// TV-L1 parameters in force.
+    pub flow: FlowParams,
+    /// The robot, if the profile has one.
+    pub robot: Option<RobotSetup>,
+    /// The model, if the profile has one.
+    pub model: Option<Arc<FlowModel>>,
+    /// How bags are read (the settings' `[episode]`, topics from the profile if it has
+    /// them).
+    pub episode: EpisodeConfig,
+}
+
+impl Setup {
+    /// The alarm threshold and each detector's own threshold in force (the profile's
+    /// thresholds under its fusion, resolved on whether it has a flow model).
+    pub fn detector_thresholds(&self) -> crate::eval::DetectorThresholds {
+        crate::eval::DetectorThresholds::new(
+            &self.profile.thresholds(),
+            self.profile.alarm_threshold(),
+            self.config.fusion,
+            self.model.is_some(),
+        )
+    }
+
+    /// Reads the profile file at `path` and loads its robot, camera and model.
+    pub fn load(
+        settings: impl Into<CoreSettings>,
+        path: &std::path::Path,
+    ) -> Result<Self, SetupError> {
+        Self::from_profile(settings, Profile::load(path)?)
+    }
+
+    /// Loads the robot and model of a profile already read.
+    pub fn from_profile(
+        settings: impl Into<CoreSettings>,
+        profile: Profile,
+    ) -> Result<Self, SetupError> {
+        let settings = settings.into();
+        let config = profile
+            .file
+            .pipeline
+            .clone()
+            .unwrap_or_else(|| settings.pipeline.clone());
+        let flow = match &profile.file.flow_preset {
+            Some(p) => FlowParams::preset(p)?,
+            None => settings.vision.flow.clone(),
+        };
+        let robot = match (&profile.file.robot, &profile.camera) {
+            (Some(path), Some(spec)) => {
+                let load = if profile.robot_stored {
+                    Robot::load_stored
+                } else {
+                    Robot::load
+                };
+                let robot = load(path, &settings.robot).map_err(|source| SetupError::Robot {
+                    path: path.clone(),
+                    source,
+                })?;
+                for w in robot.warnings() {
+                    tracing::warn!(robot = %path.display(), "{w}");
+                }
+                let mount = robot.camera_for(spec).map_err(|source| SetupError::Robot {
+                    path: path.clone(),
+                    source,
+                })?;
+                Some(RobotSetup {
+                    robot: Arc::new(robot),
+                    mount,
+                    intrinsics: spec.intrinsics().ok(),
+                })
+            }
+            (Some(_), None) => {
+                return Err(SetupError::NoCamera {
+                    profile: profile.path.clone(),
+                });
+            }
+            (None, _) => None,
+        };
+        let model = match &profile.file.model {
+            Some(path) => Some(Arc::new(
+                FlowModel::load(path, &settings.model.load_options()).map_err(|source| {
+                    SetupError::Model {
+                        path: path.clone(),
+                        source,
+                    }
+                })?,
+            )),
+            None => None,
+        };
+        let mut episode = settings.episode.clone();
+        if let Some(topics) = &profile.file.topics {
+            episode.topics = topics.clone();
+        }
+        Ok(Self {
+            settings,
+            episode,
+            profile,
+            config,
+            flow,
+            robot,
+            model,
+        })
+    }
+
+    /// A scorer for the episode (or session) `key` (it seeds the predictor's sampling),
+    /// with `config` (default: the profile's) and `model` (default: the profile's).
+    pub fn scorer(
+        &self,
+        key: &str,
+        thresholds: Thresholds,
+        alarm_threshold: f64,
+        heatmaps: bool,
+        config: Option<&PipelineConfig>,
+        model: Option<&Arc<FlowModel>>,
+    ) -> Result<Scorer, SetupError> {
+        Ok(Scorer::new(ScorerParts {
+            config: config.unwrap_or(&self.config).clone(),
+            flow: self.flow.clone(),
+            registration: self.settings.vision.registration.clone(),
+            network: self.settings.vision.network_input.clone(),
+            render: self.settings.render.clone(),
+            robot: self.robot.clone(),
+            model: model.or(self.model.as_ref()).cloned(),
+            samples: self.settings.model.samples,
+            seed: self.settings.model.session_seed(key),
+            thresholds,
+            alarm_threshold,
+            heatmaps,
+        })?)
+    }
+
+    /// A scorer with the profile's calibrated thresholds (none: no alarms).
+    pub fn calibrated_scorer(&self, key: &str, heatmaps: bool) -> Result<Scorer, SetupError> {
+        self.scorer(
+            key,
+            self.profile.thresholds(),
+            self.profile.alarm_threshold(),
+            heatmaps,
+            None,
+            None,
+        )
+    }
+}
