@@ -1,25 +1,12 @@
-//! Build-time code generation:
-//! - the gRPC code of `proto/vamos/v1` with protox (pure Rust, no system `protoc`), and
-//!   the encoded descriptor set that server reflection serves;
-//! - the list of `vamos demo`'s embedded assets (every file under `assets/demo`, made by
-//!   `assets/demo/make_demo_assets.sh`), as `include_bytes!` entries.
+//! Build-time code generation: the list of `vamos demo`'s embedded assets (every file
+//! under `assets/demo`, made by `assets/demo/make_demo_assets.sh`), as `include_bytes!`
+//! entries. (The gRPC code is generated in crates/vamos-proto, the ONNX schema's in
+//! crates/vamos-model.)
 
-use prost::Message;
 use std::path::{Path, PathBuf};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
-    let protos = ["proto/vamos/v1/monitor.proto"];
-    for p in &protos {
-        println!("cargo:rerun-if-changed={p}");
-    }
-    let fds = protox::compile(protos, ["proto"])?;
-    let out = PathBuf::from(std::env::var("OUT_DIR")?);
-    std::fs::write(out.join("vamos_descriptor.bin"), fds.encode_to_vec())?;
-    tonic_prost_build::configure()
-        .type_attribute(".", "#[allow(clippy::all, missing_docs)]")
-        .compile_fds(fds)?;
-    demo_assets(&out)?;
-    Ok(())
+    demo_assets(&PathBuf::from(std::env::var("OUT_DIR")?))
 }
 
 /// Writes `demo_assets.rs`: `&[(relative path, bytes)]` of the files under `assets/demo`

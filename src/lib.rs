@@ -38,19 +38,13 @@
 //! - `fuzz` (hidden): one entry point per parser of outside bytes, for the `cargo fuzz`
 //!   targets in `fuzz/` and the corpus regression test; imports the modules it fuzzes.
 
-pub mod api;
-pub mod client;
-pub mod config;
-pub use vamos_core::episode;
-pub use vamos_core::eval;
+pub use vamos_client as client;
+pub use vamos_core::{episode, eval, pipeline, setup};
+pub use vamos_model as model;
+pub use vamos_proto as proto;
+pub use vamos_robot as robot;
+pub use vamos_server::{api, config, service, session, store, telemetry};
+pub use vamos_vision as vision;
+
 #[doc(hidden)]
 pub mod fuzz;
-pub use vamos_core::pipeline;
-pub use vamos_model as model;
-pub use vamos_robot as robot;
-pub mod service;
-pub mod session;
-pub use vamos_core::setup;
-pub mod store;
-pub mod telemetry;
-pub use vamos_vision as vision;

@@ -4,7 +4,7 @@
 //! bad input, and provisioning of the ONNX Runtime library.
 //!
 //! Needs the ONNX Runtime library: found via ORT_DYLIB_PATH, the cache or Python's
-//! onnxruntime, else downloaded from PyPI into the cache (see src/model/runtime.rs).
+//! onnxruntime, else downloaded from PyPI into the cache (see crates/vamos-model/src/runtime.rs).
 
 use std::path::{Path, PathBuf};
 use std::process::Command;

@@ -1,5 +1,5 @@
 //! Accuracy sweeps of the Fourier-Mellin registration on synthetic pairs (heavier than the
-//! unit tests in `src/vision/registration/`).
+//! unit tests in `crates/vamos-vision/src/registration/`).
 //!
 //! Tolerances: the synthetic pairs are exact (the texture is a continuous function), so the
 //! errors are those of the method: windowing, log-polar resampling and peak refinement.

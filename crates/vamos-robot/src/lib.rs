@@ -17,8 +17,8 @@
 //! that maps coordinates in frame `b` to frame `a`), as nalgebra `Isometry3<f64>`.
 //!
 //! ```no_run
-//! use vamos::robot::{CameraConvention, Robot, RobotConfig};
-//! # fn main() -> Result<(), vamos::robot::RobotError> {
+//! use vamos_robot::{CameraConvention, Robot, RobotConfig};
+//! # fn main() -> Result<(), vamos_robot::RobotError> {
 //! let robot = Robot::load("panda/".as_ref(), &RobotConfig::default())?;
 //! let mut mapper = robot.joint_mapper(); // once per session
 //! let q = mapper.map(&["panda_joint1"], &[0.3])?.positions;

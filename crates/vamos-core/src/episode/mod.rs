@@ -15,8 +15,8 @@
 //!
 //! Typical use:
 //! ```no_run
-//! # use vamos::episode::{EpisodeConfig, McapEpisode};
-//! # fn main() -> Result<(), vamos::episode::EpisodeError> {
+//! # use vamos_core::episode::{EpisodeConfig, McapEpisode};
+//! # fn main() -> Result<(), vamos_core::episode::EpisodeError> {
 //! let ep = McapEpisode::open("run.mcap".as_ref(), &EpisodeConfig::default())?;
 //! let urdf = ep.robot_description()?;
 //! for frame in ep.frames() {

@@ -1,0 +1,257 @@
+//! `POST /v1/episodes:score`: an uploaded episode scored by the session layer's episode
+//! operation ([`crate::session::episode`], the one gRPC's `ScoreEpisode` calls); the
+//! scores as JSON, or the scored bag.
+
+use super::body::{content_length, file_body};
+use super::errors::ApiError;
+use crate::api::state::Shared;
+use crate::session::episode::score_episode as score;
+use crate::session::event::detector_name;
+use crate::session::upload::EpisodeBuffer;
+use crate::session::{ScoredFrame, SessionError};
+use axum::Json;
+use axum::body::Body;
+use axum::extract::{Query, State};
+use axum::http::{HeaderMap, header};
+use axum::response::{IntoResponse, Response};
+use futures_util::StreamExt;
+use serde_json::json;
+use std::collections::HashMap;
+use std::path::Path;
+use std::sync::Arc;
+use vamos_core::episode::{EpisodeConfig, McapEpisode, ScoreBagWriter, ScoreTopics};
+use vamos_core::eval::DetectorThresholds;
+
+/// Query of `POST /v1/episodes:score`.
+#[derive(Debug, serde::Deserialize)]
+pub(super) struct ScoreQuery {
+    profile: String,
+    #[serde(default)]
+    name: Option<String>,
+}
+
+/// A frame's score as the JSON object the REST API prints (the fields and names of
+/// `vamos stream`'s output).
+pub fn score_json(f: &ScoredFrame) -> serde_json::Value {
+    let s = &f.score;
+    json!({
+        "stamp_ns": s.stamp_ns,
+        "index": s.index,
+        "frame": s.frame,
+        "score": s.score,
+        "e_c": s.e_c,
+        "e_b": s.e_b,
+        "e_o": s.e_o,
+        "e_r": s.e_r,
+        "e_k": s.e_k,
+        "anomaly": s.anomaly,
+        "detector": f.detector().map(detector_name),
+        "warming_up": s.warming_up,
+        "compute_s": f.compute_s,
+    })
+}
+
+/// `POST /v1/episodes:score?profile=P[&name=N]` with an MCAP body: the scores as JSON
+/// (`{"frames": [...], "damage": ...}`), or with `Accept: application/x-mcap` the scored
+/// bag (damage in `x-vamos-damage`); streamed to disk first (size-limited).
+pub(super) async fn score_episode(
+    State(s): State<Arc<Shared>>,
+    headers: HeaderMap,
+    Query(q): Query<ScoreQuery>,
+    body: Body,
+) -> Result<Response, ApiError> {
+    let profile = s
+        .profiles
+        .get_async(&q.profile)
+        .await
+        .map_err(SessionError::from)?;
+    let limit = s.hub.config().max_episode_bytes;
+    let declared = content_length(&headers);
+    if declared.is_some_and(|len| len > limit) {
+        return Err(SessionError::EpisodeTooLarge { limit }.into());
+    }
+    // Admitted before a byte is buffered: a session place and an upload slot.
+    let (slot, ticket) = s.admit_episode(declared)?;
+    let mut buffer = EpisodeBuffer::new(&s.upload_dir(), limit, ticket)?;
+    let mut stream = body.into_data_stream();
+    while let Some(chunk) = stream.next().await {
+        let chunk = chunk.map_err(ApiError::bad_request)?;
+        buffer.write(&chunk)?;
+    }
+    // A `.mcap.zstd` upload is decompressed in the upload folder, charged as written: the
+    // scoring and the scored bag read the copy.
+    let mut buffer = buffer
+        .decompressed(profile.setup.episode.max_decompressed_bytes)
+        .await?;
+    let wants_mcap = headers
+        .get(header::ACCEPT)
+        .and_then(|v| v.to_str().ok())
+        .is_some_and(|v| v.contains("mcap"));
+    // The scored bag copies the input's images: keep a second name for the upload,
+    // since scoring consumes (and removes) the first.
+    let input = if wants_mcap {
+        // The scored bag is about as large as the input again.
+        buffer.reserve_disk(2 * buffer.size())?;
+        let original = buffer.path().to_path_buf();
+        let kept = tempfile::Builder::new()
+            .prefix("episode-in-")
+            .suffix(".mcap")
+            .make_in(s.upload_dir(), |p| {
+                std::fs::hard_link(&original, p)?;
+                std::fs::File::open(p)
+            })
+            .map_err(ApiError::internal)?;
+        Some(kept)
+    } else {
+        None
+    };
+    let config = profile.setup.episode.clone();
+    let (file, ticket) = buffer.into_parts();
+    // The ticket goes with the last file that holds the upload's bytes: the scored input
+    // (JSON answer) or the kept copy and the scored bag (MCAP answer).
+    let (scoring_ticket, answer_ticket) = if wants_mcap {
+        (None, Some(ticket))
+    } else {
+        (Some(ticket), None)
+    };
+    let name = q.name.unwrap_or_default();
+    // A scored bag carries each frame's anomaly map; JSON answers do not.
+    let scores = score(
+        s.hub.clone(),
+        profile.clone(),
+        file,
+        name,
+        slot,
+        scoring_ticket,
+        wants_mcap,
+    )
+    .await?;
+    let (frames, damage) = scores.collect().await;
+    let damage = damage.map(|e| e.to_string());
+    match input {
+        None => {
+            let frames: Vec<_> = frames.iter().map(score_json).collect();
+            Ok(Json(json!({ "frames": frames, "damage": damage })).into_response())
+        }
+        Some(input) => {
+            let dir = s.upload_dir();
+            let thresholds = profile.setup.detector_thresholds();
+            let out = tokio::task::spawn_blocking(move || {
+                scored_bag(input.path(), &config, &frames, &dir, thresholds)
+            })
+            .await
+            .map_err(ApiError::internal)??;
+            let mut response = file_body(out, answer_ticket).await?;
+            if let Some(d) = damage
+                && let Ok(v) = header::HeaderValue::from_str(&d.replace(['\r', '\n'], " "))
+            {
+                response.headers_mut().insert("x-vamos-damage", v);
+            }
+            Ok(response)
+        }
+    }
+}
+
+/// Writes the scored bag of `input` (its images and the score topics of `frames`, matched
+/// by stamp) into a temporary file in `dir`.
+fn scored_bag(
+    input: &Path,
+    config: &EpisodeConfig,
+    frames: &[ScoredFrame],
+    dir: &Path,
+    thresholds: DetectorThresholds,
+) -> Result<tempfile::NamedTempFile, ApiError> {
+    let episode = McapEpisode::open(input, config).map_err(ApiError::bad_request)?;
+    let out = tempfile::Builder::new()
+        .prefix("scored-")
+        .suffix(".mcap")
+        .tempfile_in(dir)
+        .map_err(ApiError::internal)?;
+    let mut bag =
+        ScoreBagWriter::create(out.path(), Some(&episode.info())).map_err(ApiError::internal)?;
+    bag.copy_context(&episode).map_err(ApiError::internal)?;
+    let mut thresholds_json = Some(json!(thresholds).to_string());
+    let by_stamp: HashMap<i64, &ScoredFrame> =
+        frames.iter().map(|f| (f.score.stamp_ns, f)).collect();
+    for frame in episode.frames() {
+        // Frames that were refused or lie after damage have no score and are left out.
+        let Ok(frame) = frame else { continue };
+        if let Some(f) = by_stamp.get(&frame.stamp_ns) {
+            let s = &f.score;
+            bag.write_scored_frame(
+                &frame,
+                &ScoreTopics {
+                    score: s.score,
+                    anomaly: s.anomaly,
+                    e_c: s.e_c,
+                    e_b: s.e_b,
+                    e_o: s.e_o,
+                    e_r: s.e_r,
+                    e_k: s.e_k,
+                    heatmap: None,
+                    anomaly_map: f
+                        .anomaly_map
+                        .as_ref()
+                        .map(|m| (m.width as u32, m.height as u32, m.pixels.as_slice())),
+                    thresholds_json: thresholds_json.take().as_deref(),
+                },
+            )
+            .map_err(ApiError::internal)?;
+        }
+    }
+    bag.finish().map_err(ApiError::internal)?;
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::api::grpc::convert::frame_score;
+    use crate::api::proto;
+    use vamos_core::eval::Detector;
+    use vamos_core::pipeline::FrameScore;
+
+    /// REST prints what it printed when it scored through gRPC's messages: the same
+    /// fields as `proto::score_json` of the gRPC answer, `vamos stream`'s output.
+    #[test]
+    fn rest_scores_print_as_the_grpc_answer_does() {
+        for (triggered, anomaly) in [
+            (None, false),
+            (None, true),
+            (Some(Detector::Body), true),
+            (Some(Detector::Camera), false),
+            (Some(Detector::Scene), true),
+            (Some(Detector::Kinematics), true),
+        ] {
+            let f = ScoredFrame {
+                anomaly_map: None,
+                score: FrameScore {
+                    index: 7,
+                    frame: 3,
+                    stamp_ns: 1_500,
+                    score: 0.25,
+                    e_c: Some(1.0),
+                    e_b: None,
+                    e_o: Some(0.5),
+                    e_r: Some(0.75),
+                    e_k: Some(0.125),
+                    anomaly,
+                    triggered,
+                    warming_up: true,
+                    best_offset: None,
+                    registration_confidence: None,
+                    body_pixels: 0,
+                    timings: Default::default(),
+                    heatmap: None,
+                    scene_cells: None,
+                    scene_grid: (0, 0),
+                    phase_s: 0.0,
+                    kinematic_state: None,
+                },
+                latency_s: 0.02,
+                compute_s: 0.01,
+            };
+            assert_eq!(score_json(&f), proto::score_json(&frame_score(&f)));
+        }
+    }
+}

@@ -1,0 +1,139 @@
+//! The data directory's models: list, read, upload (validated with ONNX Runtime),
+//! delete, and the active version.
+
+use super::body::{blocking, json_body, receive, to_json};
+use super::errors::ApiError;
+use crate::api::state::Shared;
+use crate::session::reload::{Reloaded, reload_model_sessions};
+use crate::store::{UploadKind, model_bundle_summary};
+use axum::Json;
+use axum::body::{Body, Bytes};
+use axum::extract::{Path, State};
+use axum::http::{HeaderMap, StatusCode};
+use axum::response::{IntoResponse, Response};
+use serde_json::json;
+use std::sync::Arc;
+use vamos_model::FlowModel;
+
+pub(super) async fn list_models(State(s): State<Arc<Shared>>) -> Result<Response, ApiError> {
+    let store = s.store.clone();
+    let models = blocking(move || Ok(store.models())).await?;
+    Ok(Json(json!({ "models": models })).into_response())
+}
+
+pub(super) async fn get_model(
+    State(s): State<Arc<Shared>>,
+    Path(name): Path<String>,
+) -> Result<Response, ApiError> {
+    let store = s.store.clone();
+    let model = blocking(move || store.model(&name)).await?;
+    Ok(Json(model).into_response())
+}
+
+/// `PUT /v1/models/{name}`: the body is a model bundle; it becomes the next version once
+/// it reads as a bundle and loads with ONNX Runtime.
+pub(super) async fn put_model(
+    State(s): State<Arc<Shared>>,
+    Path(name): Path<String>,
+    headers: HeaderMap,
+    body: Body,
+) -> Result<Response, ApiError> {
+    let (upload, _ticket) = receive(&s, UploadKind::Model, &headers, body).await?;
+    let store = s.store.clone();
+    // Validation loads the model once (one replica, one thread) and one upload at a time:
+    // its memory is one model's, however many uploads arrive together.
+    let options = vamos_model::LoadOptions {
+        replicas: 1,
+        intra_threads: 1,
+        ..s.settings.model.load_options()
+    };
+    let _validating = s.model_validation.lock().await;
+    let n = name.clone();
+    let (info, active) = blocking(move || {
+        let info = store.commit_model(&n, upload, |path| {
+            let summary = model_bundle_summary(path)?;
+            FlowModel::load(path, &options)
+                .map_err(|e| format!("the model does not load with ONNX Runtime: {e}"))?;
+            Ok(summary)
+        })?;
+        let active = store.model(&n)?.active;
+        Ok((info, active))
+    })
+    .await?;
+    s.profiles.invalidate_model(&name);
+    let mut body = to_json(&info)?;
+    body["name"] = json!(name);
+    body["active"] = json!(active);
+    Ok((StatusCode::CREATED, Json(body)).into_response())
+}
+
+pub(super) async fn delete_model(
+    State(s): State<Arc<Shared>>,
+    Path(name): Path<String>,
+) -> Result<Response, ApiError> {
+    let store = s.store.clone();
+    let n = name.clone();
+    blocking(move || store.delete_model(&n, None)).await?;
+    s.profiles.invalidate_model(&name);
+    Ok(StatusCode::NO_CONTENT.into_response())
+}
+
+pub(super) async fn delete_model_version(
+    State(s): State<Arc<Shared>>,
+    Path((name, version)): Path<(String, String)>,
+) -> Result<Response, ApiError> {
+    let version: u32 = version
+        .parse()
+        .map_err(|_| ApiError::bad_request(format!("bad version {version:?}")))?;
+    let store = s.store.clone();
+    let n = name.clone();
+    blocking(move || store.delete_model(&n, Some(version))).await?;
+    s.profiles.invalidate_model(&name);
+    Ok(StatusCode::NO_CONTENT.into_response())
+}
+
+/// Body of `POST /v1/models/{name}/active`.
+#[derive(Debug, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct ActiveRequest {
+    version: u32,
+    /// Also move the running sessions whose profile uses this model to the new version
+    /// (by default they keep the version they opened with).
+    #[serde(default)]
+    reload_sessions: bool,
+}
+
+pub(super) async fn set_active_model(
+    State(s): State<Arc<Shared>>,
+    Path(name): Path<String>,
+    body: Bytes,
+) -> Result<Response, ApiError> {
+    let req: ActiveRequest = json_body(&body)?;
+    let store = s.store.clone();
+    let n = name.clone();
+    let model = blocking(move || {
+        store.set_active_model(&n, req.version)?;
+        store.model(&n)
+    })
+    .await?;
+    s.profiles.invalidate_model(&name);
+    let mut body = to_json(&model)?;
+    if req.reload_sessions {
+        let Reloaded { reloaded, failed } = reload_model_sessions(&s.hub, &s.profiles, &name).await;
+        let failed: serde_json::Map<String, serde_json::Value> = failed
+            .into_iter()
+            .map(|(id, e)| (id, json!(e.to_string())))
+            .collect();
+        body["reloaded_sessions"] = json!(reloaded);
+        if !failed.is_empty() {
+            body["reload_errors"] = serde_json::Value::Object(failed);
+        }
+    }
+    Ok(Json(body).into_response())
+}
+
+/// A `POST /v1/models/{name}/active` body, parsed as the handler does (for the fuzz
+/// targets).
+pub fn parse_active_request(body: &[u8]) -> Result<(), ApiError> {
+    json_body::<ActiveRequest>(body).map(|_| ())
+}

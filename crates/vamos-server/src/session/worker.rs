@@ -1,0 +1,377 @@
+//! The worker pool: threads that take one frame of the session at the head of the ready
+//! queue, decode it, score it and deliver the score, then put the session back at the
+//! tail if more frames wait. A panic while scoring fails that frame only (the session's
+//! scorer is rebuilt); a panic outside a frame restarts the worker.
+
+use super::budget::{BudgetSpent, ByteBudget, Charge};
+use super::event::{EventKind, LiveImage, Output, ScoredFrame, detector_name};
+use super::hub::{Hub, event};
+use super::live;
+use super::state::{ImagePayload, LatestScore, ReadyFrame, Session, lock};
+use std::panic::{AssertUnwindSafe, catch_unwind};
+use std::sync::Arc;
+use std::sync::atomic::Ordering;
+use std::time::{Duration, Instant};
+use vamos_core::episode::ros::MessageError;
+use vamos_core::pipeline::{FrameInput, FrameScore, JointInput};
+use vamos_vision::GrayImage;
+
+/// Why a live image was not decoded.
+#[derive(Debug, thiserror::Error)]
+pub enum ImageRefused {
+    /// The image itself (encoding, sizes, a broken file).
+    #[error(transparent)]
+    Message(#[from] MessageError),
+    /// The memory budget cannot hold its decoding.
+    #[error("{width}x{height} image not decoded: {source}")]
+    Budget {
+        /// Columns.
+        width: usize,
+        /// Rows.
+        height: usize,
+        /// The budget's refusal.
+        #[source]
+        source: BudgetSpent,
+    },
+}
+
+/// A streamed image decoded to gray (raw encodings and PNG / JPEG files, at most
+/// `max_pixels`) by the one decoder of [`vamos_core::episode::image`]. With a `budget`, the
+/// decoding's memory (estimated from the declared size, before anything is decoded) is
+/// charged to it for as long as the returned charge lives, or the image is refused.
+pub fn decode_live_image(
+    image: &LiveImage,
+    max_pixels: usize,
+    budget: Option<&Arc<ByteBudget>>,
+) -> Result<(GrayImage, Option<Charge>), ImageRefused> {
+    let encoded = image.encoded();
+    let size = encoded.check(max_pixels)?;
+    let mut held = match budget {
+        Some(b) => Some(
+            b.charge(size.peak_bytes)
+                .map_err(|source| ImageRefused::Budget {
+                    width: size.width,
+                    height: size.height,
+                    source,
+                })?,
+        ),
+        None => None,
+    };
+    let gray = encoded.to_gray(max_pixels)?;
+    // Decoded: only the gray image stays.
+    if let Some(c) = held.as_mut() {
+        let _ = c.resize(4 * gray.data().len() as u64);
+    }
+    Ok((gray, held))
+}
+
+impl Hub {
+    /// A worker thread: [`Self::worker`] restarted after any panic that escapes a frame,
+    /// until the hub stops.
+    pub(super) fn supervised_worker(self: &Arc<Self>, i: usize) {
+        loop {
+            match catch_unwind(AssertUnwindSafe(|| self.worker())) {
+                Ok(()) => break,
+                Err(panic) => {
+                    self.metrics.worker_restarts.inc();
+                    tracing::error!(
+                        worker = i,
+                        "scoring worker panicked ({}); restarted",
+                        panic_message(panic.as_ref())
+                    );
+                }
+            }
+        }
+        self.live_workers.fetch_sub(1, Ordering::SeqCst);
+        self.metrics.workers_alive.dec();
+    }
+
+    fn worker(&self) {
+        loop {
+            if Self::take_injected(&self.injected_worker_panics) {
+                panic!("injected worker panic");
+            }
+            let session = {
+                let mut ready = lock(&self.ready);
+                loop {
+                    if let Some(s) = ready.pop_front() {
+                        break s;
+                    }
+                    if self.stopping.load(Ordering::SeqCst) && self.session_count() == 0 {
+                        return;
+                    }
+                    ready = self
+                        .work
+                        .wait_timeout(ready, Duration::from_millis(200))
+                        .map_or_else(|e| e.into_inner().0, |r| r.0);
+                    if self.stopping.load(Ordering::SeqCst) && ready.is_empty() {
+                        return;
+                    }
+                }
+            };
+            let frame = {
+                let mut st = lock(&session.state);
+                let f = st.queue.pop_front();
+                if f.is_some() {
+                    self.metrics.queue_depth.dec();
+                }
+                f
+            };
+            session.space.notify_all();
+            if let Some(frame) = frame {
+                let stamp = frame.stamp_ns;
+                // One span per frame, named after its session and opening request.
+                let span = tracing::debug_span!(
+                    "frame",
+                    session = %session.id,
+                    request_id = %session.request_id,
+                    stamp_ns = stamp,
+                    kinematics_us = tracing::field::Empty,
+                    render_us = tracing::field::Empty,
+                    flow_us = tracing::field::Empty,
+                    registration_us = tracing::field::Empty,
+                    camera_us = tracing::field::Empty,
+                    body_us = tracing::field::Empty,
+                    model_us = tracing::field::Empty,
+                    total_us = tracing::field::Empty,
+                );
+                let _entered = span.enter();
+                if let Err(panic) = catch_unwind(AssertUnwindSafe(|| self.score(&session, frame))) {
+                    self.recover(&session, stamp, panic_message(panic.as_ref()));
+                }
+            }
+            let mut st = lock(&session.state);
+            if !st.queue.is_empty() && !st.closed {
+                drop(st);
+                lock(&self.ready).push_back(session);
+                self.work.notify_one();
+            } else {
+                st.scheduled = false;
+                let done = st.finishing && st.pending.is_empty() && !st.closed;
+                drop(st);
+                if done {
+                    self.close(&session, None);
+                }
+            }
+        }
+    }
+
+    /// After a panic while scoring frame `stamp` of `s`: the frame is reported failed,
+    /// the session's scorer (whose state the panic may have left half-updated) is
+    /// rebuilt from its profile, continuing its indices, and the session goes on.
+    fn recover(&self, s: &Arc<Session>, stamp: i64, what: String) {
+        self.metrics
+            .scoring_panics
+            .with_label_values(&[&s.profile_name])
+            .inc();
+        tracing::error!(session = %s.id, stamp_ns = stamp, "scoring panicked: {what}");
+        let profile = s.profile();
+        let rebuilt = match profile.setup.calibrated_scorer(&s.seed_key, s.maps) {
+            Ok(mut fresh) => {
+                let mut current = lock(&s.scorer);
+                fresh.continue_after(&current);
+                *current = fresh;
+                "its scorer was rebuilt (the flow predictor warms up again)".to_string()
+            }
+            Err(e) => format!("its scorer could not be rebuilt ({e}) and goes on as it was"),
+        };
+        lock(&s.state).warm_reported = false;
+        self.refuse(
+            s,
+            "internal",
+            format!("frame failed: internal error while scoring it ({what}); {rebuilt}"),
+            stamp,
+        );
+    }
+
+    fn score(&self, s: &Arc<Session>, frame: ReadyFrame) {
+        let stamp = frame.stamp_ns;
+        let started = Instant::now();
+        // Held until the frame is scored: the buffered bytes, then the decoding's.
+        let _buffered = frame.charge;
+        let decode_span = tracing::debug_span!("decode").entered();
+        let (image, frame_camera, _decoding, live) = match frame.image {
+            ImagePayload::Decoded(img, k) => (img, k, None, None),
+            ImagePayload::Live(msg) => {
+                match decode_live_image(&msg, self.config.max_image_pixels, Some(&self.budget)) {
+                    Ok((img, charge)) => (img, None, charge, Some(msg)),
+                    Err(e) => {
+                        self.refuse(s, "image", format!("image refused: {e}"), stamp);
+                        return;
+                    }
+                }
+            }
+        };
+        if Self::take_injected(&self.injected_frame_panics) {
+            panic!("injected scoring panic");
+        }
+        drop(decode_span);
+        let decode_s = started.elapsed().as_secs_f64();
+        let intrinsics = frame_camera.or_else(|| {
+            s.camera.and_then(|k| {
+                // The open message's camera at the image's resolution.
+                (k.width as usize == image.width() && k.height as usize == image.height())
+                    .then_some(k)
+            })
+        });
+        // The image as received goes to the session's recording, if it has one.
+        {
+            let mut recorder = lock(&s.recorder);
+            if let (Some(r), Some(msg)) = (recorder.as_mut(), live.as_ref())
+                && let Err(e) = r.record(
+                    msg,
+                    frame
+                        .joints
+                        .as_ref()
+                        .map(|(n, p)| (n.as_slice(), p.as_slice())),
+                    intrinsics.as_ref(),
+                )
+            {
+                tracing::warn!(session = %s.id, "recording stopped: {e}");
+                // What was recorded stays readable.
+                if let Some(Err(e)) = recorder.take().map(super::recording::Recorder::finish) {
+                    tracing::warn!(session = %s.id, "the session's recording is lost: {e}");
+                }
+            }
+        }
+        let joints = frame.joints.as_ref().map(|(n, p)| JointInput {
+            names: n,
+            positions: p,
+        });
+        let result = tracing::debug_span!("score").in_scope(|| {
+            lock(&s.scorer).push(&FrameInput {
+                stamp_ns: stamp,
+                image: &image,
+                joints,
+                intrinsics: intrinsics.as_ref(),
+            })
+        });
+        match result {
+            Ok(Some(score)) => self.deliver(s, score, &image, frame.arrived, started, decode_s),
+            Ok(None) => {}
+            Err(e) => self.refuse(s, "frame", format!("frame refused: {e}"), stamp),
+        }
+    }
+
+    fn deliver(
+        &self,
+        s: &Arc<Session>,
+        score: FrameScore,
+        image: &GrayImage,
+        arrived: Instant,
+        started: Instant,
+        decode_s: f64,
+    ) {
+        let m = &self.metrics;
+        let profile = s.profile_name.as_str();
+        m.frames.with_label_values(&[profile]).inc();
+        s.frames_scored.fetch_add(1, Ordering::Relaxed);
+        let t = &score.timings;
+        // The pipeline's own stage timings, on the frame's span (the scorer's stages run
+        // inside its `score` span; the pipeline itself opens no spans).
+        let span = tracing::Span::current();
+        for (field, v) in [
+            ("kinematics_us", t.kinematics_us),
+            ("render_us", t.render_us),
+            ("flow_us", t.front_end.flow_us),
+            ("registration_us", t.front_end.registration_us),
+            ("camera_us", t.camera_us),
+            ("body_us", t.body_us),
+            ("model_us", t.model_us),
+            ("total_us", t.total_us),
+        ] {
+            span.record(field, v);
+        }
+        let us = |v: u64| v as f64 * 1e-6;
+        for (stage, v) in [
+            ("decode", decode_s),
+            ("kinematics", us(t.kinematics_us)),
+            ("render", us(t.render_us)),
+            ("flow", us(t.front_end.flow_us)),
+            ("registration", us(t.front_end.registration_us)),
+            ("camera", us(t.camera_us)),
+            ("body", us(t.body_us)),
+            ("model", us(t.model_us)),
+            ("total", us(t.total_us)),
+        ] {
+            m.stage_seconds.with_label_values(&[stage]).observe(v);
+        }
+        let current = s.profile();
+        if current.setup.model.is_some() {
+            m.inference_seconds
+                .with_label_values(&[&current.model_label])
+                .observe(us(t.model_us));
+        }
+        let detector = super::event::detector_of(&score);
+        if score.anomaly {
+            s.anomalies.fetch_add(1, Ordering::Relaxed);
+            let label = detector.map_or("flow", detector_name);
+            m.anomalies.with_label_values(&[profile, label]).inc();
+        }
+        let warm_event = {
+            let mut st = lock(&s.state);
+            st.latest = Some(LatestScore {
+                stamp_ns: score.stamp_ns,
+                score: score.score,
+                anomaly: score.anomaly,
+            });
+            let first = score.warming_up && !st.warm_reported;
+            if first {
+                st.warm_reported = true;
+            }
+            first
+        };
+        if warm_event {
+            self.send(
+                s,
+                event(
+                    &s.id,
+                    EventKind::WarmingUp,
+                    "the flow predictor is collecting its history: scores use e_c and e_b only",
+                    score.stamp_ns,
+                    0,
+                ),
+            );
+        }
+        // One clock reading for both, so compute time never exceeds latency.
+        let now = Instant::now();
+        let latency = now.saturating_duration_since(arrived).as_secs_f64();
+        m.latency_seconds
+            .with_label_values(&[profile])
+            .observe(latency);
+        // The live view: the frame shrunk, its anomaly map, the timeline point; then the
+        // alarm tracker (an alarm's start keeps the frame's thumbnail).
+        let thumb = live::thumbnail(image, live::THUMB_WIDTH);
+        let map = live::anomaly_map(
+            &score,
+            &current.setup.profile.thresholds(),
+            current.setup.profile.alarm_threshold(),
+        );
+        let alarm = self.track_alarm(s, &score, Some(&thumb));
+        let anomaly_map = if s.maps { map.clone() } else { None };
+        lock(&s.live).push(
+            live::FramePoint::of(&score, s.alarm_on(), latency),
+            Some(thumb),
+            map,
+        );
+        let scored = ScoredFrame {
+            score,
+            latency_s: latency,
+            compute_s: now.saturating_duration_since(started).as_secs_f64(),
+            anomaly_map,
+        };
+        self.send(s, Output::Score(scored));
+        if let Some(a) = alarm {
+            self.send(s, a);
+        }
+    }
+}
+
+/// The text of a caught panic's payload.
+fn panic_message(panic: &(dyn std::any::Any + Send)) -> String {
+    panic
+        .downcast_ref::<&str>()
+        .map(|s| s.to_string())
+        .or_else(|| panic.downcast_ref::<String>().cloned())
+        .unwrap_or_else(|| "a panic without a message".into())
+}
