@@ -5,6 +5,11 @@
 //! The filter comes from `RUST_LOG` when set, else from [`LogConfig::level`]; it applies
 //! to the log lines and to the exported spans alike. Stdout is left to commands that print
 //! results (JSON objects), so logs never mix with them.
+//!
+//! vamos is a workspace of crates, so its events carry the targets `vamos_vision`,
+//! `vamos_core::pipeline`, `vamos_server::session`, ... A filter written for the one
+//! `vamos` crate of earlier versions still works: [`workspace_directives`] turns `vamos`
+//! into every crate of the workspace and `vamos::session` into `vamos_server::session`.
 
 use serde::{Deserialize, Serialize};
 use tracing_subscriber::layer::SubscriberExt;
@@ -123,13 +128,66 @@ fn otlp_layer(
     Ok((layer, provider))
 }
 
+/// The crates of the workspace, whose events a directive for `vamos` covers.
+const WORKSPACE_CRATES: &[&str] = &[
+    "vamos",
+    "vamos_vision",
+    "vamos_robot",
+    "vamos_model",
+    "vamos_core",
+    "vamos_proto",
+    "vamos_server",
+    "vamos_client",
+];
+
+/// Where a top-level module of the `vamos` library lives (its re-exports), as a target.
+fn module_target(module: &str) -> Option<String> {
+    let krate = match module {
+        "vision" | "robot" | "model" | "proto" | "client" => {
+            return Some(format!("vamos_{module}"));
+        }
+        "episode" | "eval" | "pipeline" | "setup" => "vamos_core",
+        "api" | "config" | "service" | "session" | "store" | "telemetry" => "vamos_server",
+        _ => return None,
+    };
+    Some(format!("{krate}::{module}"))
+}
+
+/// A filter with its `vamos` targets spelled for the workspace: `vamos=debug` also names
+/// every `vamos_*` crate; `vamos::MODULE...` names the crate that holds MODULE (e.g.
+/// `vamos::session::hub=trace` -> `vamos_server::session::hub=trace`); other directives
+/// are kept as they are.
+pub fn workspace_directives(filter: &str) -> String {
+    let mut out: Vec<String> = Vec::new();
+    for directive in filter.split(',') {
+        let end = directive.find(['[', '=']).unwrap_or(directive.len());
+        let (target, rest) = directive.split_at(end);
+        let target = target.trim();
+        if target == "vamos" {
+            out.extend(WORKSPACE_CRATES.iter().map(|c| format!("{c}{rest}")));
+        } else if let Some(path) = target.strip_prefix("vamos::") {
+            let (module, tail) = path.split_once("::").map_or((path, ""), |(m, t)| (m, t));
+            match module_target(module) {
+                Some(t) if tail.is_empty() => out.push(format!("{t}{rest}")),
+                Some(t) => out.push(format!("{t}::{tail}{rest}")),
+                None => out.push(directive.to_string()),
+            }
+        } else {
+            out.push(directive.to_string());
+        }
+    }
+    out.join(",")
+}
+
 /// Installs the global subscriber. Call once, early in `main`, and keep the returned
 /// [`Telemetry`] until the command ends.
 pub fn init(config: &LogConfig) -> Result<Telemetry, TelemetryError> {
     let filter = || {
         match std::env::var("RUST_LOG") {
-            Ok(directive) if !directive.is_empty() => EnvFilter::try_new(&directive),
-            _ => EnvFilter::try_new(&config.level),
+            Ok(directive) if !directive.is_empty() => {
+                EnvFilter::try_new(workspace_directives(&directive))
+            }
+            _ => EnvFilter::try_new(workspace_directives(&config.level)),
         }
         .map_err(|e| TelemetryError::BadFilter {
             level: config.level.clone(),
@@ -168,4 +226,37 @@ pub fn init(config: &LogConfig) -> Result<Telemetry, TelemetryError> {
         #[cfg(feature = "otlp")]
         provider,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn filters_for_the_vamos_crate_cover_the_workspace() {
+        assert_eq!(workspace_directives("info"), "info");
+        assert_eq!(workspace_directives("warn,hyper=info"), "warn,hyper=info");
+        let all = workspace_directives("vamos=debug,warn");
+        assert!(all.ends_with(",warn"), "{all}");
+        for c in WORKSPACE_CRATES {
+            assert!(all.contains(&format!("{c}=debug")), "{all} lacks {c}");
+        }
+        assert_eq!(
+            workspace_directives("vamos::session::hub=trace,vamos::vision=debug"),
+            "vamos_server::session::hub=trace,vamos_vision=debug"
+        );
+        assert_eq!(
+            workspace_directives("vamos::pipeline[frame]=debug"),
+            "vamos_core::pipeline[frame]=debug"
+        );
+        assert_eq!(workspace_directives("vamos::cli=info"), "vamos::cli=info");
+        // Every rewritten filter is one EnvFilter accepts.
+        for f in [
+            "vamos=debug,warn",
+            "vamos::session::hub=trace",
+            "vamos::pipeline[frame]=debug",
+        ] {
+            EnvFilter::try_new(workspace_directives(f)).unwrap();
+        }
+    }
 }

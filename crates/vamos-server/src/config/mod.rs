@@ -215,7 +215,7 @@ mod tests {
 
     #[test]
     fn the_shipped_example_lists_every_default() {
-        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("deploy/vamos.example.toml");
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../deploy/vamos.example.toml");
         let s = Settings::load_with_env(Some(&path), env(&[])).unwrap();
         assert_eq!(s, Settings::default());
         // Every key of the defaults appears in the example (so it documents them all).

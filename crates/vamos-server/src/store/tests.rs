@@ -9,7 +9,7 @@ use vamos_robot::{CameraSpec, Robot, RobotConfig};
 
 fn fixture(rel: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("tests/fixtures")
+        .join("../../tests/fixtures")
         .join(rel)
 }
 
