@@ -2,9 +2,13 @@
 //! joint states say (nominal) or move while the joint states stand still (anomaly).
 
 use super::*;
+use crate::eval::Detector;
 use vamos_robot::camera_motion::{CameraMotionParams, expected_camera_motion};
+use vamos_robot::camera_motion::{Depth, expected_image_flow};
 use vamos_robot::render::RenderBackend;
 use vamos_robot::{CameraConvention, RobotConfig};
+use vamos_robot::{Intrinsics, Robot};
+use vamos_vision::GrayImage;
 use vamos_vision::synthetic::Texture;
 
 const W: usize = 160;

@@ -28,197 +28,29 @@
 //! leaves the scorer as it was for the stages that had not run yet; the next good frame
 //! goes on from the last good one.
 
-use super::frames::{FrameProcessor, FrontEndTimings, PipelineError, ProcessedFrame};
-use super::residual::{self, BodyError};
+use super::frames::{FrameProcessor, ProcessedFrame};
 use super::{DetectorSwitches, PipelineConfig};
-use crate::eval::{Components, Detector, Pooling, Thresholds, Window, fuse_frame, pool_cells};
+use crate::eval::{Components, Thresholds, Window, fuse_frame};
 use nalgebra::Isometry3;
-use serde::Serialize;
+
 use std::sync::Arc;
 use std::time::Instant;
+use vamos_model::FlowModel;
 use vamos_model::predictor::{Prediction, Predictor, PredictorParams};
-use vamos_model::{FlowModel, ModelError};
-use vamos_robot::camera_motion::{
-    CameraMotionError, Depth, camera_motion_error, expected_camera_motion, expected_image_flow,
-    similarity_flow,
-};
-use vamos_robot::render::{
-    BodyRenderer, RenderConfig, RenderError, RenderFrame, RenderOutput, RobotView,
-};
-use vamos_robot::{
-    BodyMotionError, CameraMount, Intrinsics, IntrinsicsError, JointMapper, Robot, RobotError,
-};
+use vamos_robot::JointMapper;
+use vamos_robot::render::{BodyRenderer, RenderConfig, RenderFrame, RenderOutput, RobotView};
+use vamos_vision::FlowField;
 use vamos_vision::flow::FlowParams;
 use vamos_vision::preprocess::NetworkInputParams;
 use vamos_vision::registration::RegistrationParams;
-use vamos_vision::{FlowField, GrayImage};
 
-/// Errors of one pushed frame (the scorer stays usable) or of building a scorer.
-#[derive(Debug, thiserror::Error)]
-pub enum ScorerError {
-    /// The visual front end failed.
-    #[error(transparent)]
-    Frame(#[from] PipelineError),
-    /// Joint mapping or forward kinematics refused the joint states.
-    #[error("robot: {0}")]
-    Robot(#[from] RobotError),
-    /// The kinematics gave no pose for the camera's link.
-    #[error("robot: the camera link (link {link}) has no pose among the {poses} link poses")]
-    CameraPose {
-        /// The camera's link index.
-        link: usize,
-        /// Link poses the kinematics returned.
-        poses: usize,
-    },
-    /// The intrinsics cannot be scaled to the processing resolution.
-    #[error("robot: camera intrinsics at {width}x{height}: {source}")]
-    Intrinsics {
-        /// Processing width, pixels.
-        width: usize,
-        /// Processing height, pixels.
-        height: usize,
-        /// Why.
-        #[source]
-        source: IntrinsicsError,
-    },
-    /// The body renderer could not be made, prepared or run.
-    #[error("robot: render: {0}")]
-    Render(#[from] RenderError),
-    /// The expected camera (or static scene) motion from two camera poses.
-    #[error("robot: camera motion: {0}")]
-    CameraMotion(#[from] CameraMotionError),
-    /// The median body-motion error `e_b`.
-    #[error("robot: body motion: {0}")]
-    BodyMotion(#[from] BodyMotionError),
-    /// The flow predictor failed.
-    #[error("flow predictor: {0}")]
-    Model(#[from] ModelError),
-    /// Image stamps must increase.
-    #[error(
-        "image {index} has stamp {stamp_ns} ns, not after the previous image's {previous_ns} ns"
-    )]
-    StampNotIncreasing {
-        /// Index of the refused image in the stream.
-        index: u64,
-        /// Its stamp.
-        stamp_ns: i64,
-        /// The last accepted stamp.
-        previous_ns: i64,
-    },
-    /// The configuration cannot work (e.g. a masked variant without a robot).
-    #[error("pipeline configuration: {0}")]
-    Config(String),
-}
+mod detectors;
+mod types;
 
-/// The robot a scorer renders and moves: its description and where the camera sits.
-#[derive(Clone)]
-pub struct RobotSetup {
-    /// The robot.
-    pub robot: Arc<Robot>,
-    /// The camera's link and optical frame.
-    pub mount: CameraMount,
-    /// The profile's intrinsics, at any resolution (scaled to the processing resolution);
-    /// a frame's own camera info wins over it.
-    pub intrinsics: Option<Intrinsics>,
-}
+pub use types::{FrameInput, FrameScore, JointInput, RobotSetup, ScorerError, StageTimings};
 
-/// Joint states of one frame (already interpolated to the image stamp).
-#[derive(Debug, Clone, Copy)]
-pub struct JointInput<'a> {
-    /// Joint names.
-    pub names: &'a [String],
-    /// Positions, radians or metres, parallel to `names`.
-    pub positions: &'a [f64],
-}
-
-/// One image of the stream.
-#[derive(Debug, Clone, Copy)]
-pub struct FrameInput<'a> {
-    /// Image stamp, nanoseconds (must increase).
-    pub stamp_ns: i64,
-    /// Gray image 0..255 at any resolution (resized to the processing resolution).
-    pub image: &'a GrayImage,
-    /// Joint states at the image stamp, if any.
-    pub joints: Option<JointInput<'a>>,
-    /// Intrinsics from the stream's camera info, at the image's resolution.
-    pub intrinsics: Option<&'a Intrinsics>,
-}
-
-/// Wall time per stage of one frame, microseconds.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
-pub struct StageTimings {
-    /// Forward kinematics and joint mapping.
-    pub kinematics_us: u64,
-    /// Robot render (mask, expected body flow).
-    pub render_us: u64,
-    /// The visual front end (resize, registration, flow, network input).
-    pub front_end: FrontEndTimings,
-    /// Expected camera motion and `e_c`.
-    pub camera_us: u64,
-    /// `e_b`.
-    pub body_us: u64,
-    /// `e_r` (expected image flow, residual cells, pooling).
-    pub scene_us: u64,
-    /// The flow predictor (encoder + head).
-    pub model_us: u64,
-    /// The whole push.
-    pub total_us: u64,
-}
-
-/// The score of one processed frame.
-#[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct FrameScore {
-    /// Index of the image in the stream (0-based, counting skipped images).
-    pub index: u64,
-    /// Index among processed frames.
-    pub frame: u64,
-    /// Image stamp, nanoseconds.
-    pub stamp_ns: i64,
-    /// The fused score (see [`crate::eval::fuse`]).
-    pub score: f64,
-    /// Camera-motion error, pixels.
-    pub e_c: Option<f64>,
-    /// Body-motion error, pixels.
-    pub e_b: Option<f64>,
-    /// Flow-prediction error (mean squared error in network-input units).
-    pub e_o: Option<f64>,
-    /// Scene-motion residual: the pooled, nominal-normalised residual of the static
-    /// scene (raw pixels before calibration).
-    pub e_r: Option<f64>,
-    /// Kinematic novelty: distance from the robot's state to the nearest nominal state, in
-    /// nominal joint ranges (metres for `state = "links"`; none before calibration).
-    pub e_k: Option<f64>,
-    /// The alarm: `score` reached the alarm threshold.
-    pub anomaly: bool,
-    /// Which detector's threshold the frame crossed, if any.
-    pub triggered: Option<Detector>,
-    /// The predictor lacks `A + B` frames of history (scored from `e_c` and `e_b` only).
-    pub warming_up: bool,
-    /// The past offset `n` of the best prediction.
-    pub best_offset: Option<usize>,
-    /// Registration confidence (peak-energy share) of the observed camera motion.
-    pub registration_confidence: Option<f32>,
-    /// Robot pixels in the body mask.
-    pub body_pixels: usize,
-    /// Per-stage timings.
-    pub timings: StageTimings,
-    /// `[S, S]` squared prediction error of the best prediction (when heatmaps are on).
-    #[serde(skip)]
-    pub heatmap: Option<Vec<f32>>,
-    /// The scene residual per cell, pixels, before normalisation (what calibration fits
-    /// its per-cell statistics on); row-major, `scene_grid` cells.
-    #[serde(skip)]
-    pub scene_cells: Option<Vec<f32>>,
-    /// Seconds since the stream's first image (the phase the scene statistics use).
-    #[serde(skip)]
-    pub phase_s: f64,
-    /// `(columns, rows)` of `scene_cells`.
-    #[serde(skip)]
-    pub scene_grid: (usize, usize),
-    /// The robot's state (what calibration keeps as the nominal states of `e_k`).
-    #[serde(skip)]
-    pub kinematic_state: Option<Vec<f32>>,
-}
+/// A processed frame's robot pose: `base_from_link` of every link and `camera_from_base`.
+type Pose = (Vec<Isometry3<f64>>, Isometry3<f64>);
 
 /// The state that moves the robot and renders it.
 struct BodyState {
@@ -618,110 +450,26 @@ impl Scorer {
         timings.front_end = processed.timings;
 
         let t0 = Instant::now();
-        let e_c = match (&pose, &previous_pose, &intrinsics) {
-            (Some((_, current)), Some((_, previous)), Some(k)) if self.config.detectors.camera => {
-                let expected = expected_camera_motion(
-                    previous,
-                    current,
-                    k,
-                    Depth::Assumed,
-                    &self.config.camera_motion,
-                )?;
-                let e = camera_motion_error(
-                    &expected.transform,
-                    &processed.registration.transform,
-                    &self.config.camera_error,
-                );
-                // A registration that failed numerically must alarm, not hide.
-                Some(if e.is_nan() { f64::INFINITY } else { e })
-            }
-            _ => None,
-        };
+        let e_c = self.camera_error(
+            pose.as_ref(),
+            previous_pose.as_ref(),
+            intrinsics.as_ref(),
+            &processed,
+        )?;
         timings.camera_us = micros(t0);
         let t0 = Instant::now();
-        let e_b = match (&self.body, &previous_pose, &intrinsics) {
-            (Some(body), Some(_), Some(_)) if self.config.detectors.body => {
-                match self.config.residual.body_error {
-                    BodyError::Median => {
-                        let m = vamos_robot::body_motion::body_motion_error(
-                            &body.out.flow,
-                            &processed.flow,
-                            &body.out.mask,
-                        )?;
-                        m.body_visible.then_some(m.e_b_px)
-                    }
-                    BodyError::Quantile => residual::body_residual(
-                        &body.out.flow,
-                        &body.out.mask,
-                        &processed.flow,
-                        self.config.residual.body_quantile,
-                        self.config.residual.moving_px,
-                    ),
-                }
-            }
-            _ => None,
-        };
+        let e_b = self.body_error(previous_pose.is_some() && intrinsics.is_some(), &processed)?;
         timings.body_us = micros(t0);
 
         let t0 = Instant::now();
-        let (e_r, scene_cells, scene_grid) = if self.config.detectors.scene {
-            // The expected motion of the static scene: from the camera poses when both
-            // frames have one, else the registered similarity.
-            match (&pose, &previous_pose, &intrinsics) {
-                (Some((_, current)), Some((_, previous)), Some(k)) => expected_image_flow(
-                    previous,
-                    current,
-                    k,
-                    self.config.camera_motion.assumed_depth_m,
-                    &mut self.expected_flow,
-                )?,
-                _ => similarity_flow(
-                    &processed.registration.transform,
-                    w,
-                    h,
-                    &mut self.expected_flow,
-                ),
-            }
-            let (current_mask, motion_px) = match (&self.body, &intrinsics) {
-                (Some(body), Some(_)) => (
-                    body.out.mask.as_slice(),
-                    residual::body_motion_px(&body.out.flow, &body.out.mask),
-                ),
-                _ => (&[][..], 0.0),
-            };
-            let margin = self.config.residual.margin_px
-                + (self.config.residual.motion_margin * motion_px)
-                    .ceil()
-                    .min(64.0) as usize;
-            let exclude = residual::grow_union(current_mask, &previous_mask, w, h, margin);
-            let cells = residual::scene_cells(
-                &processed.flow,
-                &self.expected_flow,
-                &exclude,
-                self.config.residual.cell_px,
-                self.config
-                    .residual
-                    .normal_flow
-                    .then_some(&processed.previous_image),
-            );
-            let (columns, rows) = residual::cell_grid(w, h, self.config.residual.cell_px);
-            let e_r = pool_cells(
-                &cells,
-                columns,
-                rows,
-                self.thresholds
-                    .scene
-                    .as_ref()
-                    .map(|s| s.at(Some(phase_s(first_ns, input.stamp_ns)))),
-                Pooling {
-                    top_fraction: self.config.residual.top_fraction,
-                },
-                None,
-            );
-            (e_r, Some(cells), (columns, rows))
-        } else {
-            (None, None, (0, 0))
-        };
+        let (e_r, scene_cells, scene_grid) = self.scene_residual(
+            pose.as_ref(),
+            previous_pose.as_ref(),
+            intrinsics.as_ref(),
+            &previous_mask,
+            &processed,
+            phase_s(first_ns, input.stamp_ns),
+        )?;
         timings.scene_us = micros(t0);
 
         let t0 = Instant::now();
@@ -829,5 +577,4 @@ fn micros(start: Instant) -> u64 {
 }
 
 #[cfg(test)]
-#[path = "scorer_tests.rs"]
 mod tests;
