@@ -19,6 +19,12 @@ use super::{ModelError, bundle::Manifest};
 use std::collections::VecDeque;
 use std::sync::Arc;
 
+mod batch;
+mod naive;
+
+pub use batch::{BatchItem, push_batch};
+pub use naive::naive_score;
+
 /// Largest past offset `A + B`, processed frames (100 s at 10 Hz): the predictor keeps the
 /// encoder outputs of that many past frames. Model bundles and pipeline overrides come
 /// from outside (uploads, stored profiles), so a value beyond it is refused rather than
@@ -563,164 +569,10 @@ impl Predictor {
     }
 }
 
-/// One session's frame in a [`push_batch`] call.
-#[derive(Debug)]
-pub struct BatchItem<'a> {
-    /// The session's predictor.
-    pub predictor: &'a mut Predictor,
-    /// `O_t`, `[2, S, S]`.
-    pub input: &'a [f32],
-    /// Valid pixels, `[S, S]`, or `None` for all.
-    pub mask: Option<&'a [bool]>,
-}
-
 #[derive(Debug)]
 struct Prepared {
     offsets: Vec<usize>,
     rows: usize,
     rng_after: NormalRng,
     valid_px: usize,
-}
-
-/// [`Predictor::push`] for several sessions at once: one encoder call on all new frames
-/// and one head call on all sessions' rows, for predictors that share one model. Results
-/// are equal to pushing each item alone. An item with bad input gets its error and is left
-/// out; a failed network call fails every remaining item (states unchanged).
-pub fn push_batch(items: &mut [BatchItem<'_>]) -> Vec<Result<Prediction, ModelError>> {
-    let mut results: Vec<Option<Result<Prediction, ModelError>>> =
-        (0..items.len()).map(|_| None).collect();
-    let Some(model) = items.first().map(|i| i.predictor.model.clone()) else {
-        return Vec::new();
-    };
-    let dims = model.dims();
-    let mut prepared = Vec::new();
-    let (mut features, mut z, mut inputs) = (Vec::new(), Vec::new(), Vec::new());
-    let mut rows = 0;
-    for (k, item) in items.iter_mut().enumerate() {
-        if !Arc::ptr_eq(&item.predictor.model, &model) {
-            results[k] = Some(Err(ModelError::InvalidParams {
-                field: "predictor",
-                reason: "every predictor of a batch must use the same model".into(),
-            }));
-            continue;
-        }
-        match item.predictor.prepare(item.input, item.mask) {
-            Ok(p) => {
-                features.extend_from_slice(&item.predictor.feature_batch);
-                z.extend_from_slice(&item.predictor.z_batch);
-                inputs.extend_from_slice(item.input);
-                rows += p.rows;
-                prepared.push((k, p));
-            }
-            Err(e) => results[k] = Some(Err(e)),
-        }
-    }
-    let run = || -> Result<(Vec<f32>, super::network::EncoderOutput), ModelError> {
-        let mut predictions = Vec::new();
-        if rows > 0 && model.native_head().is_none() {
-            model.predict_into(&features, &z, rows, &mut predictions)?;
-        }
-        let enc = model.encode(&inputs, prepared.len())?;
-        Ok((predictions, enc))
-    };
-    if prepared.is_empty() {
-        return results
-            .into_iter()
-            .map(|r| {
-                r.unwrap_or(Err(ModelError::InvalidParams {
-                    field: "batch",
-                    reason: "no result".into(),
-                }))
-            })
-            .collect();
-    }
-    match run() {
-        Ok((predictions, enc)) => {
-            let (fl, fe, l) = (dims.flow_len(), dims.features_len(), dims.latent);
-            let mut row0 = 0;
-            for (j, (k, p)) in prepared.into_iter().enumerate() {
-                let item = &mut items[k];
-                let predictor = &mut *item.predictor;
-                let rows_k = p.rows;
-                let (features, mu, log_sigma) = (
-                    enc.features[j * fe..(j + 1) * fe].to_vec(),
-                    enc.prior_mu[j * l..(j + 1) * l].to_vec(),
-                    enc.prior_log_sigma[j * l..(j + 1) * l].to_vec(),
-                );
-                let out = if let Some(head) = model.native_head() {
-                    predictor.finish_native(head, p, item.input, item.mask, features, mu, log_sigma)
-                } else {
-                    let pred = &predictions[row0 * fl..(row0 + rows_k) * fl];
-                    row0 += rows_k;
-                    let best = predictor.best_of(&p, pred, item.input, item.mask);
-                    predictor.finish(p, item.input, item.mask, best, features, mu, log_sigma)
-                };
-                results[k] = Some(Ok(out));
-            }
-        }
-        Err(e) => {
-            let msg = e.to_string();
-            for (k, _) in prepared {
-                results[k] = Some(Err(ModelError::Ort {
-                    context: "batched inference",
-                    reason: msg.clone(),
-                }));
-            }
-        }
-    }
-    results
-        .into_iter()
-        .map(|r| {
-            r.unwrap_or(Err(ModelError::InvalidParams {
-                field: "batch",
-                reason: "no result".into(),
-            }))
-        })
-        .collect()
-}
-
-/// The straightforward computation, for reference and benchmarks: for each offset the
-/// encoder runs again on the past frame and the head on that offset's `M` samples.
-///
-/// `past` holds `(n, O_{t-n})` in ascending `n`; draws from `rng` in the same order as
-/// [`Predictor::push`], so with the same stream both give the same `e_o`. Returns `None`
-/// when `past` is empty or no pixel is valid.
-pub fn naive_score(
-    model: &FlowModel,
-    past: &[(usize, &[f32])],
-    current: &[f32],
-    mask: Option<&[bool]>,
-    samples: usize,
-    rng: &mut NormalRng,
-) -> Result<Option<FlowScore>, ModelError> {
-    let dims = model.dims();
-    let valid_px = check_input(dims, current, mask)?;
-    if past.is_empty() || valid_px == 0 || samples == 0 {
-        return Ok(None);
-    }
-    let mut best: Option<(f64, usize, usize, Vec<f32>)> = None;
-    for &(n, flow) in past {
-        check_input(dims, flow, None)?;
-        let enc = model.encode(flow, 1)?;
-        let mut features = Vec::with_capacity(samples * enc.features.len());
-        for _ in 0..samples {
-            features.extend_from_slice(&enc.features);
-        }
-        let mut z = Vec::with_capacity(samples * dims.latent);
-        draw(rng, &enc.prior_mu, &enc.prior_log_sigma, samples, &mut z);
-        let pred = model.predict(&features, &z, samples)?;
-        let (row, mse) = best_row(dims, &pred, samples, current, mask, valid_px);
-        if best.as_ref().is_none_or(|b| mse < b.0) {
-            let fl = dims.flow_len();
-            best = Some((mse, n, row, pred[row * fl..(row + 1) * fl].to_vec()));
-        }
-    }
-    Ok(best.map(|(e_o, n, sample, pred)| FlowScore {
-        frame: 0,
-        e_o,
-        n,
-        sample,
-        error_map: error_map(dims, &pred, current, mask),
-        valid_px,
-    }))
 }
