@@ -38,10 +38,11 @@ async fn wait_for(api: &Api, path: &str, done: impl Fn(&Value) -> bool) -> Value
         if status == StatusCode::OK && done(&v) {
             return v;
         }
-        assert!(
-            Instant::now() < deadline,
-            "GET {path} never got there: {status} {v}"
-        );
+        if Instant::now() >= deadline {
+            // The replica's view of the shared store says why (its last error).
+            let store = api.call(Method::GET, "/v1/store", None).await.1;
+            panic!("GET {path} never got there: {status} {v}\nGET /v1/store: {store}");
+        }
         tokio::time::sleep(Duration::from_millis(50)).await;
     }
 }

@@ -59,10 +59,22 @@ impl MirrorChange {
 
 /// Hashes of files by path, trusted while size and modification time are unchanged (so
 /// a writer that publishes every second hashes each model once).
+///
+/// A hash is kept only for a file whose modification time was at least
+/// [`RACY_WINDOW`] in the past when it was read. File systems stamp times with a coarse
+/// clock (a kernel tick, or a whole second on some), so a file replaced moments after it
+/// was hashed, by content of the same size (an index whose `"active": 1` became
+/// `"active": 2`), can carry the very same time: trusting that entry would hide the
+/// change for good. Such "racily clean" files are hashed again on the next listing, as
+/// git does with its index.
 #[derive(Debug, Default)]
 pub(crate) struct HashCache {
     entries: HashMap<PathBuf, (u64, SystemTime, String)>,
 }
+
+/// How old a file's modification time must be for its hash to be cached: more than the
+/// coarsest time stamp of common file systems (1 s; 2 s on FAT).
+const RACY_WINDOW: std::time::Duration = std::time::Duration::from_secs(3);
 
 /// Refuses a published path that is not `<models|robots|profiles>/<name>/<file>` with
 /// store names: a shared store's listing never reaches outside the data directory.
@@ -127,6 +139,7 @@ impl Store {
             .unwrap_or_else(std::sync::PoisonError::into_inner);
         let mut seen = HashMap::new();
         let mut out = Vec::new();
+        let listed_at = SystemTime::now();
         for kind in PUBLISHED_DIRS {
             for (name, obj, is_dir) in list_dir(&self.inner.dir.join(kind))? {
                 if !is_dir {
@@ -144,7 +157,12 @@ impl Store {
                         Some((size, t, sha)) if *size == meta.len() && *t == mtime => sha.clone(),
                         _ => files::hash_file(&path)?.0,
                     };
-                    seen.insert(path, (meta.len(), mtime, sha256.clone()));
+                    let settled = listed_at
+                        .duration_since(mtime)
+                        .is_ok_and(|age| age >= RACY_WINDOW);
+                    if settled {
+                        seen.insert(path, (meta.len(), mtime, sha256.clone()));
+                    }
                     out.push(StoredFile {
                         path: rel,
                         sha256,

@@ -1097,6 +1097,39 @@ fn stage_from(from: &Store, to: &Store) -> (Vec<StoredFile>, HashMap<String, Pat
     (files, staged)
 }
 
+/// The fleet test that lost a publication: `index.json` was replaced by content of the
+/// same size (`"active": 1` -> `2`) within one tick of the file system's clock, so size
+/// and modification time matched the cached hash, and the writer never saw the change.
+#[test]
+fn a_file_replaced_within_one_clock_tick_is_hashed_again() {
+    let dir = tempfile::tempdir().unwrap();
+    let store = open(dir.path());
+    commit_model(&store, "m", b"v1");
+    commit_model(&store, "m", b"v2");
+    let index = dir.path().join("models/m/index.json");
+    let sha_of = |files: &[StoredFile]| {
+        files
+            .iter()
+            .find(|f| f.path == "models/m/index.json")
+            .map(|f| (f.sha256.clone(), f.size))
+            .unwrap()
+    };
+    let before = sha_of(&store.stored_files().unwrap());
+    let stamp = std::fs::metadata(&index).unwrap().modified().unwrap();
+
+    store.set_active_model("m", 2).unwrap();
+    std::fs::File::options()
+        .write(true)
+        .open(&index)
+        .unwrap()
+        .set_modified(stamp)
+        .unwrap();
+    let after = sha_of(&store.stored_files().unwrap());
+    assert_eq!(after.1, before.1, "the test needs content of the same size");
+    assert_ne!(after.0, before.0, "a stale hash was listed");
+    assert_eq!(after.0, files::hash_file(&index).unwrap().0);
+}
+
 #[test]
 fn a_mirror_holds_exactly_what_was_published_and_refuses_changes() {
     let (a, b) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
