@@ -408,6 +408,47 @@ async fn stored_profiles_serve_sessions_swap_models_calibrate_and_survive_a_rest
     assert_eq!(p["profile"]["thresholds"]["e_c"], cal["thresholds"]["e_c"]);
     let jobs = api.get("/v1/jobs").await;
     assert_eq!(jobs["jobs"].as_array().unwrap().len(), 1);
+    // Lists give the sizes of the bulky statistics (the nominal robot states, the
+    // scene's per-cell statistics); the profile and the job themselves give them whole.
+    let whole = &cal["thresholds"]["kinematics"];
+    let count = whole["count"].as_u64().unwrap();
+    assert!(
+        count > 0 && whole["codes"].as_str().unwrap().len() > 100,
+        "{whole}"
+    );
+    assert!(cal["thresholds"]["scene"]["maps"].as_u64().unwrap() > 0);
+    assert_eq!(
+        api.get(&format!("/v1/jobs/{}", job["id"])).await["calibration"],
+        *cal
+    );
+    let listed = api
+        .get("/v1/profiles")
+        .await
+        .get("profiles")
+        .and_then(|l| {
+            l.as_array()?
+                .iter()
+                .find(|p| p["name"] == "arm-store")
+                .cloned()
+        })
+        .unwrap();
+    for thresholds in [
+        &jobs["jobs"][0]["calibration"]["thresholds"],
+        &listed["profile"]["calibration"]["thresholds"],
+        &listed["profile"]["thresholds"],
+    ] {
+        let k = &thresholds["kinematics"];
+        assert_eq!(
+            (k["count"].as_u64(), &k["dims"]),
+            (Some(count), &whole["dims"]),
+            "{k}"
+        );
+        assert!(k.get("codes").is_none() && k["detail"].is_string(), "{k}");
+        let scene = &thresholds["scene"];
+        assert_eq!(scene["maps"], cal["thresholds"]["scene"]["maps"], "{scene}");
+        assert!(scene.get("location").is_none(), "{scene}");
+        assert_eq!(thresholds["e_c"], cal["thresholds"]["e_c"]);
+    }
 
     // A restart on the same data directory keeps everything.
     server.shutdown().await.unwrap();

@@ -236,8 +236,17 @@ pub(super) async fn start_calibration(
     Ok((StatusCode::ACCEPTED, Json(json!({ "job": id }))).into_response())
 }
 
-pub(super) async fn list_jobs(State(s): State<Arc<Shared>>) -> Response {
-    Json(json!({ "jobs": s.jobs.list() })).into_response()
+/// `GET /v1/jobs`: every job, oldest first, the calibrations' bulky statistics
+/// summarised (`GET /v1/jobs/{id}` gives them whole).
+pub(super) async fn list_jobs(State(s): State<Arc<Shared>>) -> Result<Response, ApiError> {
+    let jobs = s
+        .jobs
+        .list()
+        .into_iter()
+        .map(|job| serde_json::to_value(job).map(super::profiles::summarised))
+        .collect::<Result<Vec<_>, _>>()
+        .map_err(|e| ApiError::internal(format!("jobs: {e}")))?;
+    Ok(Json(json!({ "jobs": jobs })).into_response())
 }
 
 pub(super) fn job_id(id: &str) -> Result<u64, ApiError> {

@@ -25,6 +25,44 @@ pub(super) fn file_profile_json(p: &LoadedProfile) -> serde_json::Value {
     })
 }
 
+/// What a list leaves out of a calibration: the scene residual's per-cell statistics
+/// (tens of kB) and the kinematic novelty's nominal states (up to about 1 MB) become
+/// their sizes. `GET /v1/profiles/{name}` and `GET /v1/jobs/{id}` give them whole.
+const LEFT_OUT: &str = "left out of lists; GET the profile or job itself for the values";
+
+/// Replaces the bulky parts of a serialised `Thresholds` by their sizes (see [`LEFT_OUT`]).
+fn summarise_thresholds(thresholds: &mut serde_json::Value) {
+    for (key, sizes) in [
+        ("scene", &["columns", "rows", "maps"][..]),
+        ("kinematics", &["dims", "count"][..]),
+    ] {
+        if let Some(part) = thresholds.get_mut(key).filter(|v| v.is_object()) {
+            let mut summary = serde_json::Map::new();
+            for size in sizes {
+                if let Some(n) = part.get(*size) {
+                    summary.insert((*size).into(), n.clone());
+                }
+            }
+            if let Some(windows) = part.pointer("/phases/location").and_then(|l| l.as_array()) {
+                summary.insert("phase_windows".into(), windows.len().into());
+            }
+            summary.insert("detail".into(), LEFT_OUT.into());
+            *part = summary.into();
+        }
+    }
+}
+
+/// The list form of a serialised object holding `thresholds` and/or
+/// `calibration.thresholds` (a stored profile, a job): bulky statistics summarised.
+pub(super) fn summarised(mut v: serde_json::Value) -> serde_json::Value {
+    for path in ["/thresholds", "/calibration/thresholds"] {
+        if let Some(t) = v.pointer_mut(path) {
+            summarise_thresholds(t);
+        }
+    }
+    v
+}
+
 pub(super) fn stored_profile_json(s: &Shared, info: &ProfileInfo) -> serde_json::Value {
     let model = match s.profiles.get_cached(&info.name) {
         Some(p) => p.model_label.clone(),
@@ -47,7 +85,8 @@ pub(super) fn stored_profile_json(s: &Shared, info: &ProfileInfo) -> serde_json:
     })
 }
 
-/// `GET /v1/profiles`: the profile files, then the stored profiles they do not shadow.
+/// `GET /v1/profiles`: the profile files, then the stored profiles they do not shadow
+/// (their bulky calibration statistics summarised, [`summarised`]).
 pub(super) async fn profiles(State(s): State<Arc<Shared>>) -> Result<Response, ApiError> {
     let mut list: Vec<_> = s
         .profiles
@@ -63,7 +102,13 @@ pub(super) async fn profiles(State(s): State<Arc<Shared>>) -> Result<Response, A
         stored
             .iter()
             .filter(|p| !s.profiles.is_file(&p.name))
-            .map(|p| stored_profile_json(&s, p)),
+            .map(|p| {
+                let mut v = stored_profile_json(&s, p);
+                if let Some(profile) = v.get_mut("profile") {
+                    *profile = summarised(profile.take());
+                }
+                v
+            }),
     );
     Ok(Json(json!({ "profiles": list })).into_response())
 }
