@@ -441,6 +441,7 @@ mod simd {
                         _mm256_cvttps_epi32(_mm256_sub_ps(fx, lo)),
                     );
                     let mut bases = [0i32; 8];
+                    // SAFETY: eight i32 lanes into the local array of eight.
                     unsafe { _mm256_storeu_si256(bases.as_mut_ptr().cast(), base) };
                     let taps = packed.as_ptr().cast::<f32>();
                     let mut px = [_mm_setzero_ps(); 8];
@@ -452,6 +453,7 @@ mod simd {
                             // SAFETY: the inside test puts the 4x4 taps, `base + j * w +
                             // 0..4` for j in 0..4, inside the `w * h` packed pixels.
                             let row = unsafe { taps.add((bases[l] as usize + j * w) * 4) };
+                            // SAFETY: 16 floats from `row`: the 4 taps of 4 floats above.
                             let (a, b) =
                                 unsafe { (_mm256_loadu_ps(row), _mm256_loadu_ps(row.add(8))) };
                             let r = _mm256_fmadd_ps(b, w23, _mm256_mul_ps(a, w01));
@@ -476,6 +478,7 @@ mod simd {
                     let gg = _mm256_fmadd_ps(gy, gy, _mm256_mul_ps(gx, gx));
                     let r =
                         _mm256_sub_ps(_mm256_fnmadd_ps(gy, u2, _mm256_fnmadd_ps(gx, u1, i1)), i0);
+                    // SAFETY: each slice `[k..k + 8]` is bounds-checked to eight floats.
                     unsafe {
                         _mm256_storeu_ps(ix[k..k + 8].as_mut_ptr(), gx);
                         _mm256_storeu_ps(iy[k..k + 8].as_mut_ptr(), gy);

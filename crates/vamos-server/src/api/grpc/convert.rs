@@ -57,8 +57,20 @@ pub fn detector_code(d: Option<Detector>) -> proto::Detector {
     }
 }
 
-/// A scored frame as `vamos.v1.FrameScore`.
+/// A scored frame as `vamos.v1.FrameScore`, its anomaly map as PNG.
 pub fn frame_score(f: &ScoredFrame) -> proto::FrameScore {
+    proto::FrameScore {
+        anomaly_map: f
+            .anomaly_map
+            .as_ref()
+            .map(crate::session::live::Thumb::to_png)
+            .unwrap_or_default(),
+        ..frame_score_fields(f)
+    }
+}
+
+/// [`frame_score`] without the anomaly map (no PNG to encode): what REST prints.
+pub fn frame_score_fields(f: &ScoredFrame) -> proto::FrameScore {
     let s = &f.score;
     proto::FrameScore {
         stamp_ns: s.stamp_ns,
@@ -75,11 +87,7 @@ pub fn frame_score(f: &ScoredFrame) -> proto::FrameScore {
         warming_up: s.warming_up,
         latency_s: f.latency_s,
         compute_s: f.compute_s,
-        anomaly_map: f
-            .anomaly_map
-            .as_ref()
-            .map(crate::session::live::Thumb::to_png)
-            .unwrap_or_default(),
+        anomaly_map: Vec::new(),
     }
 }
 

@@ -4,9 +4,9 @@
 
 use super::body::{content_length, file_body};
 use super::errors::ApiError;
+use crate::api::grpc::convert::frame_score_fields;
 use crate::api::state::Shared;
 use crate::session::episode::score_episode as score;
-use crate::session::event::detector_name;
 use crate::session::upload::EpisodeBuffer;
 use crate::session::{ScoredFrame, SessionError};
 use axum::Json;
@@ -30,25 +30,10 @@ pub(super) struct ScoreQuery {
     name: Option<String>,
 }
 
-/// A frame's score as the JSON object the REST API prints (the fields and names of
-/// `vamos stream`'s output).
+/// A frame's score as the JSON object the REST API prints: the gRPC answer's fields and
+/// names, as `vamos stream` prints them ([`vamos_proto::score_json`]).
 pub fn score_json(f: &ScoredFrame) -> serde_json::Value {
-    let s = &f.score;
-    json!({
-        "stamp_ns": s.stamp_ns,
-        "index": s.index,
-        "frame": s.frame,
-        "score": s.score,
-        "e_c": s.e_c,
-        "e_b": s.e_b,
-        "e_o": s.e_o,
-        "e_r": s.e_r,
-        "e_k": s.e_k,
-        "anomaly": s.anomaly,
-        "detector": f.detector().map(detector_name),
-        "warming_up": s.warming_up,
-        "compute_s": f.compute_s,
-    })
+    vamos_proto::score_json(&frame_score_fields(f))
 }
 
 /// `POST /v1/episodes:score?profile=P[&name=N]` with an MCAP body: the scores as JSON
@@ -201,57 +186,4 @@ fn scored_bag(
     }
     bag.finish().map_err(ApiError::internal)?;
     Ok(out)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::api::grpc::convert::frame_score;
-    use crate::api::proto;
-    use vamos_core::eval::Detector;
-    use vamos_core::pipeline::FrameScore;
-
-    /// REST prints what it printed when it scored through gRPC's messages: the same
-    /// fields as `proto::score_json` of the gRPC answer, `vamos stream`'s output.
-    #[test]
-    fn rest_scores_print_as_the_grpc_answer_does() {
-        for (triggered, anomaly) in [
-            (None, false),
-            (None, true),
-            (Some(Detector::Body), true),
-            (Some(Detector::Camera), false),
-            (Some(Detector::Scene), true),
-            (Some(Detector::Kinematics), true),
-        ] {
-            let f = ScoredFrame {
-                anomaly_map: None,
-                score: FrameScore {
-                    index: 7,
-                    frame: 3,
-                    stamp_ns: 1_500,
-                    score: 0.25,
-                    e_c: Some(1.0),
-                    e_b: None,
-                    e_o: Some(0.5),
-                    e_r: Some(0.75),
-                    e_k: Some(0.125),
-                    anomaly,
-                    triggered,
-                    warming_up: true,
-                    best_offset: None,
-                    registration_confidence: None,
-                    body_pixels: 0,
-                    timings: Default::default(),
-                    heatmap: None,
-                    scene_cells: None,
-                    scene_grid: (0, 0),
-                    phase_s: 0.0,
-                    kinematic_state: None,
-                },
-                latency_s: 0.02,
-                compute_s: 0.01,
-            };
-            assert_eq!(score_json(&f), proto::score_json(&frame_score(&f)));
-        }
-    }
 }
