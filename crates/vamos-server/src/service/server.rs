@@ -259,9 +259,16 @@ impl Server {
             let mut serving = true;
             loop {
                 tokio::select! {
+                    // Stop first: the workers end at shutdown, which is no outage to report
+                    // (stop is sent before the hub shuts down).
+                    biased;
+                    _ = stop_rx.changed() => return,
                     _ = tick.tick() => {
                         sweeper.hub.sweep();
                         let can_score = sweeper.hub.live_workers() > 0;
+                        if !can_score && *stop_rx.borrow() {
+                            return;
+                        }
                         if can_score != serving {
                             serving = can_score;
                             type Monitor = proto::monitor_server::MonitorServer<MonitorService>;
@@ -273,7 +280,6 @@ impl Server {
                             }
                         }
                     }
-                    _ = stop_rx.changed() => return,
                 }
             }
         });
