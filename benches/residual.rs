@@ -58,22 +58,32 @@ fn bench_residual(c: &mut Criterion) {
     let stats = CellStats::fit(columns, rows, &refs).expect("50 maps of one size");
     let pooling = Pooling { top_fraction: 0.01 };
 
-    let mut flow = FlowField::zeros(0, 0);
-    c.bench_function("residual/scene_e_r_320x240", |b| {
-        b.iter(|| {
-            expected_image_flow(&previous, &current, &k, 1.0, &mut flow).expect("finite poses");
-            let exclude = grow_union(&mask, &previous_mask, W, H, 3);
-            let cells = scene_cells(&observed, &flow, &exclude, 8, Some(&image));
-            black_box(pool_cells(
-                &cells,
-                columns,
-                rows,
-                Some(stats.at(None)),
-                pooling,
-                None,
-            ))
-        })
+    // The image the flow ends on, for the photometric check (the default).
+    let target = GrayImage::from_fn(W, H, |x, y| {
+        let (u, v) = expected.get(x, y);
+        texture.eval(x as f64 - f64::from(u), y as f64 - f64::from(v)) as f32
     });
+    let mut flow = FlowField::zeros(0, 0);
+    for (name, target) in [
+        ("residual/scene_e_r_320x240", Some(&target)),
+        ("residual/scene_e_r_no_photometric_320x240", None),
+    ] {
+        c.bench_function(name, |b| {
+            b.iter(|| {
+                expected_image_flow(&previous, &current, &k, 1.0, &mut flow).expect("finite poses");
+                let exclude = grow_union(&mask, &previous_mask, W, H, 3);
+                let cells = scene_cells(&observed, &flow, &exclude, 8, Some(&image), target);
+                black_box(pool_cells(
+                    &cells,
+                    columns,
+                    rows,
+                    Some(stats.at(None)),
+                    pooling,
+                    None,
+                ))
+            })
+        });
+    }
     let rendered = FlowField::from_fn(W, H, |x, y| {
         if mask[y * W + x] {
             (1.5, -0.5)

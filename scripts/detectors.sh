@@ -9,7 +9,8 @@
 # scene_phase_w3 (each without the kinematic novelty e_k), kinematics (e_k alone),
 # scene_kinematics, scene_phase_kinematics_w3, all_kinematics_positions (velocity_s = 0),
 # all_kinematics_links (state = "links"), all_kinematics_w3, all_phase_kinematics_w3,
-# default (a profile that sets nothing: what a user gets; default: all). Each row leaves
+# no_photometric (the default without the scene residual's photometric check), default (a
+# profile that sets nothing: what a user gets; default: all). Each row leaves
 # OUT_DIR/ROW/{profile.toml, profile.calibration.json, eval.json} and prints one line.
 # Needs the release binary (cargo build --release); about 90 s per row on 2 cores.
 set -eu
@@ -18,7 +19,7 @@ out=${2:?usage: scripts/detectors.sh SIM_DIR OUT_DIR [ROW...]}
 shift 2
 root=$(cd "$(dirname "$0")/.." && pwd)
 vamos=${VAMOS:-"$root/target/release/vamos"}
-rows=${*:-paper all all_quantile scene_camera scene scene_phase all_phase scene_phase_w3 kinematics scene_kinematics scene_phase_kinematics_w3 all_kinematics_positions all_kinematics_links all_kinematics_w3 all_phase_kinematics_w3 default}
+rows=${*:-paper all all_quantile scene_camera scene scene_phase all_phase scene_phase_w3 kinematics scene_kinematics scene_phase_kinematics_w3 all_kinematics_positions all_kinematics_links all_kinematics_w3 all_phase_kinematics_w3 no_photometric default}
 # The dataset's robot (vamos-sim writes one URDF into SIM_DIR/robot).
 urdf=$(ls "$sim"/robot/*.urdf | head -n 1)
 for row in $rows; do
@@ -91,6 +92,8 @@ temporal_window = 3' ;;
         all_kinematics_links) extra='fusion = "calibrated"
 [pipeline.kinematics]
 state = "links"' ;;
+        no_photometric) extra='[pipeline.residual]
+photometric = false' ;;
         default) extra='' ;;
         *) echo "unknown row $row" >&2; exit 2 ;;
     esac

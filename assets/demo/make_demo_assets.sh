@@ -7,6 +7,8 @@
 #                    simulated episodes (exported with vamos export-dataset)
 #   profile.toml     the demo profile; profile.calibration.json: its thresholds, calibrated
 #                    by vamos calibrate on the training episodes + held-out nominal ones
+#   profile-no-model.toml (+ .calibration.json): the same without the model, for a
+#                    machine without ONNX Runtime
 #   episodes/        labelled test episodes (2 nominal, 5 anomalous), ROS 2 bags in MCAP
 # Everything is seeded; the data come from `vamos-sim` (160x120, 10 Hz).
 #
@@ -43,6 +45,8 @@ alarm = "conformal"
 
 [pipeline]
 stride = 1
+# Every detector calibrated on the nominal runs and fused ("paper": the rule of the paper).
+fusion = "calibrated"
 
 [pipeline.frames]
 width = 160
@@ -58,11 +62,20 @@ printf '%s\nmodel = "model.vamos"\n%s\n' "$profile_head" "$profile_tail" > "$ass
 
 "$vamos" calibrate --profile "$assets/profile.toml" "$work/sim/train" \
     --holdout "$work/sim/val" --alpha 0.1 > "$work/calibration.out"
+# The same without the model, for a machine without ONNX Runtime (`vamos demo --no-model`).
+{
+    echo '# The demo profile without the flow predictor: what `vamos demo` runs when ONNX Runtime'
+    echo '# is not available (or with --no-model). Its own calibration, on the same episodes.'
+    printf '%s\n%s\n' "$profile_head" "$profile_tail" | sed 's/^name = "demo"$/name = "demo-no-model"/'
+} > "$assets/profile-no-model.toml"
+"$vamos" calibrate --profile "$assets/profile-no-model.toml" "$work/sim/train" \
+    --holdout "$work/sim/val" --alpha 0.1 > "$work/calibration-no-model.out"
 for f in "$work"/sim/test/*.mcap; do
     cp "$f" "${f%.mcap}.labels.json" "$assets/episodes/"
 done
 
-for old in robot camera.json model.vamos profile.toml profile.calibration.json episodes; do
+for old in robot camera.json model.vamos profile.toml profile.calibration.json \
+    profile-no-model.toml profile-no-model.calibration.json episodes; do
     rm -rf "${here:?}/$old"
 done
 cp -r "$assets"/* "$here/"

@@ -207,3 +207,60 @@ async fn demo_serve_keeps_the_page_and_the_robots_up_until_interrupted() {
     };
     assert!(status.success(), "{status:?}");
 }
+
+/// Without ONNX Runtime (here: `ORT_DYLIB_PATH` naming no file; on a robot PC: no library
+/// and no network to fetch one) the embedded demo runs its model-free profile and says
+/// so; `--no-model` asks for it. Every image is scored and the anomalies still alarm.
+#[test]
+fn without_onnx_runtime_the_demo_runs_without_the_model() {
+    let dir = tempfile::tempdir().unwrap();
+    for (args, env_path) in [
+        (
+            &["demo", "--quiet"][..],
+            Some("/nonexistent/libonnxruntime.so"),
+        ),
+        (&["demo", "--quiet", "--no-model"][..], None),
+    ] {
+        let out_dir = dir.path().join(if env_path.is_some() {
+            "fallback"
+        } else {
+            "asked"
+        });
+        let mut cmd = Command::new(env!("CARGO_BIN_EXE_vamos"));
+        cmd.args(args)
+            .arg("--out")
+            .arg(&out_dir)
+            .env("VAMOS_LOG__LEVEL", "warn")
+            .env_remove("VAMOS_ADMIN_TOKEN")
+            .env_remove("VAMOS_ROBOT_TOKEN");
+        if let Some(p) = env_path {
+            cmd.env("ORT_DYLIB_PATH", p);
+        }
+        let out = cmd.output().unwrap();
+        let stdout = String::from_utf8_lossy(&out.stdout);
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(out.status.success(), "{args:?} failed:\n{stdout}\n{stderr}");
+        assert_eq!(
+            stdout.contains("ONNX Runtime is not available (ORT_DYLIB_PATH="),
+            env_path.is_some(),
+            "{stdout}"
+        );
+        assert!(!stdout.contains("ONNX Runtime: "), "{stdout}");
+        assert!(
+            stdout.contains("profile \"demo-no-model\", model none"),
+            "{stdout}"
+        );
+        let report: Value =
+            serde_json::from_str(&std::fs::read_to_string(out_dir.join("report.json")).unwrap())
+                .unwrap();
+        assert_eq!(report["profile"], "demo-no-model");
+        assert_eq!(report["frames_scored"], report["images_sent"]);
+        let alarmed = report["episodes"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter(|e| !e["first_alarm_ns"].is_null())
+            .count();
+        assert!(alarmed >= 3, "{alarmed} episodes with an alarm: {report}");
+    }
+}

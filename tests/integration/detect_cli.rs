@@ -210,6 +210,40 @@ fn score_calibrate_eval_on_simulated_episodes() {
     let e_k = max_of(&again[1..], "e_k");
     assert!((0.0..0.0021).contains(&e_k), "{e_k}");
     assert!(conformal["threshold"].as_f64().unwrap() > nominal_max);
+    // The scene statistics were fitted on maps taken with the photometric check (the
+    // default) and say so; a calibration made before the check (no such field) scores
+    // its maps without it, whatever the profile says: other e_r, the same e_k.
+    assert_eq!(cal["thresholds"]["scene"]["photometric"], true);
+    let mut older = cal.clone();
+    older["thresholds"]["scene"]
+        .as_object_mut()
+        .unwrap()
+        .remove("photometric");
+    let cal_path = dir.join("profile.calibration.json");
+    std::fs::write(&cal_path, serde_json::to_vec(&older).unwrap()).unwrap();
+    vamos(
+        dir,
+        &[
+            "score",
+            "--profile",
+            "profile.toml",
+            "test/test_0000.mcap",
+            "-o",
+            "older",
+        ],
+    );
+    std::fs::write(&cal_path, serde_json::to_vec(&cal).unwrap()).unwrap();
+    let older = jsonl(&dir.join("older/test_0000.scores.jsonl"));
+    assert_eq!(older.len(), nominal.len());
+    let field = |frames: &[Value], key: &str| -> Vec<Value> {
+        frames.iter().map(|f| f[key].clone()).collect()
+    };
+    assert_eq!(field(&older, "e_k"), field(&nominal, "e_k"));
+    let (e_r_now, e_r_before) = (max_of(&nominal, "e_r"), max_of(&older, "e_r"));
+    assert!(
+        e_r_now > 0.0 && e_r_before > 0.0 && e_r_now != e_r_before,
+        "{e_r_now} {e_r_before}"
+    );
     // The scored bag: the input images and one score per frame, readable by the reader.
     let bag = McapEpisode::open(
         &dir.join("out/test_0000.scored.mcap"),

@@ -20,9 +20,10 @@ use vamos::client::replay::{Recording, record};
 use vamos::client::{Client, ClientOptions, Pace, SessionSummary, Update};
 use vamos::config::Settings;
 use vamos::episode::Labels;
+use vamos::model::ModelError;
 use vamos::service::{RunningServer, Server};
 use vamos::session::ProfileCatalog;
-use vamos::setup::Setup;
+use vamos::setup::{Setup, SetupError};
 
 /// The embedded assets: `(path relative to assets/demo, bytes)`, listed by build.rs.
 const ASSETS: &[(&str, &[u8])] = include!(concat!(env!("OUT_DIR"), "/demo_assets.rs"));
@@ -52,6 +53,11 @@ pub struct Args {
     /// episodes at their recorded rate until Ctrl-C (prints the page's URL).
     #[arg(long, conflicts_with = "vision")]
     pub serve: bool,
+    /// Run the embedded demo without the flow predictor (`e_o`): no ONNX Runtime is
+    /// needed. The demo does this by itself when ONNX Runtime cannot be found or fetched
+    /// (a machine without network).
+    #[arg(long, conflicts_with_all = ["profile", "vision"])]
+    pub no_model: bool,
     /// Run the vision-core demo instead (TV-L1 and registration on synthetic pairs).
     #[arg(long)]
     pub vision: bool,
@@ -85,6 +91,7 @@ pub fn run(settings: &Settings, args: Args) -> Result<()> {
         speed: args.speed,
         quiet: args.quiet,
         serve: args.serve,
+        no_model: args.no_model,
     };
     super::async_runtime()?.block_on(demo(settings, opts))
 }
@@ -106,6 +113,8 @@ struct DemoOptions {
     pub quiet: bool,
     /// Keep serving after the report (see [`Args::serve`]).
     pub serve: bool,
+    /// The embedded demo without the flow predictor (see [`Args::no_model`]).
+    pub no_model: bool,
 }
 
 /// Live state of one robot, for the progress table.
@@ -131,6 +140,10 @@ struct Streamed {
     /// Seconds from each image sent to its score, client side.
     latencies_s: Vec<f64>,
 }
+
+/// The embedded profile without a model (its own calibration): what the demo runs when
+/// ONNX Runtime is not available, or with `--no-model`.
+const NO_MODEL_PROFILE: &str = "profile-no-model.toml";
 
 /// Writes the embedded assets under `dir` and returns the profile's path.
 fn unpack(dir: &Path) -> Result<PathBuf> {
@@ -170,7 +183,10 @@ async fn demo(settings: &Settings, opts: DemoOptions) -> Result<()> {
         }
         None => {
             let assets = opts.out.join("assets");
-            let profile = unpack(&assets)?;
+            let mut profile = unpack(&assets)?;
+            if opts.no_model {
+                profile = assets.join(NO_MODEL_PROFILE);
+            }
             let episodes = if opts.episodes.is_empty() {
                 expand_episodes(&[assets.join("episodes")])?
             } else {
@@ -179,12 +195,37 @@ async fn demo(settings: &Settings, opts: DemoOptions) -> Result<()> {
             (profile, episodes)
         }
     };
-    let setup = {
+    let load = |path: PathBuf| {
         let settings = settings.clone();
-        let path = profile_path.clone();
-        tokio::task::spawn_blocking(move || Setup::load(&settings, &path))
-            .await?
-            .with_context(|| format!("cannot load profile {}", profile_path.display()))?
+        async move {
+            tokio::task::spawn_blocking(move || Setup::load(&settings, &path))
+                .await
+                .context("the profile loader failed")
+        }
+    };
+    let (setup, profile_path) = match load(profile_path.clone()).await? {
+        Ok(setup) => (setup, profile_path),
+        // The embedded demo on a machine without ONNX Runtime (and no network to fetch
+        // it): the same demo without the flow predictor, calibrated on its own.
+        Err(SetupError::Model {
+            source: ModelError::Runtime(why),
+            ..
+        }) if opts.profile.is_none() => {
+            println!(
+                "ONNX Runtime is not available ({why}): the demo runs without the flow \
+                 predictor (e_o), every other detector as calibrated; `--no-model` says so \
+                 from the start"
+            );
+            let path = profile_path.with_file_name(NO_MODEL_PROFILE);
+            let setup = load(path.clone())
+                .await?
+                .with_context(|| format!("cannot load profile {}", path.display()))?;
+            (setup, path)
+        }
+        Err(e) => {
+            return Err(anyhow::Error::new(e)
+                .context(format!("cannot load profile {}", profile_path.display())));
+        }
     };
     let profile_name = setup.profile.file.name.clone();
     let alarm = setup.profile.alarm_threshold();

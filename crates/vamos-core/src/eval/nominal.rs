@@ -120,6 +120,11 @@ pub struct CellStats {
     /// Per-phase statistics (absent: the same statistics at every phase).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub phases: Option<PhaseCells>,
+    /// The maps were taken with the photometric check (`residual.photometric`); scoring
+    /// against these statistics takes its maps the same way whatever the profile says
+    /// now, so a calibration made before the check keeps scoring as it was made.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub photometric: bool,
 }
 
 /// Per-cell statistics per phase window: window `i` is centred on `i * step_s` seconds
@@ -217,6 +222,7 @@ impl CellStats {
             spread,
             maps: maps.len(),
             phases: None,
+            photometric: false,
         })
     }
 

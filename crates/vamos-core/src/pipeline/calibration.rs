@@ -18,7 +18,7 @@
 use super::offline::EpisodeScores;
 use super::profile::Calibration;
 use super::scorer::{FrameScore, phase_s};
-use super::{KinematicsParams, PipelineConfig};
+use super::{KinematicsParams, PipelineConfig, ResidualParams};
 use crate::eval::{
     CellStats, Components, NominalScales, Pooling, StateReference, TRIGGER_BASE, Thresholds,
     Window, conformal_threshold, fuse_frame, max_threshold, novelty, pool_cells,
@@ -72,12 +72,7 @@ pub fn calibrate<E>(
     let component = |f: fn(&FrameScore) -> Option<f64>| -> Vec<f64> {
         frames.iter().filter_map(|x| f(x)).collect()
     };
-    let scene = fit_scene(
-        &frames,
-        &phases,
-        pipeline.residual.phase_window_s,
-        &mut notes,
-    );
+    let scene = fit_scene(&frames, &phases, &pipeline.residual, &mut notes);
     let pooling = Pooling {
         top_fraction: pipeline.residual.top_fraction,
     };
@@ -395,9 +390,11 @@ fn learn_states(
 fn fit_scene(
     frames: &[&FrameScore],
     phases: &[f64],
-    phase_window_s: f64,
+    residual: &ResidualParams,
     notes: &mut Vec<String>,
 ) -> Option<CellStats> {
+    let photometric = residual.takes_photometric();
+    let phase_window_s = residual.phase_window_s;
     let (columns, rows) = frames.iter().find(|f| f.scene_cells.is_some())?.scene_grid;
     let (maps, map_phases): (Vec<&[f32]>, Vec<f64>) = frames
         .iter()
@@ -406,7 +403,10 @@ fn fit_scene(
         .filter_map(|(f, &t)| Some((f.scene_cells.as_deref()?, t)))
         .unzip();
     match CellStats::fit_phased(columns, rows, &maps, &map_phases, phase_window_s) {
-        Ok(stats) => Some(stats),
+        Ok(stats) => Some(CellStats {
+            photometric,
+            ..stats
+        }),
         Err(e) => {
             notes.push(format!(
                 "no per-cell scene statistics ({e}): e_r is scored from raw residuals"

@@ -138,6 +138,8 @@ pub struct ProcessedFrame {
     /// The previous frame as the flow saw it (processing resolution, equalised if
     /// configured): the source grid of `flow`.
     pub previous_image: GrayImage,
+    /// This frame as the flow saw it: where `flow` ends.
+    pub image: GrayImage,
 }
 
 /// Wall time of the front end's stages for one frame, microseconds.
@@ -255,6 +257,7 @@ impl FrameProcessor {
             }
         };
         timings.flow_us = micros_since(start);
+        let image = frame.clone();
         let previous_image = self.last.replace(frame);
         let (Some(flow), Some(registration), Some(previous_image)) =
             (flow, registration, previous_image)
@@ -281,6 +284,7 @@ impl FrameProcessor {
             network_valid,
             timings,
             previous_image,
+            image,
         }))
     }
 }

@@ -47,6 +47,10 @@ pub struct ResidualParams {
     /// Scene residual across image edges only (the normal flow), weighted by gradient;
     /// false: the whole flow difference.
     pub normal_flow: bool,
+    /// With `normal_flow`: a pixel's residual is at most the brightness change the
+    /// expected flow leaves (the images' own word on whether the static scene's motion
+    /// explains it), so TV-L1's errors on repeated textures are not taken for motion.
+    pub photometric: bool,
     /// How `e_b` is computed.
     pub body_error: BodyError,
     /// Quantile of the per-pixel body residual (`body_error = "quantile"`).
@@ -68,6 +72,7 @@ impl Default for ResidualParams {
             motion_margin: 0.0,
             top_fraction: 0.01,
             normal_flow: true,
+            photometric: true,
             body_error: BodyError::Median,
             body_quantile: 0.9,
             moving_px: 0.5,
@@ -77,6 +82,11 @@ impl Default for ResidualParams {
 }
 
 impl ResidualParams {
+    /// Whether scene maps are taken with the photometric check (it needs `normal_flow`).
+    pub fn takes_photometric(&self) -> bool {
+        self.normal_flow && self.photometric
+    }
+
     /// Refuses values no residual can be computed with.
     pub fn validate(&self) -> Result<(), String> {
         if self.cell_px == 0 || self.cell_px > 256 {
@@ -188,6 +198,14 @@ fn dilate_line(src: &[bool], dst: &mut [bool], margin: usize) {
 ///   and TV-L1's guess there is not evidence of motion; flat pixels weigh nothing;
 /// - without: the mean of `|d|`.
 ///
+/// With `target` too (the image the flow ends on), a pixel's normal residual is at most
+/// the brightness change that the *expected* flow leaves, `|target(p + e) - source(p)|`:
+/// where the images themselves say the static scene's motion explains the pixel, TV-L1's
+/// disagreement (a wrong match on a repeated texture, its regulariser filling a flat
+/// patch) is not evidence. Both are brightness differences, the first linearised, so
+/// they compare directly; a pixel whose expected source lies outside `target` keeps the
+/// flow's residual.
+///
 /// NaN for a cell with fewer than half of its pixels left, or no gradient at all.
 /// Returns the map, row-major, [`cell_grid`] cells.
 pub fn scene_cells(
@@ -196,6 +214,7 @@ pub fn scene_cells(
     exclude: &[bool],
     cell_px: usize,
     source: Option<&GrayImage>,
+    target: Option<&GrayImage>,
 ) -> Vec<f32> {
     let (w, h) = observed.size();
     let (cols, rows) = cell_grid(w, h, cell_px);
@@ -204,6 +223,7 @@ pub fn scene_cells(
     let mut count = vec![0u32; cols * rows];
     let mut total = vec![0u32; cols * rows];
     let image = source.filter(|s| s.size() == (w, h)).map(GrayImage::data);
+    let target = target.filter(|t| t.size() == (w, h));
     for y in 0..h {
         let row = (y / cell_px) * cols;
         for x in 0..w {
@@ -222,7 +242,13 @@ pub fn scene_cells(
                     let (y0, y1) = (y.saturating_sub(1), (y + 1).min(h - 1));
                     let gx = (img[y * w + x1] - img[y * w + x0]) / (x1 - x0).max(1) as f32;
                     let gy = (img[y1 * w + x] - img[y0 * w + x]) / (y1 - y0).max(1) as f32;
-                    ((du * gx + dv * gy).abs(), (gx * gx + gy * gy).sqrt())
+                    let mut r = (du * gx + dv * gy).abs();
+                    if let Some(change) = target.and_then(|t| {
+                        sample_bilinear(t, x as f32 + expected.u[i], y as f32 + expected.v[i])
+                    }) {
+                        r = r.min((change - img[i]).abs());
+                    }
+                    (r, (gx * gx + gy * gy).sqrt())
                 }
                 None => ((du * du + dv * dv).sqrt(), 1.0),
             };
@@ -242,6 +268,22 @@ pub fn scene_cells(
             }
         })
         .collect()
+}
+
+/// `image` at `(x, y)`, bilinear; `None` outside the pixel centres' hull or for a
+/// non-finite position.
+fn sample_bilinear(image: &GrayImage, x: f32, y: f32) -> Option<f32> {
+    let (w, h) = image.size();
+    if !(x >= 0.0 && y >= 0.0 && x <= (w - 1) as f32 && y <= (h - 1) as f32) {
+        return None;
+    }
+    let (x0, y0) = (x.floor() as usize, y.floor() as usize);
+    let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
+    let (tx, ty) = (x - x0 as f32, y - y0 as f32);
+    let d = image.data();
+    let top = d[y0 * w + x0] * (1.0 - tx) + d[y0 * w + x1] * tx;
+    let bottom = d[y1 * w + x0] * (1.0 - tx) + d[y1 * w + x1] * tx;
+    Some(top * (1.0 - ty) + bottom * ty)
 }
 
 /// The quantile body residual: for each pixel of `mask` with a finite rendered flow
@@ -376,7 +418,7 @@ mod tests {
                 (1.0, 0.0)
             }
         });
-        let cells = scene_cells(&observed, &expected, &[], 8, None);
+        let cells = scene_cells(&observed, &expected, &[], 8, None, None);
         assert_eq!(cells.len(), 4 * 2);
         assert_eq!(
             cells[2],
@@ -391,17 +433,61 @@ mod tests {
                 exclude[y * w + x] = y < 5;
             }
         }
-        let cells = scene_cells(&observed, &expected, &exclude, 8, None);
+        let cells = scene_cells(&observed, &expected, &exclude, 8, None, None);
         // Normal residual: a patch of vertical stripes moving along them shows nothing;
         // across them it shows the full motion.
         let stripes = GrayImage::from_fn(w, h, |x, _| if x % 4 < 2 { 0.0 } else { 100.0 });
         let along = FlowField::from_fn(w, h, |_, _| (1.0, 3.0));
         let across = FlowField::from_fn(w, h, |_, _| (4.0, 0.0));
-        let a = scene_cells(&along, &expected, &[], 8, Some(&stripes));
-        let b = scene_cells(&across, &expected, &[], 8, Some(&stripes));
+        let a = scene_cells(&along, &expected, &[], 8, Some(&stripes), None);
+        let b = scene_cells(&across, &expected, &[], 8, Some(&stripes), None);
         assert!(a.iter().all(|&c| c == 0.0), "{a:?}");
         assert!(b.iter().all(|&c| (c - 3.0).abs() < 1e-5), "{b:?}");
         assert!(cells[2].is_nan());
+    }
+
+    #[test]
+    fn the_photometric_check_drops_a_wrong_match_on_stripes_and_keeps_a_moving_patch() {
+        let (w, h) = (32, 16);
+        let still = FlowField::from_fn(w, h, |_, _| (0.0, 0.0));
+        let stripes = |x: usize| if x % 4 < 2 { 0.0 } else { 100.0 };
+        // Nothing moves, but the flow matched every stripe to the next one (4 px on).
+        let image = GrayImage::from_fn(w, h, |x, _| stripes(x));
+        let wrong = FlowField::from_fn(w, h, |_, _| (4.0, 0.0));
+        let flow_only = scene_cells(&wrong, &still, &[], 8, Some(&image), None);
+        assert!(
+            flow_only.iter().all(|&c| (c - 4.0).abs() < 1e-5),
+            "{flow_only:?}"
+        );
+        let checked = scene_cells(&wrong, &still, &[], 8, Some(&image), Some(&image));
+        assert!(checked.iter().all(|&c| c == 0.0), "{checked:?}");
+
+        // A bright 4x4 patch in cell (2, 0) moves down by 3 px, and the flow sees it.
+        let patch =
+            |x: usize, y: usize, top: usize| (20..24).contains(&x) && (top..top + 4).contains(&y);
+        let before =
+            GrayImage::from_fn(w, h, |x, y| if patch(x, y, 4) { 200.0 } else { stripes(x) });
+        let after =
+            GrayImage::from_fn(w, h, |x, y| if patch(x, y, 7) { 200.0 } else { stripes(x) });
+        let seen = FlowField::from_fn(w, h, |x, y| {
+            if patch(x, y, 4) {
+                (0.0, 3.0)
+            } else {
+                (0.0, 0.0)
+            }
+        });
+        let flow_only = scene_cells(&seen, &still, &[], 8, Some(&before), None);
+        let checked = scene_cells(&seen, &still, &[], 8, Some(&before), Some(&after));
+        // Smaller: a brightness change is bounded by the patch's contrast, where the
+        // linearised flow residual grows with the motion.
+        assert!(
+            checked[2] > 0.25 * flow_only[2] && checked[2] < flow_only[2],
+            "{checked:?} {flow_only:?}"
+        );
+        assert!(
+            checked.iter().enumerate().all(|(i, &c)| i == 2 || c == 0.0),
+            "{checked:?}"
+        );
     }
 
     #[test]

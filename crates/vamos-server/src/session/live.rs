@@ -296,6 +296,7 @@ mod tests {
                 spread: vec![1.0, 1.0, 1.0],
                 maps: 10,
                 phases: None,
+                photometric: true,
             }),
             ..Thresholds::default()
         };

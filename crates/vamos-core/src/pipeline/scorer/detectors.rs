@@ -133,6 +133,13 @@ impl Scorer {
                 .residual
                 .normal_flow
                 .then_some(&processed.previous_image),
+            // Scored as the statistics were fitted (a calibration made before the check
+            // keeps scoring as it was made).
+            self.thresholds
+                .scene
+                .as_ref()
+                .map_or(self.config.residual.takes_photometric(), |s| s.photometric)
+                .then_some(&processed.image),
         );
         let (columns, rows) = residual::cell_grid(w, h, self.config.residual.cell_px);
         let e_r = pool_cells(
