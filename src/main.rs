@@ -81,6 +81,11 @@ enum Command {
         #[command(subcommand)]
         command: cli::episode::Command,
     },
+    /// Profiles: `init` writes a starting profile for a new robot from one recorded bag.
+    Profile {
+        #[command(subcommand)]
+        command: cli::profile::Command,
+    },
     /// Flow-predictor model bundles and the ONNX Runtime library.
     Model {
         #[command(subcommand)]
@@ -166,6 +171,7 @@ fn run(cli: Cli) -> Result<()> {
         Command::Render(args) => cli::render::run(&settings, args),
         Command::Robot { command } => cli::robot::run(&settings, command),
         Command::Episode { command } => cli::episode::run(&settings, command),
+        Command::Profile { command } => cli::profile::run(&settings, command),
         Command::Model { command } => cli::model::run(&settings, command),
         Command::Completions(_) | Command::Man(_) => Ok(()),
     }

@@ -13,6 +13,7 @@ pub mod flow;
 pub mod health;
 pub mod loadgen;
 pub mod model;
+pub mod profile;
 pub mod progress;
 pub mod register;
 pub mod render;

@@ -268,3 +268,83 @@ fn completions_and_man_pages_come_from_the_cli_definition() {
     );
     assert_clean_failure(&out, "not an existing folder");
 }
+
+/// `vamos profile init`: a starting profile from one bag (its CameraInfo, its topics, the
+/// URDF it carries) that loads and scores; outputs are checked before work, a wrong
+/// camera link is named with the candidates.
+#[test]
+fn profile_init_writes_a_working_profile_from_a_bag() {
+    let fixtures = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/sim");
+    let bag = fixtures.join("test/test_0000.mcap");
+    let bag = bag.to_str().unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let new = dir.path().join("new-robot");
+    let out = vamos(
+        &["profile", "init", "--episode", bag, new.to_str().unwrap()],
+        &[],
+    );
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let summary: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(summary["camera_frame"], "head_camera_optical_frame");
+    assert_eq!(summary["processing"], serde_json::json!([160, 120]));
+    // The camera is the one the simulator wrote beside its bags.
+    let camera: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(new.join("camera.json")).unwrap()).unwrap();
+    let truth: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(fixtures.join("camera.json")).unwrap()).unwrap();
+    assert_eq!(camera, truth);
+    // The URDF is the bag's robot description, the same robot as the fixture's file.
+    let urdf = std::fs::read_to_string(new.join("robot.urdf")).unwrap();
+    assert!(urdf.contains("<robot") && urdf.contains("head_camera_optical_frame"));
+    let profile = std::fs::read_to_string(new.join("profile.toml")).unwrap();
+    assert!(profile.contains("name = \"new-robot\""), "{profile}");
+    assert!(
+        profile.contains("image = \"/camera/image_raw\""),
+        "{profile}"
+    );
+    // It scores the bag it came from, every frame after the first.
+    let out = vamos(
+        &[
+            "score",
+            "--profile",
+            new.join("profile.toml").to_str().unwrap(),
+            bag,
+        ],
+        &[],
+    );
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let scored: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert!(scored["frames"].as_u64().unwrap() > 10, "{scored}");
+    assert_eq!(scored["no_joint_states"], false);
+
+    // Existing files are kept unless --force; nothing is read first.
+    let before = std::fs::read(new.join("profile.toml")).unwrap();
+    let out = vamos(
+        &[
+            "profile",
+            "init",
+            "--episode",
+            "/nonexistent.mcap",
+            new.to_str().unwrap(),
+        ],
+        &[],
+    );
+    assert_clean_failure(&out, "exists; pass --force");
+    assert_eq!(std::fs::read(new.join("profile.toml")).unwrap(), before);
+    // A camera link the robot lacks: named, with the links that look like cameras.
+    let out = vamos(
+        &[
+            "profile",
+            "init",
+            "--episode",
+            bag,
+            "--camera-frame",
+            "wrist_cam",
+            "--force",
+            new.to_str().unwrap(),
+        ],
+        &[],
+    );
+    assert_clean_failure(&out, "\"wrist_cam\" is not a link");
+    assert!(text(&out.stderr).contains("head_camera_optical_frame"));
+}
