@@ -1,0 +1,307 @@
+//! Streamed sessions score as offline scoring does, several robots at once, and back-pressure says what it drops.
+
+use super::*;
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_streamed_session_scores_every_frame_as_offline_scoring_does() {
+    let f = fixture_setup(8, false);
+    let server = start(&f).await;
+    let name = "test_0001_external_push";
+    let (messages, camera) = episode_messages(&episode(name));
+    let images = messages
+        .iter()
+        .filter(|m| matches!(m, In::Image(_)))
+        .count();
+    let (scores, events) = stream_all(
+        server.grpc_addr,
+        None,
+        open_msg("sim-arm", name, camera),
+        messages,
+    )
+    .await
+    .unwrap();
+    let expected = offline(&f.setup, &episode(name));
+    assert_same_scores(&scores, &expected);
+    // At stride 1 every image has a score (the first one warming up).
+    assert_eq!(scores.len(), images);
+    assert_eq!(events[0].kind, proto::session_event::Kind::Opened as i32);
+    assert_eq!(events[0].session_id, name);
+    assert!(
+        !events
+            .iter()
+            .any(|e| e.kind == proto::session_event::Kind::MessageError as i32),
+        "{events:?}"
+    );
+    // The session is gone once its stream closed; the metrics counted its frames.
+    assert_eq!(server.shared.hub.session_count(), 0);
+    let metrics = metrics_text(server.rest_addr).await;
+    assert!(
+        metrics.contains(&format!(
+            "vamos_frames_processed_total{{profile=\"sim-arm\"}} {}",
+            scores.len()
+        )),
+        "{metrics}"
+    );
+    assert!(metrics.contains("vamos_stage_seconds_bucket{stage=\"flow\""));
+    server.shutdown().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn two_robots_at_once_each_get_their_own_scores_and_episode_upload_matches() {
+    let f = fixture_setup(8, false);
+    let server = start(&f).await;
+    let a = "test_0000";
+    let b = "test_0002_sensor_fault";
+    let (ma, ca) = episode_messages(&episode(a));
+    let (mb, cb) = episode_messages(&episode(b));
+    let addr = server.grpc_addr;
+    let (ra, rb) = tokio::join!(
+        stream_all(addr, None, open_msg("sim-arm", a, ca), ma),
+        stream_all(addr, None, open_msg("sim-arm", b, cb), mb),
+    );
+    assert_same_scores(&ra.unwrap().0, &offline(&f.setup, &episode(a)));
+    assert_same_scores(&rb.unwrap().0, &offline(&f.setup, &episode(b)));
+
+    // The same episode uploaded whole (gRPC ScoreEpisode, 64 KiB chunks).
+    let bytes = std::fs::read(episode(b)).unwrap();
+    let chunks: Vec<proto::EpisodeChunk> = bytes
+        .chunks(64 << 10)
+        .enumerate()
+        .map(|(i, c)| proto::EpisodeChunk {
+            profile: if i == 0 {
+                "sim-arm".into()
+            } else {
+                String::new()
+            },
+            data: c.to_vec(),
+            name: if i == 0 { b.into() } else { String::new() },
+        })
+        .collect();
+    let mut client = MonitorClient::connect(format!("http://{addr}"))
+        .await
+        .unwrap();
+    let mut out = client
+        .score_episode(tokio_stream::iter(chunks))
+        .await
+        .unwrap()
+        .into_inner();
+    let mut uploaded = Vec::new();
+    while let Some(s) = out.next().await {
+        uploaded.push(s.unwrap());
+    }
+    let expected = offline(&f.setup, &episode(b));
+    assert_same_scores(&uploaded, &expected);
+
+    // And over REST.
+    let http = reqwest::Client::new();
+    let body: serde_json::Value = http
+        .post(format!(
+            "http://{}/v1/episodes:score?profile=sim-arm&name={b}",
+            server.rest_addr
+        ))
+        .body(bytes.clone())
+        .send()
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
+    let frames = body["frames"].as_array().unwrap();
+    assert_eq!(frames.len(), expected.len());
+    for (j, o) in frames.iter().zip(&expected) {
+        assert_eq!(j["score"].as_f64().unwrap(), o.score);
+        assert_eq!(j["stamp_ns"].as_i64().unwrap(), o.stamp_ns);
+    }
+    // The same as a scored MCAP bag (Accept: application/x-mcap): the input's images and
+    // one /vamos/score message per scored frame, readable as an episode again.
+    let response = http
+        .post(format!(
+            "http://{}/v1/episodes:score?profile=sim-arm&name={b}",
+            server.rest_addr
+        ))
+        .header("accept", "application/x-mcap")
+        .body(bytes.clone())
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(response.status(), 200);
+    assert_eq!(
+        response.headers()["content-type"].to_str().unwrap(),
+        "application/x-mcap"
+    );
+    let scored = response.bytes().await.unwrap();
+    let out = tempfile::Builder::new().suffix(".mcap").tempfile().unwrap();
+    std::fs::write(out.path(), &scored).unwrap();
+    let bag = McapEpisode::open(out.path(), &Default::default()).unwrap();
+    let info = bag.info();
+    let count = |topic: &str| {
+        info.topics
+            .iter()
+            .find(|t| t.name == topic)
+            .map_or(0, |t| t.message_count)
+    };
+    assert_eq!(count("/vamos/score"), expected.len() as u64);
+    assert_eq!(count("/vamos/anomaly"), expected.len() as u64);
+    let image_topic = info
+        .topics
+        .iter()
+        .find(|t| t.schema == "sensor_msgs/msg/Image");
+    assert_eq!(image_topic.unwrap().message_count, expected.len() as u64);
+    // No upload is left behind in the data directory's tmp/ (the scoring task removes
+    // its copy when it ends, which may be just after the last score was sent).
+    let leftovers = || {
+        std::fs::read_dir(server.shared.upload_dir())
+            .unwrap()
+            .count()
+    };
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(10);
+    while leftovers() > 0 && std::time::Instant::now() < deadline {
+        tokio::time::sleep(std::time::Duration::from_millis(20)).await;
+    }
+    assert_eq!(leftovers(), 0);
+    // The same episode compressed as rosbag2 compresses files (streamed zstd, no declared
+    // size: a `.mcap.zstd`): decompressed in the upload folder, the same scores over REST
+    // (JSON and scored bag) and gRPC, and nothing left behind.
+    let packed = zstd::stream::encode_all(&bytes[..], 3).unwrap();
+    let body: serde_json::Value = http
+        .post(format!(
+            "http://{}/v1/episodes:score?profile=sim-arm&name={b}",
+            server.rest_addr
+        ))
+        .body(packed.clone())
+        .send()
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
+    let zstd_scores: Vec<f64> = body["frames"]
+        .as_array()
+        .unwrap_or_else(|| panic!("{body}"))
+        .iter()
+        .map(|j| j["score"].as_f64().unwrap())
+        .collect();
+    assert_eq!(
+        zstd_scores,
+        expected.iter().map(|o| o.score).collect::<Vec<_>>()
+    );
+    let response = http
+        .post(format!(
+            "http://{}/v1/episodes:score?profile=sim-arm&name={b}",
+            server.rest_addr
+        ))
+        .header("accept", "application/x-mcap")
+        .body(packed.clone())
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(response.status(), 200);
+    let out = tempfile::Builder::new().suffix(".mcap").tempfile().unwrap();
+    std::fs::write(out.path(), response.bytes().await.unwrap()).unwrap();
+    let unpacked = McapEpisode::open(out.path(), &Default::default())
+        .unwrap()
+        .info();
+    for topic in ["/vamos/score", "/vamos/anomaly"] {
+        let n = unpacked.topics.iter().find(|t| t.name == topic);
+        assert_eq!(n.map(|t| t.message_count), Some(count(topic)), "{topic}");
+    }
+    let chunk = proto::EpisodeChunk {
+        profile: "sim-arm".into(),
+        data: packed,
+        name: b.into(),
+    };
+    let mut out = client
+        .score_episode(tokio_stream::iter(vec![chunk]))
+        .await
+        .unwrap()
+        .into_inner();
+    let mut uploaded = Vec::new();
+    while let Some(s) = out.next().await {
+        uploaded.push(s.unwrap());
+    }
+    assert_same_scores(&uploaded, &expected);
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(10);
+    while leftovers() > 0 && std::time::Instant::now() < deadline {
+        tokio::time::sleep(std::time::Duration::from_millis(20)).await;
+    }
+    assert_eq!(leftovers(), 0);
+    // A truncated upload: the frames before the damage, then the damage reported.
+    let cut = &bytes[..bytes.len() * 2 / 3];
+    let body: serde_json::Value = http
+        .post(format!(
+            "http://{}/v1/episodes:score?profile=sim-arm",
+            server.rest_addr
+        ))
+        .body(cut.to_vec())
+        .send()
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
+    let n = body["frames"].as_array().unwrap().len();
+    assert!(n > 0 && n < expected.len(), "{n} of {}", expected.len());
+    assert!(body["damage"].as_str().unwrap().contains("damaged"));
+    server.shutdown().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn backpressure_drops_oldest_or_rejects_and_says_so() {
+    for policy in [
+        vamos::service::QueuePolicy::DropOldest,
+        vamos::service::QueuePolicy::Reject,
+    ] {
+        let mut f = fixture_setup(4, false);
+        f.settings.service.queue_depth = 2;
+        f.settings.service.queue_policy = policy;
+        f.settings.service.workers = 1;
+        let server = start(&f).await;
+        let name = "test_0000";
+        let (messages, camera) = episode_messages(&episode(name));
+        let images = messages
+            .iter()
+            .filter(|m| matches!(m, In::Image(_)))
+            .count() as u64;
+        // Everything at once: far faster than one worker scores.
+        let (scores, events) = stream_all(
+            server.grpc_addr,
+            None,
+            open_msg("sim-arm", name, camera),
+            messages,
+        )
+        .await
+        .unwrap();
+        let dropped = events
+            .iter()
+            .filter(|e| e.kind == proto::session_event::Kind::FramesDropped as i32)
+            .map(|e| e.count)
+            .max()
+            .unwrap_or(0);
+        assert!(dropped > 0, "{policy:?}: nothing dropped");
+        assert_eq!(scores.len() as u64 + dropped, images, "{policy:?}");
+        // Scores stay in stamp order.
+        assert!(scores.windows(2).all(|w| w[0].stamp_ns < w[1].stamp_ns));
+        let detail = &events
+            .iter()
+            .find(|e| e.kind == proto::session_event::Kind::FramesDropped as i32)
+            .unwrap()
+            .detail;
+        let reason = match policy {
+            vamos::service::QueuePolicy::DropOldest => "dropped (oldest first)",
+            vamos::service::QueuePolicy::Reject => "rejected",
+        };
+        assert!(detail.contains(reason), "{detail}");
+        let metrics = metrics_text(server.rest_addr).await;
+        let label = match policy {
+            vamos::service::QueuePolicy::DropOldest => "queue_full",
+            vamos::service::QueuePolicy::Reject => "rejected",
+        };
+        assert!(
+            metrics.contains(&format!(
+                "vamos_frames_dropped_total{{profile=\"sim-arm\",reason=\"{label}\"}} {dropped}"
+            )),
+            "{metrics}"
+        );
+        server.shutdown().await.unwrap();
+    }
+}
