@@ -10,7 +10,9 @@
 #  2. Python (clients/python): a virtual environment in .venv with the package and its
 #     `train` + `sim` + `test` extras (torch from PyPI: ~3 GB on the first run), then pytest,
 #     including the end-to-end test that runs the Rust binary built in step 1; then the
-#     ROS 2 package's tests (clients/ros2/vamos_bridge: no ROS needed, see its README).
+#     ROS 2 tests: the Python ROS 2 package's (clients/ros2/vamos_bridge: no ROS needed, see
+#     its README) and `vamos bridge` on the wire against Eclipse Cyclone DDS
+#     (clients/ros2/dds_wire).
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 
@@ -34,5 +36,5 @@ export PIP_NO_CACHE_DIR=1
 echo "== Python tests"
 VAMOS_BIN="$PWD/target/release/vamos" .venv/bin/python -m pytest clients/python/tests -q
 
-echo "== ROS 2 package tests (clients/ros2/vamos_bridge, without ROS)"
-VAMOS_BIN="$PWD/target/release/vamos" .venv/bin/python -m pytest clients/ros2/vamos_bridge -q
+echo "== ROS 2 tests (clients/ros2: the package without ROS; vamos bridge against Cyclone DDS)"
+VAMOS_BIN="$PWD/target/release/vamos" .venv/bin/python -m pytest clients/ros2 -q

@@ -20,6 +20,8 @@
 //!   and REST transports, the server.
 //! - [`client`] (`vamos_client`): a typed gRPC client and recorded episodes replayed as
 //!   live robots.
+//! - [`ros2`] (`vamos_ros2`): `vamos bridge`, a ROS 2 node over RustDDS that streams a
+//!   robot's topics to a server and publishes the scores, with no ROS installation.
 //! - `fuzz` (hidden): one entry point per parser of outside bytes, for the `cargo fuzz`
 //!   targets in `fuzz/` and the corpus regression test.
 //!
@@ -30,6 +32,7 @@ pub use vamos_core::{episode, eval, pipeline, setup};
 pub use vamos_model as model;
 pub use vamos_proto as proto;
 pub use vamos_robot as robot;
+pub use vamos_ros2 as ros2;
 pub use vamos_server::{api, config, service, session, store, telemetry};
 pub use vamos_vision as vision;
 

@@ -3,6 +3,7 @@
 //! `main.rs` only parses, loads the settings and dispatches. Helpers shared by several
 //! commands are below.
 
+pub mod bridge;
 pub mod calibrate;
 pub mod config;
 pub mod demo;

@@ -379,15 +379,36 @@ pub struct Session {
     inbound: tonic::Streaming<proto::StreamResponse>,
 }
 
+/// The sending side of a session ([`Session::take_sender`]); clones send on the same
+/// stream.
+#[derive(Clone)]
+pub struct SessionSender(tokio::sync::mpsc::Sender<proto::StreamRequest>);
+
+impl SessionSender {
+    /// Sends one message (image, joint state or phase marker); waits while the stream's
+    /// buffer is full.
+    pub async fn send(&self, message: In) -> Result<(), ClientError> {
+        self.0
+            .send(proto::StreamRequest {
+                message: Some(message),
+            })
+            .await
+            .map_err(|_| ClientError::Closed)
+    }
+}
+
 impl Session {
     /// Sends one message (image, joint state or phase marker).
     pub async fn send(&mut self, message: In) -> Result<(), ClientError> {
-        let tx = self.tx.as_ref().ok_or(ClientError::Closed)?;
-        tx.send(proto::StreamRequest {
-            message: Some(message),
-        })
-        .await
-        .map_err(|_| ClientError::Closed)
+        let tx = self.tx.clone().ok_or(ClientError::Closed)?;
+        SessionSender(tx).send(message).await
+    }
+
+    /// The request side as a handle of its own, for a task apart from the one reading
+    /// the answers (this session's `send` fails from then on). The request stream ends
+    /// when every clone of it is dropped.
+    pub fn take_sender(&mut self) -> Option<SessionSender> {
+        self.tx.take().map(SessionSender)
     }
 
     /// Ends the request side: the server scores what it has, then ends the stream.

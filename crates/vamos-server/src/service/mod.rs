@@ -25,7 +25,7 @@ use crate::store::StoreError;
 use std::path::PathBuf;
 
 pub use crate::config::{FleetRole, QueuePolicy, ServiceConfig, SharedStoreConfig, TlsConfig};
-pub use server::{RunningServer, Server, serve};
+pub use server::{RunningServer, Server, serve, wait_for_signal};
 
 /// Errors of starting and stopping the server.
 #[derive(Debug, thiserror::Error)]

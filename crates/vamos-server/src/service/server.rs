@@ -361,7 +361,8 @@ pub async fn serve(settings: Settings) -> Result<(), ServiceError> {
     server.shutdown().await
 }
 
-async fn wait_for_signal() {
+/// Completes at SIGTERM or Ctrl-C (Ctrl-C only where SIGTERM cannot be watched).
+pub async fn wait_for_signal() {
     #[cfg(unix)]
     {
         use tokio::signal::unix::{SignalKind, signal};

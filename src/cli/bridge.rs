@@ -1,0 +1,120 @@
+//! `vamos bridge`: a ROS 2 node, with no ROS installation, that streams a robot's camera
+//! and joint states from the graph to a running vamos server and publishes the scores
+//! back (crates/vamos-ros2). Stops on SIGTERM or Ctrl-C after the last scores.
+
+use anyhow::{Context, Result};
+use std::path::PathBuf;
+use std::time::Duration;
+use vamos::client::ClientOptions;
+use vamos::ros2::BridgeOptions;
+
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// gRPC URL of the server (`https://` needs --ca).
+    #[arg(long, default_value = "http://127.0.0.1:8081")]
+    pub server: String,
+    /// The server's profile to score with.
+    #[arg(long)]
+    pub profile: String,
+    /// Bearer token of a robot (default: $VAMOS_ROBOT_TOKEN).
+    #[arg(long, env = "VAMOS_ROBOT_TOKEN", hide_env_values = true)]
+    pub token: Option<String>,
+    /// CA certificate (PEM) of an https:// server.
+    #[arg(long)]
+    pub ca: Option<PathBuf>,
+    /// DDS domain of the ROS 2 graph.
+    #[arg(long, env = "ROS_DOMAIN_ID", default_value_t = 0)]
+    pub domain_id: u16,
+    /// The node's namespace: relative topics resolve under it, so each robot's bridge
+    /// runs in its own (`--namespace robot1` reads /robot1/camera/image_raw).
+    #[arg(long, default_value = "")]
+    pub namespace: String,
+    /// The node's name.
+    #[arg(long, default_value = "vamos_bridge")]
+    pub node_name: String,
+    /// The robot's id in the session (default: the namespace, or the node's name).
+    #[arg(long)]
+    pub robot_id: Option<String>,
+    /// Session id (default: ROBOT_ID-<random>; a fixed one resumes after a restart).
+    #[arg(long)]
+    pub session_id: Option<String>,
+    /// Task label recorded with the session.
+    #[arg(long, default_value = "")]
+    pub task: String,
+    /// Camera images, sensor_msgs/Image (relative: under the namespace).
+    #[arg(long, default_value = "camera/image_raw")]
+    pub image_topic: String,
+    /// The image topic carries sensor_msgs/CompressedImage (JPEG or PNG) instead.
+    #[arg(long)]
+    pub compressed: bool,
+    /// sensor_msgs/CameraInfo of the camera (its first calibrated message is sent when
+    /// the session opens; without one the profile's camera applies).
+    #[arg(long, default_value = "camera/camera_info")]
+    pub camera_info_topic: String,
+    /// sensor_msgs/JointState topic; repeat for several.
+    #[arg(long = "joint-states-topic", default_value = "joint_states")]
+    pub joint_states_topics: Vec<String>,
+    /// vamos_msgs/FrameScore output, stamped with the scored image's header.
+    #[arg(long, default_value = "vamos/frame_score")]
+    pub frame_score_topic: String,
+    /// std_msgs/Float64 score output (unstamped, for plots).
+    #[arg(long, default_value = "vamos/score")]
+    pub score_topic: String,
+    /// std_msgs/Bool anomaly output (unstamped).
+    #[arg(long, default_value = "vamos/anomaly")]
+    pub anomaly_topic: String,
+    /// Period of diagnostic_msgs/DiagnosticArray on /diagnostics, seconds.
+    #[arg(long, default_value_t = 1.0, value_parser = positive_seconds)]
+    pub diagnostics_period: f64,
+}
+
+fn positive_seconds(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(v) if v.is_finite() && v > 0.0 && v < 1e6 => Ok(v),
+        _ => Err(format!("{s:?} is not a period in seconds (> 0)")),
+    }
+}
+
+/// Runs the node until SIGTERM or Ctrl-C.
+pub fn run(args: Args) -> Result<()> {
+    let ca_pem = match &args.ca {
+        Some(p) => Some(std::fs::read(p).with_context(|| format!("cannot read {}", p.display()))?),
+        None => None,
+    };
+    let options = BridgeOptions {
+        server: args.server,
+        client: ClientOptions {
+            token: args.token,
+            ca_pem,
+            ..ClientOptions::default()
+        },
+        profile: args.profile,
+        domain_id: args.domain_id,
+        namespace: args.namespace,
+        node_name: args.node_name,
+        robot_id: args.robot_id,
+        session_id: args.session_id,
+        task: args.task,
+        image_topic: args.image_topic,
+        compressed: args.compressed,
+        camera_info_topic: args.camera_info_topic,
+        joint_states_topics: args.joint_states_topics,
+        frame_score_topic: args.frame_score_topic,
+        score_topic: args.score_topic,
+        anomaly_topic: args.anomaly_topic,
+        diagnostics_period: Duration::from_secs_f64(args.diagnostics_period),
+    };
+    let report = super::async_runtime()?
+        .block_on(vamos::ros2::run(options, vamos::service::wait_for_signal()))?;
+    eprintln!(
+        "vamos bridge: session {}, {} images sent, {} scores published, {} dropped, {} refused, \
+         {} reconnects",
+        report.session_id,
+        report.images_sent,
+        report.scores_published,
+        report.dropped,
+        report.refused,
+        report.reconnects
+    );
+    Ok(())
+}
