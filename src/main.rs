@@ -153,6 +153,13 @@ fn run(cli: Cli) -> Result<()> {
         // informational logs would bury it (--log-level info brings them back).
         settings.log.level = "warn".into();
     }
+    if matches!(cli.command, Command::Bridge(_)) {
+        // RustDDS logs every discovery step at info, and ros2-client warns that
+        // ROS_DISTRO is unset, which is normal without a ROS installation: the bridge's own
+        // logs stay at the level asked for, theirs from warn and error up (RUST_LOG
+        // replaces all of this).
+        settings.log.level = cli::bridge::quieter_dds(&settings.log.level);
+    }
     if let Some(format) = cli.log_format {
         settings.log.format = format;
     }

@@ -75,6 +75,25 @@ fn positive_seconds(s: &str) -> Result<f64, String> {
     }
 }
 
+/// `level` with the DDS crates' logs at warn (their discovery chatter is at info) and
+/// ros2-client's ROS_DISTRO check at error, unless `level` names them itself.
+pub fn quieter_dds(level: &str) -> String {
+    let mut out = level.to_string();
+    for (target, at) in [
+        ("rustdds", "warn"),
+        ("ros2_client", "warn"),
+        ("ros2_client::distributions", "error"),
+    ] {
+        let named = level
+            .split(',')
+            .any(|d| d.trim().split(['=', '[']).next() == Some(target));
+        if !named {
+            out.push_str(&format!(",{target}={at}"));
+        }
+    }
+    out
+}
+
 /// Runs the node until SIGTERM or Ctrl-C.
 pub fn run(args: Args) -> Result<()> {
     let ca_pem = match &args.ca {
@@ -117,4 +136,21 @@ pub fn run(args: Args) -> Result<()> {
         report.reconnects
     );
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::quieter_dds;
+
+    #[test]
+    fn dds_logs_are_quieter_unless_named() {
+        assert_eq!(
+            quieter_dds("info"),
+            "info,rustdds=warn,ros2_client=warn,ros2_client::distributions=error"
+        );
+        assert_eq!(
+            quieter_dds("debug,rustdds=trace"),
+            "debug,rustdds=trace,ros2_client=warn,ros2_client::distributions=error"
+        );
+    }
 }

@@ -230,6 +230,7 @@ async fn tokens_never_reach_the_logs() {
     for (command, var) in [
         ("loadgen", "VAMOS_LOADGEN_TOKEN"),
         ("stream", "VAMOS_ROBOT_TOKEN"),
+        ("bridge", "VAMOS_ROBOT_TOKEN"),
     ] {
         let out = std::process::Command::new(env!("CARGO_BIN_EXE_vamos"))
             .args([command, "--help"])

@@ -2,20 +2,34 @@
 //! episodes streamed as concurrent robots over gRPC, the report.
 
 use serde_json::Value;
+use std::path::Path;
 use std::process::Command;
+
+/// `vamos demo ARGS --out OUT` with warnings only and no tokens from the caller's
+/// environment (the demo's server makes its own).
+fn demo_command(args: &[&str], out: &Path) -> Command {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_vamos"));
+    cmd.arg("demo")
+        .args(args)
+        .arg("--out")
+        .arg(out)
+        .env("VAMOS_LOG__LEVEL", "warn")
+        .env_remove("VAMOS_ADMIN_TOKEN")
+        .env_remove("VAMOS_ROBOT_TOKEN")
+        .env_remove("VAMOS_VIEWER_TOKEN");
+    cmd
+}
+
+/// The run's `report.json`.
+fn read_report(out: &Path) -> Value {
+    serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap()
+}
 
 #[test]
 fn the_demo_streams_the_bundled_episodes_and_writes_its_report() {
     let dir = tempfile::tempdir().unwrap();
     let out_dir = dir.path().join("demo");
-    let out = Command::new(env!("CARGO_BIN_EXE_vamos"))
-        .args(["demo", "--quiet", "--out"])
-        .arg(&out_dir)
-        .env("VAMOS_LOG__LEVEL", "warn")
-        .env_remove("VAMOS_ADMIN_TOKEN")
-        .env_remove("VAMOS_ROBOT_TOKEN")
-        .output()
-        .unwrap();
+    let out = demo_command(&["--quiet"], &out_dir).output().unwrap();
     let stdout = String::from_utf8_lossy(&out.stdout);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "demo failed:\n{stdout}\n{stderr}");
@@ -35,9 +49,7 @@ fn the_demo_streams_the_bundled_episodes_and_writes_its_report() {
         "{runtime}"
     );
 
-    let report: Value =
-        serde_json::from_str(&std::fs::read_to_string(out_dir.join("report.json")).unwrap())
-            .unwrap();
+    let report = read_report(&out_dir);
     let episodes = report["episodes"].as_array().unwrap();
     let bundled = std::fs::read_dir(out_dir.join("assets/episodes"))
         .unwrap()
@@ -107,16 +119,11 @@ fn the_demo_streams_the_bundled_episodes_and_writes_its_report() {
 
     // A second run reuses the unpacked assets and gives the same scores (the pipeline
     // is deterministic for a given session).
-    let again = Command::new(env!("CARGO_BIN_EXE_vamos"))
-        .args(["demo", "--quiet", "--robots", "2", "--out"])
-        .arg(&out_dir)
-        .env("VAMOS_LOG__LEVEL", "warn")
+    let again = demo_command(&["--quiet", "--robots", "2"], &out_dir)
         .output()
         .unwrap();
     assert!(again.status.success());
-    let second: Value =
-        serde_json::from_str(&std::fs::read_to_string(out_dir.join("report.json")).unwrap())
-            .unwrap();
+    let second = read_report(&out_dir);
     assert_eq!(
         second["evaluation"]["auc_roc"],
         report["evaluation"]["auc_roc"]
@@ -138,13 +145,7 @@ async fn demo_serve_keeps_the_page_and_the_robots_up_until_interrupted() {
         }
     }
     let dir = tempfile::tempdir().unwrap();
-    let child = Command::new(env!("CARGO_BIN_EXE_vamos"))
-        .args(["demo", "--quiet", "--serve", "--out"])
-        .arg(dir.path().join("demo"))
-        .env("VAMOS_LOG__LEVEL", "warn")
-        .env_remove("VAMOS_ADMIN_TOKEN")
-        .env_remove("VAMOS_ROBOT_TOKEN")
-        .env_remove("VAMOS_VIEWER_TOKEN")
+    let child = demo_command(&["--quiet", "--serve"], &dir.path().join("demo"))
         .stdout(std::process::Stdio::piped())
         .spawn()
         .unwrap();
@@ -215,24 +216,15 @@ async fn demo_serve_keeps_the_page_and_the_robots_up_until_interrupted() {
 fn without_onnx_runtime_the_demo_runs_without_the_model() {
     let dir = tempfile::tempdir().unwrap();
     for (args, env_path) in [
-        (
-            &["demo", "--quiet"][..],
-            Some("/nonexistent/libonnxruntime.so"),
-        ),
-        (&["demo", "--quiet", "--no-model"][..], None),
+        (&["--quiet"][..], Some("/nonexistent/libonnxruntime.so")),
+        (&["--quiet", "--no-model"][..], None),
     ] {
         let out_dir = dir.path().join(if env_path.is_some() {
             "fallback"
         } else {
             "asked"
         });
-        let mut cmd = Command::new(env!("CARGO_BIN_EXE_vamos"));
-        cmd.args(args)
-            .arg("--out")
-            .arg(&out_dir)
-            .env("VAMOS_LOG__LEVEL", "warn")
-            .env_remove("VAMOS_ADMIN_TOKEN")
-            .env_remove("VAMOS_ROBOT_TOKEN");
+        let mut cmd = demo_command(args, &out_dir);
         if let Some(p) = env_path {
             cmd.env("ORT_DYLIB_PATH", p);
         }
@@ -250,9 +242,7 @@ fn without_onnx_runtime_the_demo_runs_without_the_model() {
             stdout.contains("profile \"demo-no-model\", model none"),
             "{stdout}"
         );
-        let report: Value =
-            serde_json::from_str(&std::fs::read_to_string(out_dir.join("report.json")).unwrap())
-                .unwrap();
+        let report = read_report(&out_dir);
         assert_eq!(report["profile"], "demo-no-model");
         assert_eq!(report["frames_scored"], report["images_sent"]);
         let alarmed = report["episodes"]

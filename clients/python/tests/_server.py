@@ -40,7 +40,8 @@ def vamos_bin() -> Path:
 class Server:
     """``vamos serve`` with the ``sim-arm`` profile, admin and robot tokens, on free ports.
     ``profile_keys`` (top-level keys, e.g. ``model = "..."``) go before the profile's
-    tables, ``profile_extra`` (tables, e.g. ``[thresholds]``) after them.
+    tables, ``profile_extra`` (tables, e.g. ``[thresholds]``) after them. ``grpc_port``: a
+    port chosen beforehand (a client started before the server), else a free one.
 
     The constructor returns once ``GET /readyz`` answers ready (or fails the test when
     the process exits or 60 s pass). The server's stderr goes to a file in ``tmp`` so a
@@ -48,7 +49,7 @@ class Server:
     """
 
     def __init__(self, bin: Path, tmp: Path, env: "dict[str, str] | None" = None,
-                 profile_keys: str = "", profile_extra: str = "") -> None:
+                 profile_keys: str = "", profile_extra: str = "", grpc_port: "int | None" = None) -> None:
         self.bin, self.tmp = bin, tmp
         tmp.mkdir(parents=True, exist_ok=True)
         self.profile = tmp / "sim-arm.toml"
@@ -60,7 +61,7 @@ class Server:
         self.env = {k: v for k, v in os.environ.items() if not k.startswith("VAMOS_")}
         self.env.update(VAMOS_LOG__LEVEL="warn", VAMOS_ADMIN_TOKEN=ADMIN, VAMOS_ROBOT_TOKEN=ROBOT)
         self.env.update(env or {})
-        self.grpc_port, self.rest_port = free_port(), free_port()
+        self.grpc_port, self.rest_port = grpc_port or free_port(), free_port()
         self.grpc = f"127.0.0.1:{self.grpc_port}"
         self.rest = f"http://127.0.0.1:{self.rest_port}"
         self.stderr_path = tmp / "server.stderr"

@@ -14,6 +14,7 @@ extra of clients/python); skipped without them.
 
 from __future__ import annotations
 
+import copy
 import math
 import os
 import random
@@ -41,7 +42,7 @@ sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(ROOT / "clients" / "python" / "tests"))
 
 import ros2_types as ros  # noqa: E402
-from _server import ROBOT, Server, vamos_bin  # noqa: E402
+from _server import ROBOT, Server, free_port, vamos_bin  # noqa: E402
 
 EPISODE = ROOT / "tests" / "fixtures" / "sim" / "test" / "test_0000.mcap"
 RELIABLE = Qos(Policy.Reliability.Reliable(max_blocking_time=1_000_000_000), Policy.History.KeepLast(100))
@@ -92,12 +93,134 @@ def stamp_ns(h: ros.Header) -> int:
     return h.stamp.sec * 1_000_000_000 + h.stamp.nanosec
 
 
-def wait_for(predicate: Any, timeout_s: float, what: str, proc: subprocess.Popen[bytes], log: Path) -> None:
-    deadline = time.monotonic() + timeout_s
-    while not predicate():
-        assert proc.poll() is None, f"the bridge exited ({proc.returncode}) while waiting for {what}:\n" + log.read_text()
-        assert time.monotonic() < deadline, f"timed out waiting for {what}; bridge log:\n" + log.read_text()
-        time.sleep(0.05)
+class Robot:
+    """A robot on Cyclone DDS in its own domain (parallel runs on one host do not meet):
+    writers of robot1's camera, camera info and joint states (and robot2's camera), readers
+    of the bridge's outputs, and ``vamos bridge`` itself, started on ``server_url``."""
+
+    def __init__(self, bin: Path, tmp: Path, server_url: str, env: dict[str, str], compressed: bool = False,
+                 extra: tuple[str, ...] = ()) -> None:
+        self.compressed = compressed
+        domain = random.randint(100, 200)
+        self.log = tmp / "bridge.log"
+        with self.log.open("wb") as err:
+            self.bridge = subprocess.Popen(
+                [str(bin), "bridge", "--server", server_url, "--profile", "sim-arm", "--namespace", "robot1",
+                 "--domain-id", str(domain), "--diagnostics-period", "0.2",
+                 *(["--compressed"] if compressed else []), *extra],
+                stdout=subprocess.DEVNULL, stderr=err,
+                env=dict(env, VAMOS_ROBOT_TOKEN=ROBOT, VAMOS_LOG__LEVEL="info"))
+        dp = DomainParticipant(domain)
+        topic = lambda name, ty: Topic(dp, name, ty)  # noqa: E731
+        image_type = ros.CompressedImage if compressed else ros.Image
+        self.image_w = DataWriter(dp, topic("rt/robot1/camera/image_raw", image_type), qos=RELIABLE)
+        self.info_w = DataWriter(dp, topic("rt/robot1/camera/camera_info", ros.CameraInfo), qos=RELIABLE)
+        self.joints_w = DataWriter(dp, topic("rt/robot1/joint_states", ros.JointState), qos=RELIABLE)
+        # Another robot's camera in the same domain: the namespace keeps it out.
+        self.other_w = DataWriter(dp, topic("rt/robot2/camera/image_raw", image_type), qos=RELIABLE)
+        self.scores_r = DataReader(dp, topic("rt/robot1/vamos/frame_score", ros.FrameScore), qos=RELIABLE)
+        self.plain_r = DataReader(dp, topic("rt/robot1/vamos/score", ros.Float64), qos=RELIABLE)
+        self.anomaly_r = DataReader(dp, topic("rt/robot1/vamos/anomaly", ros.Bool), qos=RELIABLE)
+        self.diag_r = DataReader(dp, topic("rt/diagnostics", ros.DiagnosticArray), qos=RELIABLE)
+        self.scores: list[ros.FrameScore] = []
+        self.plain: list[float] = []
+        self.anomalies: list[bool] = []
+        self.statuses: list[ros.DiagnosticStatus] = []
+        self.offset_ns = 0
+        # Discovery both ways before the first sample (the bridge's best-effort readers
+        # would miss samples written before they matched).
+        self.wait_for(lambda: all(w.get_matched_subscriptions() for w in (self.image_w, self.info_w, self.joints_w)),
+                      30, "the bridge's subscriptions")
+        self.wait_for(lambda: self.scores_r.get_matched_publications() and self.diag_r.get_matched_publications(),
+                      30, "the bridge's publishers")
+
+    def wait_for(self, predicate: Any, timeout_s: float, what: str) -> None:
+        deadline = time.monotonic() + timeout_s
+        while not predicate():
+            assert self.bridge.poll() is None, \
+                f"the bridge exited ({self.bridge.returncode}) while waiting for {what}:\n" + self.log.read_text()
+            assert time.monotonic() < deadline, f"timed out waiting for {what}; bridge log:\n" + self.log.read_text()
+            time.sleep(0.05)
+            self.drain()
+
+    def drain(self) -> None:
+        def take(reader: DataReader, ty: type) -> list[Any]:
+            # Without the InvalidSample notices of a writer that left.
+            return [m for m in reader.take(N=100) if isinstance(m, ty)]
+
+        self.scores.extend(take(self.scores_r, ros.FrameScore))
+        self.plain.extend(m.data for m in take(self.plain_r, ros.Float64))
+        self.anomalies.extend(m.data for m in take(self.anomaly_r, ros.Bool))
+        self.statuses.extend(st for d in take(self.diag_r, ros.DiagnosticArray) for st in d.status)
+
+    def write(self, kind: str, m: Any, other_robot: bool = False) -> None:
+        """Publishes one message of the bag, its stamp moved on by the passes before
+        (a session's stamps only go forward)."""
+        if self.offset_ns:
+            m = copy.copy(m)
+            ns = stamp_ns(m.header) + self.offset_ns
+            m.header = ros.Header(ros.Time(ns // 1_000_000_000, ns % 1_000_000_000), m.header.frame_id)
+        if kind == "image":
+            image = png(m) if self.compressed else m
+            self.image_w.write(image)
+            if other_robot:
+                self.other_w.write(image)
+        elif kind == "camera_info":
+            self.info_w.write(m)
+        else:
+            self.joints_w.write(m)
+
+    def next_pass(self, messages: list[tuple[str, Any]]) -> None:
+        stamps = [stamp_ns(m.header) for _, m in messages]
+        self.offset_ns += max(stamps) - min(stamps) + 1_000_000_000
+
+    def play(self, messages: list[tuple[str, Any]], ahead: int = 3) -> None:
+        """Publishes the messages in order, each image once the bridge has published
+        scores for all but ``ahead`` of the images before it (a robot within the
+        server's queue)."""
+        base = len(self.scores)
+        sent = 0
+        for kind, m in messages:
+            if kind == "image":
+                self.wait_for(lambda: len(self.scores) - base >= sent - ahead, 30, "scores")
+                sent += 1
+            self.write(kind, m, other_robot=True)
+        self.next_pass(messages)
+
+    def stream_until(self, messages: list[tuple[str, Any]], done: Any, what: str, timeout_s: float = 20) -> None:
+        """Publishes the messages round and round at about 25 messages a second, not paced
+        by scores, until ``done()``."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            for kind, m in messages:
+                self.write(kind, m)
+                time.sleep(0.04)
+                self.drain()
+                if done():
+                    self.next_pass(messages)
+                    return
+                assert self.bridge.poll() is None, self.log.read_text()
+                assert time.monotonic() < deadline, f"timed out waiting for {what}; bridge log:\n" + self.log.read_text()
+            self.next_pass(messages)
+
+    def stop(self) -> str:
+        """SIGTERM, collecting what the bridge publishes until it exits; its log."""
+        # The last images are scored once later joint states arrive or the session ends.
+        time.sleep(0.5)
+        self.bridge.send_signal(signal.SIGTERM)
+        deadline = time.monotonic() + 20
+        while self.bridge.poll() is None and time.monotonic() < deadline:
+            self.drain()
+            time.sleep(0.05)
+        assert self.bridge.wait(timeout=5) == 0, self.log.read_text()
+        time.sleep(0.3)
+        self.drain()
+        return self.log.read_text()
+
+    def kill(self) -> None:
+        if self.bridge.poll() is None:
+            self.bridge.kill()
+            self.bridge.wait()
 
 
 @pytest.mark.parametrize("compressed", [False, True], ids=["image", "compressed_png"])
@@ -108,116 +231,87 @@ def test_cyclone_dds_robot_gets_the_scores_vamos_score_gives(tmp_path: Path, com
         # The reference: the same bag scored offline with the same profile.
         reference = {int(r["stamp_ns"]): r for r in server.offline(EPISODE)}
         assert len(reference) >= 20
-
-        # A domain of its own, so parallel runs on one host do not meet.
-        domain = random.randint(100, 200)
-        log = tmp_path / "bridge.log"
-        env = dict(server.env, VAMOS_ROBOT_TOKEN=ROBOT, VAMOS_LOG__LEVEL="info")
-        with log.open("wb") as err:
-            bridge = subprocess.Popen(
-                [str(bin), "bridge", "--server", f"http://{server.grpc}", "--profile", "sim-arm",
-                 "--namespace", "robot1", "--domain-id", str(domain), "--diagnostics-period", "0.2",
-                 *(["--compressed"] if compressed else [])],
-                stdout=subprocess.DEVNULL, stderr=err, env=env)
+        robot = Robot(bin, tmp_path, f"http://{server.grpc}", server.env, compressed)
         try:
-            dp = DomainParticipant(domain)
-            topic = lambda name, ty: Topic(dp, name, ty)  # noqa: E731
-            image_type = ros.CompressedImage if compressed else ros.Image
-            image_w = DataWriter(dp, topic("rt/robot1/camera/image_raw", image_type), qos=RELIABLE)
-            info_w = DataWriter(dp, topic("rt/robot1/camera/camera_info", ros.CameraInfo), qos=RELIABLE)
-            joints_w = DataWriter(dp, topic("rt/robot1/joint_states", ros.JointState), qos=RELIABLE)
-            # Another robot's camera in the same domain: the namespace keeps it out.
-            other_w = DataWriter(dp, topic("rt/robot2/camera/image_raw", image_type), qos=RELIABLE)
-            scores_r = DataReader(dp, topic("rt/robot1/vamos/frame_score", ros.FrameScore), qos=RELIABLE)
-            plain_r = DataReader(dp, topic("rt/robot1/vamos/score", ros.Float64), qos=RELIABLE)
-            anomaly_r = DataReader(dp, topic("rt/robot1/vamos/anomaly", ros.Bool), qos=RELIABLE)
-            diag_r = DataReader(dp, topic("rt/diagnostics", ros.DiagnosticArray), qos=RELIABLE)
-
-            # Discovery both ways before the first sample (best-effort readers on the
-            # bridge's side would miss samples written before they matched).
-            wait_for(lambda: all(w.get_matched_subscriptions() for w in (image_w, info_w, joints_w)), 30,
-                     "the bridge's subscriptions", bridge, log)
-            wait_for(lambda: scores_r.get_matched_publications() and diag_r.get_matched_publications(), 30,
-                     "the bridge's publishers", bridge, log)
-
             messages = read_episode(EPISODE)
             images = [m for kind, m in messages if kind == "image"]
-            scores: list[ros.FrameScore] = []
-            plain: list[float] = []
-            anomalies: list[bool] = []
-            diagnostics: list[ros.DiagnosticArray] = []
-
-            def take(reader: DataReader, ty: type) -> list[Any]:
-                # Without the InvalidSample notices of a writer that left.
-                return [m for m in reader.take(N=100) if isinstance(m, ty)]
-
-            def drain() -> None:
-                scores.extend(take(scores_r, ros.FrameScore))
-                plain.extend(m.data for m in take(plain_r, ros.Float64))
-                anomalies.extend(m.data for m in take(anomaly_r, ros.Bool))
-                diagnostics.extend(take(diag_r, ros.DiagnosticArray))
-
-            sent = 0
-            for kind, m in messages:
-                if kind == "image":
-                    # Paced by the answers, as a robot within the server's queue would be.
-                    wait_for(lambda: (drain(), len(scores) >= sent - 3)[1], 30, "scores", bridge, log)
-                    image_w.write(png(m) if compressed else m)
-                    other_w.write(png(m) if compressed else m)
-                    sent += 1
-                elif kind == "camera_info":
-                    info_w.write(m)
-                else:
-                    joints_w.write(m)
-            # The last images are scored once later joint states arrive or the session
-            # ends: stop the bridge (SIGTERM) and collect what it publishes before it exits.
-            time.sleep(0.5)
-            bridge.send_signal(signal.SIGTERM)
-            deadline = time.monotonic() + 20
-            while bridge.poll() is None and time.monotonic() < deadline:
-                drain()
-                time.sleep(0.05)
-            assert bridge.wait(timeout=5) == 0, log.read_text()
-            time.sleep(0.3)
-            drain()
+            robot.play(messages)
+            text = robot.stop()
         finally:
-            if bridge.poll() is None:
-                bridge.kill()
-                bridge.wait()
-
-        text = log.read_text()
-        assert "/robot1/camera/image_raw" in text, text
-        # Every score the offline run gives, in the image's frame, equal to it.
-        image_stamps = {stamp_ns(m.header) for m in images}
-        got = {stamp_ns(s.header): s for s in scores}
-        assert len(got) == len(scores), "one score per image"
-        assert set(got) == set(reference), (sorted(set(reference) - set(got)), sorted(set(got) - set(reference)))
-        assert set(got) <= image_stamps
-        print(f"{len(images)} images, {len(scores)} scores, {len(diagnostics)} diagnostics")
-        for ns, s in got.items():
-            r = reference[ns]
-            assert s.header.frame_id == images[0].header.frame_id
-            assert math.isclose(s.score, r["score"], rel_tol=1e-9, abs_tol=1e-12), (ns, s.score, r["score"])
-            assert s.anomaly == r["anomaly"]
-            for key in ("e_c", "e_b", "e_o", "e_r", "e_k"):
-                want = r.get(key)
-                have = getattr(s, key)
-                assert (math.isnan(have) if want is None else math.isclose(have, want, rel_tol=1e-9, abs_tol=1e-12)), \
-                    (ns, key, have, want)
-            assert s.session_id.startswith("robot1-") and s.latency_s >= 0
-        # The plain outputs follow the stamped ones, one each per score.
-        assert plain == [s.score for s in scores]
-        assert anomalies == [s.anomaly for s in scores]
-        # Diagnostics: the bridge's status, OK while scoring, with its counters and topics.
-        statuses = [st for d in diagnostics for st in d.status]
-        assert statuses and all(st.hardware_id == "robot1" for st in statuses)
-        assert all(st.name == "vamos: /robot1/vamos_bridge" for st in statuses)
-        ok = [st for st in statuses if st.level in (0, b"\x00") and st.message.startswith("scoring")]
-        assert ok, [(st.level, st.message) for st in statuses]
-        values = dict((kv.key, kv.value) for kv in statuses[-1].values)
-        assert values["image_topic"] == "/robot1/camera/image_raw"
-        assert values["profile"] == "sim-arm"
-        assert int(values["images_sent"]) == len(images), values
-        assert int(values["frames_scored"]) == len(scores)
+            robot.kill()
     finally:
         server.stop()
+
+    assert "/robot1/camera/image_raw" in text, text
+    scores = robot.scores
+    # Every score the offline run gives, in the image's frame, equal to it.
+    got = {stamp_ns(s.header): s for s in scores}
+    assert len(got) == len(scores), "one score per image"
+    # On failure: the bridge's own counts and warnings say on which side a score went missing.
+    last = dict((kv.key, kv.value) for kv in robot.statuses[-1].values) if robot.statuses else {}
+    why = (f"bridge: {last}; {len(robot.plain)} plain scores; warnings: "
+           + "".join(line for line in text.splitlines(keepends=True) if "WARN" in line and "vamos" in line))
+    assert set(got) == set(reference), (sorted(set(reference) - set(got)), sorted(set(got) - set(reference)), why)
+    assert set(got) <= {stamp_ns(m.header) for m in images}
+    for ns, s in got.items():
+        r = reference[ns]
+        assert s.header.frame_id == images[0].header.frame_id
+        assert math.isclose(s.score, r["score"], rel_tol=1e-9, abs_tol=1e-12), (ns, s.score, r["score"])
+        assert s.anomaly == r["anomaly"]
+        for key in ("e_c", "e_b", "e_o", "e_r", "e_k"):
+            want = r.get(key)
+            have = getattr(s, key)
+            assert (math.isnan(have) if want is None else math.isclose(have, want, rel_tol=1e-9, abs_tol=1e-12)), \
+                (ns, key, have, want)
+        assert s.session_id.startswith("robot1-") and s.latency_s >= 0
+    # The plain outputs follow the stamped ones, one each per score.
+    assert robot.plain == [s.score for s in scores]
+    assert robot.anomalies == [s.anomaly for s in scores]
+    # Diagnostics: the bridge's status, OK while scoring, with its counters and topics.
+    statuses = robot.statuses
+    assert statuses and all(st.hardware_id == "robot1" for st in statuses)
+    assert all(st.name == "vamos: /robot1/vamos_bridge" for st in statuses)
+    assert any(st.level == 0 and st.message.startswith("scoring") for st in statuses), \
+        [(st.level, st.message) for st in statuses]
+    values = dict((kv.key, kv.value) for kv in statuses[-1].values)
+    assert values["image_topic"] == "/robot1/camera/image_raw"
+    assert values["profile"] == "sim-arm"
+    # robot2's images never reached the session.
+    assert int(values["images_sent"]) == len(images), values
+    assert int(values["frames_scored"]) == len(scores)
+
+
+def test_bridge_waits_for_a_late_server_and_reconnects_after_a_restart(tmp_path: Path) -> None:
+    """Robots boot before servers, and servers restart: the bridge reports ERROR while it
+    cannot reach vamos, opens the session when the server comes up, and opens it again
+    after the server restarted, with no restart of its own."""
+    bin = vamos_bin()
+    port = free_port()
+    env = {k: v for k, v in os.environ.items() if not k.startswith("VAMOS_")}
+    messages = read_episode(EPISODE)
+    robot = Robot(bin, tmp_path, f"http://127.0.0.1:{port}", env, extra=("--session-id", "robot1-late"))
+    try:
+        # No server: images are dropped, the diagnostics say why.
+        robot.stream_until(messages, lambda: any(st.level == 2 and st.message.startswith("not connected to vamos")
+                                                 for st in robot.statuses), "an ERROR diagnostic")
+        assert not robot.scores
+        for round_ in range(2):
+            server = Server(bin, tmp_path / f"server{round_}", grpc_port=port)
+            try:
+                before = len(robot.scores)
+                # A robot streams on: the bridge opens the session at an image after the
+                # server is up (it tries at most once a second).
+                robot.stream_until(messages, lambda: len(robot.scores) > before, "the first score")
+                robot.play(messages)
+                robot.wait_for(lambda: len(robot.scores) - before >= 20, 30, "scores after the server came up")
+            finally:
+                server.stop()
+            robot.statuses.clear()
+            robot.wait_for(lambda: any(st.level == 2 for st in robot.statuses), 10, "ERROR after the server stopped")
+        text = robot.stop()
+    finally:
+        robot.kill()
+    assert all(s.session_id == "robot1-late" for s in robot.scores)
+    values = dict((kv.key, kv.value) for kv in robot.statuses[-1].values)
+    assert int(values["reconnects"]) >= 1, values
+    assert "cannot open the session" in text, text

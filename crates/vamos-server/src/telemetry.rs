@@ -138,12 +138,13 @@ const WORKSPACE_CRATES: &[&str] = &[
     "vamos_proto",
     "vamos_server",
     "vamos_client",
+    "vamos_ros2",
 ];
 
 /// Where a top-level module of the `vamos` library lives (its re-exports), as a target.
 fn module_target(module: &str) -> Option<String> {
     let krate = match module {
-        "vision" | "robot" | "model" | "proto" | "client" => {
+        "vision" | "robot" | "model" | "proto" | "client" | "ros2" => {
             return Some(format!("vamos_{module}"));
         }
         "episode" | "eval" | "pipeline" | "setup" => "vamos_core",

@@ -156,3 +156,77 @@ fn score_mcap_with_a_model_writes_every_score_topic() {
     assert_eq!((got_e_c, got_e_b, got_e_o), (e_c, e_b, e_o.clone()));
     assert_eq!(maps, e_o.len());
 }
+
+/// `residual.flow_pooling = "cells"`: calibration fits per-cell statistics of the flow
+/// predictor's error (one cell grid over the network's input) and `e_o` is then its worst
+/// cells, normalised; a profile calibrated with the paper's mean keeps the mean (no cell
+/// statistics in its calibration), so the two give different `e_o` on the same frames.
+#[test]
+fn flow_cells_are_calibrated_per_cell_and_pool_e_o() {
+    let ws = workspace();
+    let dir = ws.path();
+    let model = tiny_model();
+    let mut e_o = Vec::new();
+    for pooling in ["mean", "cells"] {
+        let profile = PROFILE
+            .replace(
+                "name = \"sim-arm\"",
+                &format!("name = \"{pooling}\"\nmodel = \"{model}\""),
+            )
+            .replace("fusion = \"paper\"", "fusion = \"calibrated\"")
+            + &format!("[pipeline.residual]\nflow_pooling = \"{pooling}\"\nflow_cell_px = 8\n");
+        std::fs::write(dir.join(format!("{pooling}.toml")), profile).unwrap();
+        vamos(
+            dir,
+            &[
+                "calibrate",
+                "--profile",
+                &format!("{pooling}.toml"),
+                "train",
+                "--no-progress",
+            ],
+        );
+        let cal: Value = serde_json::from_str(
+            &std::fs::read_to_string(dir.join(format!("{pooling}.calibration.json"))).unwrap(),
+        )
+        .unwrap();
+        let flow = &cal["thresholds"]["flow"];
+        if pooling == "mean" {
+            assert!(flow.is_null(), "{flow}");
+        } else {
+            // The tiny model's input is S x S: cells of 8 pixels, a (S/8) x (S/8) grid.
+            let (columns, rows) = (
+                flow["columns"].as_u64().unwrap(),
+                flow["rows"].as_u64().unwrap(),
+            );
+            assert!(columns >= 2 && columns == rows, "{flow}");
+            let n = (columns * rows) as usize;
+            assert_eq!(flow["location"].as_array().unwrap().len(), n);
+            assert!(flow["maps"].as_u64().unwrap() > 10, "{flow}");
+        }
+        let out = format!("scores-{pooling}");
+        vamos(
+            dir,
+            &[
+                "score",
+                "--profile",
+                &format!("{pooling}.toml"),
+                "test/test_0000.mcap",
+                "--out",
+                &out,
+            ],
+        );
+        let values: Vec<f64> = jsonl(&dir.join(&out).join("test_0000.scores.jsonl"))
+            .iter()
+            .filter_map(|v| v["e_o"].as_f64())
+            .collect();
+        assert!(values.len() > 10, "{values:?}");
+        assert!(values.iter().all(|v| v.is_finite()));
+        e_o.push(values);
+    }
+    assert_eq!(e_o[0].len(), e_o[1].len());
+    assert_ne!(
+        e_o[0], e_o[1],
+        "the cells pool e_o differently from the mean"
+    );
+}

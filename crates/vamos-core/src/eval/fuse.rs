@@ -116,6 +116,10 @@ pub struct Thresholds {
     /// The training episodes' robot states (kinematic novelty).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub kinematics: Option<StateReference>,
+    /// Per-cell nominal statistics of the flow predictor's error (`flow_pooling =
+    /// "cells"`); absent: `e_o` was calibrated as the paper's mean.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub flow: Option<CellStats>,
 }
 
 impl Thresholds {

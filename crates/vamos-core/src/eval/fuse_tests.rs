@@ -18,6 +18,7 @@ fn each_detector_alone_at_its_own_threshold_reaches_the_alarm() {
         }),
         scene: None,
         kinematics: None,
+        flow: None,
     };
     let none = Components::default();
     // Calibrated: location + alarm * spread, the raw value without a scale.
@@ -64,6 +65,7 @@ const T: Thresholds = Thresholds {
     scales: None,
     scene: None,
     kinematics: None,
+    flow: None,
 };
 
 #[test]

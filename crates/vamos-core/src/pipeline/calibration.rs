@@ -4,7 +4,8 @@
 //! 1. The training episodes are scored without thresholds; `e_c_thres` and `e_b_thres`
 //!    are the maxima of `e_c` and `e_b` over them (the paper).
 //! 2. The scene residual's per-cell statistics are fitted on the training frames' cell
-//!    maps, their `e_r` pooled again with them, and each detector's nominal scale
+//!    maps, their `e_r` pooled again with them (and so the flow predictor's error per cell
+//!    and `e_o`, with `flow_pooling = "cells"`), and each detector's nominal scale
 //!    (median, 99th percentile) fitted on the training frames (calibrated fusion).
 //!    The kinematic novelty's nominal states are the training frames' robot states; each
 //!    training frame's `e_k` is its distance to the *other* episodes' states (its own
@@ -73,33 +74,26 @@ pub fn calibrate<E>(
         frames.iter().filter_map(|x| f(x)).collect()
     };
     let scene = fit_scene(&frames, &phases, &pipeline.residual, &mut notes);
+    let flow = fit_flow(&frames, &phases, &pipeline.residual, &mut notes);
     let pooling = Pooling {
         top_fraction: pipeline.residual.top_fraction,
     };
-    // e_r of the training frames, pooled again with the fitted statistics.
-    let e_r: Vec<Option<f64>> = frames
-        .iter()
-        .zip(&phases)
-        .map(|(f, &phase)| match (&f.scene_cells, &scene) {
-            (Some(cells), Some(stats)) => pool_cells(
-                cells,
-                f.scene_grid.0,
-                f.scene_grid.1,
-                Some(stats.at(Some(phase))),
-                pooling,
-                None,
-            ),
-            _ => f.e_r,
-        })
-        .collect();
+    // e_r and e_o of the training frames, pooled again with the fitted statistics.
+    let e_r = repool(&frames, &phases, scene_map, scene.as_ref(), pooling, |f| {
+        f.e_r
+    });
+    let e_o = repool(&frames, &phases, flow_map, flow.as_ref(), pooling, |f| {
+        f.e_o
+    });
     let e_r_values: Vec<f64> = e_r.iter().flatten().copied().collect();
+    let e_o_values: Vec<f64> = e_o.iter().flatten().copied().collect();
     let (kinematics, e_k) = fit_kinematics(&train, &pipeline.kinematics, &mut notes);
     let e_k_values: Vec<f64> = e_k.iter().flatten().copied().collect();
     let scales = NominalScales::fit(
         &component(|f| f.e_c),
         &component(|f| f.e_b),
         &e_r_values,
-        &component(|f| f.e_o),
+        &e_o_values,
         &e_k_values,
     );
     let thresholds = Thresholds {
@@ -108,19 +102,20 @@ pub fn calibrate<E>(
         scales: Some(scales),
         scene,
         kinematics,
+        flow,
     };
     // The training frames' fused scores as the scorer gives them (windowed per episode).
     let mut window = Window::new(pipeline.temporal_window);
-    let mut e_r_of = e_r.iter().zip(&e_k);
+    let mut pooled = e_r.iter().zip(&e_o).zip(&e_k);
     let mut score_max = f64::NEG_INFINITY;
     for episode in &train {
         window.clear();
-        for (f, (&e_r, &e_k)) in episode.frames.iter().zip(&mut e_r_of) {
+        for (f, ((&e_r, &e_o), &e_k)) in episode.frames.iter().zip(&mut pooled) {
             let c = Components {
                 e_c: f.e_c,
                 e_b: f.e_b,
                 e_r,
-                e_o: f.e_o,
+                e_o,
                 e_k,
             };
             score_max = score_max.max(window.push(fuse_frame(&c, &thresholds, fusion)).score);
@@ -383,33 +378,107 @@ fn learn_states(
     e_k
 }
 
-/// Per-cell statistics of the scene residual from the training frames' cell maps (all of
-/// one grid); `None`, with a note, when there are none or too few.
-/// With `phase_window_s > 0`, per phase window as well (`phases`: each frame's seconds
-/// into its episode).
+/// Where a frame keeps one detector's cell map: the cells and their `(columns, rows)`.
+type CellMap = fn(&FrameScore) -> Option<(&[f32], (usize, usize))>;
+
+/// A frame's scene residual cells and their `(columns, rows)`.
+fn scene_map(f: &FrameScore) -> Option<(&[f32], (usize, usize))> {
+    Some((f.scene_cells.as_deref()?, f.scene_grid))
+}
+
+/// A frame's flow-error cells and their `(columns, rows)`.
+fn flow_map(f: &FrameScore) -> Option<(&[f32], (usize, usize))> {
+    Some((f.flow_cells.as_deref()?, f.flow_grid))
+}
+
+/// Per-cell statistics of the cell maps `map` takes from the training frames (those of
+/// the first map's grid); `None` when no frame has one. With `phase_window_s > 0`, per
+/// phase window as well (`phases`: each frame's seconds into its episode).
+fn fit_cells(
+    frames: &[&FrameScore],
+    phases: &[f64],
+    map: CellMap,
+    phase_window_s: f64,
+) -> Option<Result<CellStats, String>> {
+    let (_, (columns, rows)) = frames.iter().find_map(|f| map(f))?;
+    let (maps, map_phases): (Vec<&[f32]>, Vec<f64>) = frames
+        .iter()
+        .zip(phases)
+        .filter_map(|(f, &t)| {
+            map(f)
+                .filter(|(_, g)| *g == (columns, rows))
+                .map(|(m, _)| (m, t))
+        })
+        .unzip();
+    Some(
+        CellStats::fit_phased(columns, rows, &maps, &map_phases, phase_window_s)
+            .map_err(|e| e.to_string()),
+    )
+}
+
+/// Each training frame's detector pooled again from its cells with the fitted `stats`
+/// (as it is then scored); `raw` (as scored without statistics) for a frame without cells
+/// or when there are no statistics.
+fn repool(
+    frames: &[&FrameScore],
+    phases: &[f64],
+    map: CellMap,
+    stats: Option<&CellStats>,
+    pooling: Pooling,
+    raw: fn(&FrameScore) -> Option<f64>,
+) -> Vec<Option<f64>> {
+    frames
+        .iter()
+        .zip(phases)
+        .map(|(f, &phase)| match (map(f), stats) {
+            (Some((cells, (columns, rows))), Some(stats)) => pool_cells(
+                cells,
+                columns,
+                rows,
+                Some(stats.at(Some(phase))),
+                pooling,
+                None,
+            ),
+            _ => raw(f),
+        })
+        .collect()
+}
+
+/// Per-cell statistics of the scene residual from the training frames' cell maps;
+/// `None`, with a note, when there are too few.
 fn fit_scene(
     frames: &[&FrameScore],
     phases: &[f64],
     residual: &ResidualParams,
     notes: &mut Vec<String>,
 ) -> Option<CellStats> {
-    let photometric = residual.takes_photometric();
-    let phase_window_s = residual.phase_window_s;
-    let (columns, rows) = frames.iter().find(|f| f.scene_cells.is_some())?.scene_grid;
-    let (maps, map_phases): (Vec<&[f32]>, Vec<f64>) = frames
-        .iter()
-        .zip(phases)
-        .filter(|(f, _)| f.scene_grid == (columns, rows))
-        .filter_map(|(f, &t)| Some((f.scene_cells.as_deref()?, t)))
-        .unzip();
-    match CellStats::fit_phased(columns, rows, &maps, &map_phases, phase_window_s) {
+    match fit_cells(frames, phases, scene_map, residual.phase_window_s)? {
         Ok(stats) => Some(CellStats {
-            photometric,
+            photometric: residual.takes_photometric(),
             ..stats
         }),
         Err(e) => {
             notes.push(format!(
                 "no per-cell scene statistics ({e}): e_r is scored from raw residuals"
+            ));
+            None
+        }
+    }
+}
+
+/// Per-cell statistics of the flow predictor's error (`flow_pooling = "cells"`) from the
+/// training frames' cell maps; `None`, with a note, when there are too few.
+fn fit_flow(
+    frames: &[&FrameScore],
+    phases: &[f64],
+    residual: &ResidualParams,
+    notes: &mut Vec<String>,
+) -> Option<CellStats> {
+    match fit_cells(frames, phases, flow_map, residual.phase_window_s)? {
+        Ok(stats) => Some(stats),
+        Err(e) => {
+            notes.push(format!(
+                "no per-cell flow-error statistics ({e}): e_o is scored from raw cell errors"
             ));
             None
         }

@@ -31,6 +31,8 @@ fn episode(name: &str, e_c: &[f64]) -> EpisodeScores {
             scene_cells: None,
             phase_s: 0.0,
             scene_grid: (0, 0),
+            flow_cells: None,
+            flow_grid: (0, 0),
             kinematic_state: None,
         })
         .collect();

@@ -136,10 +136,9 @@ pub struct ProcessedFrame {
     /// Wall time of each stage of this push.
     pub timings: FrontEndTimings,
     /// The previous frame as the flow saw it (processing resolution, equalised if
-    /// configured): the source grid of `flow`.
+    /// configured): the source grid of `flow`. This frame, where `flow` ends, is
+    /// [`FrameProcessor::current`].
     pub previous_image: GrayImage,
-    /// This frame as the flow saw it: where `flow` ends.
-    pub image: GrayImage,
 }
 
 /// Wall time of the front end's stages for one frame, microseconds.
@@ -257,7 +256,6 @@ impl FrameProcessor {
             }
         };
         timings.flow_us = micros_since(start);
-        let image = frame.clone();
         let previous_image = self.last.replace(frame);
         let (Some(flow), Some(registration), Some(previous_image)) =
             (flow, registration, previous_image)
@@ -284,8 +282,13 @@ impl FrameProcessor {
             network_valid,
             timings,
             previous_image,
-            image,
         }))
+    }
+
+    /// The latest frame pushed, as the flow saw it (after a [`Self::push`] that returned a
+    /// frame: where its flow ends); `None` before the first and after a failed push.
+    pub fn current(&self) -> Option<&GrayImage> {
+        self.last.as_ref()
     }
 }
 

@@ -36,7 +36,7 @@ pub use scorer::{
 pub use vamos_model::FlowVariant;
 
 pub use novelty::{KinematicsParams, StateKind};
-pub use residual::{BodyError, ResidualParams};
+pub use residual::{BodyError, FlowPooling, ResidualParams};
 
 use crate::eval::Fusion;
 use serde::{Deserialize, Serialize};

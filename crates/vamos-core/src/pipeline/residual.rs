@@ -29,6 +29,19 @@ pub enum BodyError {
     Quantile,
 }
 
+/// How `e_o` pools the flow predictor's per-pixel error.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum FlowPooling {
+    /// The paper: the mean squared error over the valid pixels of the `S x S` map.
+    #[default]
+    Mean,
+    /// The error averaged per cell ([`flow_cells`]), each cell normalised by its nominal
+    /// statistics once calibrated, and the worst few pooled as for `e_r`: a small object
+    /// moving where nothing should counts, however well the rest is predicted.
+    Cells,
+}
+
 /// The `[pipeline.residual]` settings.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -62,6 +75,11 @@ pub struct ResidualParams {
     /// (a frame's phase: seconds since the stream's or episode's first image); 0: the
     /// same statistics at every phase.
     pub phase_window_s: f64,
+    /// How `e_o` pools the predictor's error map.
+    pub flow_pooling: FlowPooling,
+    /// Side of an `e_o` cell, pixels of the network's `S x S` input
+    /// (`flow_pooling = "cells"`).
+    pub flow_cell_px: usize,
 }
 
 impl Default for ResidualParams {
@@ -77,6 +95,8 @@ impl Default for ResidualParams {
             body_quantile: 0.9,
             moving_px: 0.5,
             phase_window_s: 0.0,
+            flow_pooling: FlowPooling::Mean,
+            flow_cell_px: 4,
         }
     }
 }
@@ -93,6 +113,12 @@ impl ResidualParams {
             return Err(format!(
                 "residual.cell_px = {} must lie in 1..=256",
                 self.cell_px
+            ));
+        }
+        if self.flow_cell_px == 0 || self.flow_cell_px > 64 {
+            return Err(format!(
+                "residual.flow_cell_px = {} must lie in 1..=64",
+                self.flow_cell_px
             ));
         }
         if self.margin_px > 64 {
@@ -263,6 +289,33 @@ pub fn scene_cells(
         .map(|c| {
             if count[c] > 0 && 2 * count[c] >= total[c] && weight[c] > 1e-6 {
                 (sum[c] / weight[c]) as f32
+            } else {
+                f32::NAN
+            }
+        })
+        .collect()
+}
+
+/// The flow predictor's `size x size` error map averaged per cell of `cell_px` (partial
+/// cells at the edges count), over the pixels `valid` keeps (all without it); NaN for a
+/// cell with fewer than half of its pixels valid. Row-major, [`cell_grid`] cells.
+pub fn flow_cells(map: &[f32], valid: Option<&[bool]>, size: usize, cell_px: usize) -> Vec<f32> {
+    let (cols, rows) = cell_grid(size, size, cell_px);
+    let mut sum = vec![0.0f64; cols * rows];
+    let mut count = vec![0u32; cols * rows];
+    let mut total = vec![0u32; cols * rows];
+    for (i, &e) in map.iter().enumerate().take(size * size) {
+        let c = (i / size / cell_px) * cols + (i % size) / cell_px;
+        total[c] += 1;
+        if valid.is_none_or(|v| v.get(i).copied().unwrap_or(false)) && e.is_finite() {
+            sum[c] += f64::from(e);
+            count[c] += 1;
+        }
+    }
+    (0..cols * rows)
+        .map(|c| {
+            if count[c] > 0 && 2 * count[c] >= total[c] {
+                (sum[c] / f64::from(count[c])) as f32
             } else {
                 f32::NAN
             }
@@ -552,5 +605,24 @@ mod tests {
         ] {
             assert!(p.validate().is_err());
         }
+    }
+
+    #[test]
+    fn flow_cells_average_the_valid_pixels_of_each_cell() {
+        // 4x4 map, 2x2 cells: the top-left cell holds the error, the bottom-right is
+        // mostly masked.
+        let mut map = vec![0.0f32; 16];
+        map[0] = 4.0;
+        let mut valid = vec![true; 16];
+        for i in [10, 11, 14] {
+            valid[i] = false;
+        }
+        let cells = flow_cells(&map, Some(&valid), 4, 2);
+        assert_eq!(cells.len(), 4);
+        assert_eq!(&cells[..3], &[1.0, 0.0, 0.0]);
+        assert!(cells[3].is_nan(), "one valid pixel of four is too few");
+        // A 5x5 map with 2-pixel cells: the edge cells are partial.
+        let cells = flow_cells(&[1.0; 25], None, 5, 2);
+        assert_eq!(cells, vec![1.0; 9]);
     }
 }

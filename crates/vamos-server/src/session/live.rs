@@ -268,6 +268,8 @@ mod tests {
             heatmap: None,
             scene_cells: None,
             scene_grid: (0, 0),
+            flow_cells: None,
+            flow_grid: (0, 0),
             phase_s: 0.0,
             kinematic_state: None,
         }

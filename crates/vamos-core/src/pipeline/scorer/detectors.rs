@@ -139,7 +139,8 @@ impl Scorer {
                 .scene
                 .as_ref()
                 .map_or(self.config.residual.takes_photometric(), |s| s.photometric)
-                .then_some(&processed.image),
+                .then(|| self.processor.current())
+                .flatten(),
         );
         let (columns, rows) = residual::cell_grid(w, h, self.config.residual.cell_px);
         let e_r = pool_cells(

@@ -29,8 +29,9 @@
 //! goes on from the last good one.
 
 use super::frames::{FrameProcessor, ProcessedFrame};
+use super::residual::{self, FlowPooling};
 use super::{DetectorSwitches, PipelineConfig};
-use crate::eval::{Components, Thresholds, Window, fuse_frame};
+use crate::eval::{Components, Pooling, Thresholds, Window, fuse_frame, pool_cells};
 use nalgebra::Isometry3;
 
 use std::sync::Arc;
@@ -443,6 +444,8 @@ impl Scorer {
                 heatmap: None,
                 scene_cells: None,
                 scene_grid: (0, 0),
+                flow_cells: None,
+                flow_grid: (0, 0),
                 phase_s: phase_s(first_ns, input.stamp_ns),
                 kinematic_state,
             }));
@@ -473,7 +476,13 @@ impl Scorer {
         timings.scene_us = micros(t0);
 
         let t0 = Instant::now();
-        let (e_o, best_offset, heatmap, warming_up) = self.predict(&processed)?;
+        let Predicted {
+            e_o,
+            best_offset,
+            heatmap,
+            warming_up,
+            cells: (flow_cells, flow_grid),
+        } = self.predict(&processed, phase_s(first_ns, input.stamp_ns))?;
         timings.model_us = micros(t0);
 
         let fused = self.window.push(fuse_frame(
@@ -508,36 +517,89 @@ impl Scorer {
             heatmap,
             scene_cells,
             scene_grid,
+            flow_cells,
+            flow_grid,
             phase_s: phase_s(first_ns, input.stamp_ns),
             kinematic_state,
         }))
     }
 
-    /// Runs the predictor on a processed frame: `(e_o, best n, heatmap, warming_up)`.
-    #[allow(clippy::type_complexity)]
+    /// Runs the predictor on a processed frame at `phase_s` into its stream.
     fn predict(
         &mut self,
         processed: &ProcessedFrame,
-    ) -> Result<(Option<f64>, Option<usize>, Option<Vec<f32>>, bool), ScorerError> {
+        phase_s: f64,
+    ) -> Result<Predicted, ScorerError> {
         let Some(predictor) = &mut self.predictor else {
-            return Ok((None, None, None, false));
+            return Ok(Predicted::default());
         };
         let p = predictor.params();
         let history = predictor.frames_seen();
+        let size = predictor.model().dims().size;
         let prediction =
             predictor.push(&processed.network_input, processed.network_valid.as_deref())?;
         let full_history = history >= (p.a + p.b) as u64;
         Ok(match prediction {
-            Prediction::Scored(s) if full_history => (
-                Some(s.e_o),
-                Some(s.n),
-                self.heatmaps.then_some(s.error_map),
-                false,
-            ),
-            Prediction::Scored(_) | Prediction::WarmingUp { .. } => (None, None, None, true),
-            Prediction::NoValidPixels { .. } => (None, None, None, !full_history),
+            Prediction::Scored(s) if full_history => {
+                let residual = &self.config.residual;
+                // Cells once calibrated with them, or before any calibration (what the
+                // calibration fits on); the paper's mean under a calibration made with it.
+                let cells = (residual.flow_pooling == FlowPooling::Cells
+                    && (self.thresholds.flow.is_some() || self.thresholds.scales.is_none()))
+                .then(|| {
+                    let grid = residual::cell_grid(size, size, residual.flow_cell_px);
+                    let cells = residual::flow_cells(
+                        &s.error_map,
+                        processed.network_valid.as_deref(),
+                        size,
+                        residual.flow_cell_px,
+                    );
+                    (cells, grid)
+                });
+                let e_o = match &cells {
+                    Some((c, (columns, rows))) => pool_cells(
+                        c,
+                        *columns,
+                        *rows,
+                        self.thresholds.flow.as_ref().map(|f| f.at(Some(phase_s))),
+                        Pooling {
+                            top_fraction: residual.top_fraction,
+                        },
+                        None,
+                    ),
+                    None => Some(s.e_o),
+                };
+                let (cells, grid) = cells.map_or((None, (0, 0)), |(c, g)| (Some(c), g));
+                Predicted {
+                    e_o,
+                    best_offset: Some(s.n),
+                    heatmap: self.heatmaps.then_some(s.error_map),
+                    warming_up: false,
+                    cells: (cells, grid),
+                }
+            }
+            Prediction::Scored(_) | Prediction::WarmingUp { .. } => Predicted {
+                warming_up: true,
+                ..Predicted::default()
+            },
+            Prediction::NoValidPixels { .. } => Predicted {
+                warming_up: !full_history,
+                ..Predicted::default()
+            },
         })
     }
+}
+
+/// What the predictor made of a frame.
+#[derive(Default)]
+struct Predicted {
+    e_o: Option<f64>,
+    /// The past offset `n` of the best prediction.
+    best_offset: Option<usize>,
+    heatmap: Option<Vec<f32>>,
+    warming_up: bool,
+    /// The error per cell and `(columns, rows)` (`flow_pooling = "cells"`).
+    cells: (Option<Vec<f32>>, (usize, usize)),
 }
 
 impl BodyState {

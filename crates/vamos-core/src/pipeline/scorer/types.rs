@@ -173,6 +173,13 @@ pub struct FrameScore {
     /// `(columns, rows)` of `scene_cells`.
     #[serde(skip)]
     pub scene_grid: (usize, usize),
+    /// The flow predictor's error per cell before normalisation (`flow_pooling =
+    /// "cells"`: what calibration fits the `e_o` statistics on); `flow_grid` cells.
+    #[serde(skip)]
+    pub flow_cells: Option<Vec<f32>>,
+    /// `(columns, rows)` of `flow_cells`.
+    #[serde(skip)]
+    pub flow_grid: (usize, usize),
     /// The robot's state (what calibration keeps as the nominal states of `e_k`).
     #[serde(skip)]
     pub kinematic_state: Option<Vec<f32>>,

@@ -25,8 +25,8 @@ pub(super) fn file_profile_json(p: &LoadedProfile) -> serde_json::Value {
     })
 }
 
-/// What a list leaves out of a calibration: the scene residual's per-cell statistics
-/// (tens of kB) and the kinematic novelty's nominal states (up to about 1 MB) become
+/// What a list leaves out of a calibration: the scene residual's and the flow error's
+/// per-cell statistics (tens of kB) and the kinematic novelty's nominal states (up to about 1 MB) become
 /// their sizes. `GET /v1/profiles/{name}` and `GET /v1/jobs/{id}` give them whole.
 const LEFT_OUT: &str = "left out of lists; GET the profile or job itself for the values";
 
@@ -34,6 +34,7 @@ const LEFT_OUT: &str = "left out of lists; GET the profile or job itself for the
 fn summarise_thresholds(thresholds: &mut serde_json::Value) {
     for (key, sizes) in [
         ("scene", &["columns", "rows", "maps"][..]),
+        ("flow", &["columns", "rows", "maps"][..]),
         ("kinematics", &["dims", "count"][..]),
     ] {
         if let Some(part) = thresholds.get_mut(key).filter(|v| v.is_object()) {
