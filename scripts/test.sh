@@ -37,4 +37,6 @@ echo "== Python tests"
 VAMOS_BIN="$PWD/target/release/vamos" .venv/bin/python -m pytest clients/python/tests -q
 
 echo "== ROS 2 tests (clients/ros2: the package without ROS; vamos bridge against Cyclone DDS)"
-VAMOS_BIN="$PWD/target/release/vamos" .venv/bin/python -m pytest clients/ros2 -q
+# Two runs: each folder has its own pytest configuration (vamos_bridge's setup.cfg).
+VAMOS_BIN="$PWD/target/release/vamos" .venv/bin/python -m pytest clients/ros2/vamos_bridge -q
+VAMOS_BIN="$PWD/target/release/vamos" .venv/bin/python -m pytest clients/ros2/dds_wire -q

@@ -165,7 +165,34 @@ impl Process {
 
     /// Started with `env` added to its environment (e.g. `VAMOS_SERVICE__*` settings).
     pub(crate) fn start_env(data: &Path, log_level: &str, env: &[(&str, &str)]) -> Self {
-        let mut child = Command::new(env!("CARGO_BIN_EXE_vamos"))
+        Self::spawn(
+            Command::new(env!("CARGO_BIN_EXE_vamos")),
+            data,
+            log_level,
+            env,
+        )
+    }
+
+    /// As [`Self::start_env`], under a hard limit of `data_bytes` on its data segment
+    /// (`RLIMIT_DATA`, set by util-linux `prlimit`, which then executes the server in its
+    /// place: same pid): its heap, private writable mappings and thread stacks. An allocation past it
+    /// fails, and in Rust a failed allocation aborts the process: a server that lives
+    /// through a test under the limit never needed more.
+    pub(crate) fn start_limited(
+        data: &Path,
+        log_level: &str,
+        env: &[(&str, &str)],
+        data_bytes: u64,
+    ) -> Self {
+        let mut cmd = Command::new("prlimit");
+        cmd.arg(format!("--data={data_bytes}"))
+            .arg("--")
+            .arg(env!("CARGO_BIN_EXE_vamos"));
+        Self::spawn(cmd, data, log_level, env)
+    }
+
+    fn spawn(mut cmd: Command, data: &Path, log_level: &str, env: &[(&str, &str)]) -> Self {
+        let mut child = cmd
             .args([
                 "serve",
                 "--grpc-addr",

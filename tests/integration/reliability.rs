@@ -345,15 +345,21 @@ async fn half_open_and_slow_connections_cannot_take_health_checks_offline() {
     server.shutdown().await.unwrap();
 }
 
+/// A `kB` field of `/proc/PID/status` (`VmHWM:`, `VmData:`), KiB.
+fn status_kib(pid: u32, field: &str) -> u64 {
+    std::fs::read_to_string(format!("/proc/{pid}/status"))
+        .unwrap_or_default()
+        .lines()
+        .find_map(|l| l.strip_prefix(field))
+        .and_then(|v| v.split_whitespace().next()?.parse().ok())
+        .unwrap_or(0)
+}
+
 /// The peak resident memory of process `pid` (`VmHWM`), bytes.
 fn peak_rss(pid: u32) -> u64 {
-    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap();
-    status
-        .lines()
-        .find_map(|l| l.strip_prefix("VmHWM:"))
-        .and_then(|v| v.trim().trim_end_matches("kB").trim().parse::<u64>().ok())
-        .unwrap()
-        * 1024
+    let kib = status_kib(pid, "VmHWM:");
+    assert!(kib > 0, "no VmHWM for process {pid}");
+    kib * 1024
 }
 
 fn jpeg(width: u32, height: u32) -> Vec<u8> {
@@ -377,7 +383,10 @@ async fn an_adversarial_barrage_leaves_a_live_server_small_and_scoring() {
     use super::service_admin::{images, open_session, send_all, stored_profile};
     use tokio::io::{AsyncReadExt, AsyncWriteExt};
     let dir = tempfile::tempdir().unwrap();
-    let server = Process::start_env(
+    // A hard limit far below what the bombs below would ask for (the 1 x 6,000,000 PNG
+    // once asked for 3.8 GB) and above what a server needs: every thread's stack counts.
+    const DATA_LIMIT: u64 = 1 << 30;
+    let server = Process::start_limited(
         &dir.path().join("data"),
         "info",
         &[
@@ -386,6 +395,19 @@ async fn an_adversarial_barrage_leaves_a_live_server_small_and_scoring() {
             ("VAMOS_SERVICE__QUEUE_DEPTH", "64"),
             ("VAMOS_SERVICE__MAX_JOINT_BUFFER_BYTES", "4194304"),
         ],
+        DATA_LIMIT,
+    );
+    let limits = std::fs::read_to_string(format!("/proc/{}/limits", server.pid())).unwrap();
+    let data_limit = limits
+        .lines()
+        .find(|l| l.starts_with("Max data size"))
+        .unwrap_or_default()
+        .to_string();
+    assert!(
+        data_limit
+            .split_whitespace()
+            .any(|v| v == DATA_LIMIT.to_string()),
+        "the server runs without the data limit: {data_limit}"
     );
     let api = server.api();
     stored_profile(&api).await;
@@ -556,7 +578,12 @@ async fn an_adversarial_barrage_leaves_a_live_server_small_and_scoring() {
         .unwrap();
     assert_eq!(health.status(), 200);
     let peak = peak_rss(server.pid());
-    eprintln!("adversarial barrage: server peak RSS {} MiB", peak >> 20);
+    eprintln!(
+        "adversarial barrage: server peak RSS {} MiB, data segment {} MiB now (limit {} MiB)",
+        peak >> 20,
+        status_kib(server.pid(), "VmData:") >> 10,
+        DATA_LIMIT >> 20
+    );
     assert!(peak < 256 << 20, "peak RSS {} MiB", peak >> 20);
     drop(idle);
     server.kill();
