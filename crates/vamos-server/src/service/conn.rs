@@ -118,6 +118,13 @@ impl Connections {
                     continue;
                 }
             };
+            // Scores are small writes that follow large reads: with Nagle's algorithm a
+            // score waits for the ACK of the server's last flow-control frame, which the
+            // client delays (40 ms on Linux). Measured through `vamos bridge`: 37 ms added
+            // per 320x240 frame with it, ~1 ms without.
+            if let Err(e) = io.set_nodelay(true) {
+                tracing::debug!("TCP_NODELAY on a connection from {addr}: {e}");
+            }
             let Ok(slot) = self.slots.clone().try_acquire_owned() else {
                 // Full: closed at once (dropping the stream), before a byte is read.
                 self.metrics.connections_refused.inc();
