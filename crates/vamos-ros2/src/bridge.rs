@@ -11,7 +11,7 @@
 
 use crate::msg::{self, types};
 use crate::names::{self, NameError};
-use crate::status::{BridgeState, Level};
+use crate::status::BridgeState;
 use futures_util::stream::{self, BoxStream, StreamExt};
 use ros2_client::{
     Context, ContextOptions, Name, Node, NodeName, NodeOptions, Publisher, QosProfile,
@@ -377,7 +377,7 @@ pub async fn run(
     options: BridgeOptions,
     shutdown: impl Future<Output = ()>,
 ) -> Result<BridgeReport, BridgeError> {
-    let suffix = format!("{:08x}", rand_suffix());
+    let suffix = format!("{:08x}", fastrand::u32(..));
     let resolved = options.resolve(&suffix)?;
     let topic = |key: &str| -> &str {
         resolved
@@ -602,7 +602,7 @@ pub async fn run(
         let (level, message, values) = link
             .state
             .diagnostic(Instant::now(), Duration::from_secs(5));
-        let mut values: Vec<msg::KeyValue> = [
+        let values: Vec<msg::KeyValue> = [
             ("robot_id".to_string(), link.resolved.robot_id.clone()),
             ("profile".to_string(), link.options.profile.clone()),
         ]
@@ -611,7 +611,6 @@ pub async fn run(
         .chain(link.resolved.topics.iter().cloned())
         .map(|(key, value)| msg::KeyValue { key, value })
         .collect();
-        values.shrink_to_fit();
         let array = msg::DiagnosticArray {
             header: msg::Header {
                 stamp: msg::Time::now(),
@@ -628,7 +627,6 @@ pub async fn run(
         if let Err(e) = out.diagnostics.publish(array) {
             tracing::warn!("publishing diagnostics: {e}");
         }
-        level
     };
 
     tokio::pin!(shutdown);
@@ -640,7 +638,7 @@ pub async fn run(
                 publish_answer(&mut link, &mut frame_ids, &mut scores_published, answer);
             }
             _ = diagnostics.tick() => {
-                let _: Level = publish_diagnostics(&link);
+                publish_diagnostics(&link);
             }
             Some(item) = incoming.next() => match item {
                 Incoming::Image(Ok(image), frame_id) => {
@@ -693,14 +691,6 @@ pub async fn run(
         dropped: link.state.dropped,
         session_id: link.state.session_id,
     })
-}
-
-/// A random suffix for the default session id (the process id mixed with the clock).
-fn rand_suffix() -> u32 {
-    let nanos = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.subsec_nanos());
-    nanos ^ std::process::id().rotate_left(16)
 }
 
 #[cfg(test)]

@@ -452,18 +452,19 @@ fn fit_scene(
     residual: &ResidualParams,
     notes: &mut Vec<String>,
 ) -> Option<CellStats> {
-    match fit_cells(frames, phases, scene_map, residual.phase_window_s)? {
-        Ok(stats) => Some(CellStats {
-            photometric: residual.takes_photometric(),
-            ..stats
-        }),
-        Err(e) => {
-            notes.push(format!(
-                "no per-cell scene statistics ({e}): e_r is scored from raw residuals"
-            ));
-            None
-        }
-    }
+    let stats = fit_noted(
+        frames,
+        phases,
+        scene_map,
+        residual,
+        notes,
+        "scene",
+        "e_r is scored from raw residuals",
+    )?;
+    Some(CellStats {
+        photometric: residual.takes_photometric(),
+        ..stats
+    })
 }
 
 /// Per-cell statistics of the flow predictor's error (`flow_pooling = "cells"`) from the
@@ -474,12 +475,32 @@ fn fit_flow(
     residual: &ResidualParams,
     notes: &mut Vec<String>,
 ) -> Option<CellStats> {
-    match fit_cells(frames, phases, flow_map, residual.phase_window_s)? {
+    fit_noted(
+        frames,
+        phases,
+        flow_map,
+        residual,
+        notes,
+        "flow-error",
+        "e_o is scored from raw cell errors",
+    )
+}
+
+/// [`fit_cells`] with a note (`what` statistics missing, and `then`) when the maps are too
+/// few.
+fn fit_noted(
+    frames: &[&FrameScore],
+    phases: &[f64],
+    map: CellMap,
+    residual: &ResidualParams,
+    notes: &mut Vec<String>,
+    what: &str,
+    then: &str,
+) -> Option<CellStats> {
+    match fit_cells(frames, phases, map, residual.phase_window_s)? {
         Ok(stats) => Some(stats),
         Err(e) => {
-            notes.push(format!(
-                "no per-cell flow-error statistics ({e}): e_o is scored from raw cell errors"
-            ));
+            notes.push(format!("no per-cell {what} statistics ({e}): {then}"));
             None
         }
     }
