@@ -20,6 +20,15 @@ echo "== Rust tests"
 cargo test --release --locked --workspace --features vamos/wgpu
 
 echo "== Python environment (.venv)"
+# torch's wheels need ~10 GiB while they install (~3 GB downloaded, ~6.7 GB unpacked). On a
+# short disk, the Rust build's intermediate artefacts (several GB, not used from here on)
+# make room; the binary the Python tests run stays.
+free_gib() { df -k --output=avail . | tail -1 | awk '{ print int($1 / 1048576) }'; }
+if [ ! -x .venv/bin/python ] && [ "$(free_gib)" -lt 14 ] && [ -x target/release/vamos ]; then
+    echo "only $(free_gib) GiB free: removing target/release's intermediate artefacts (target/release/vamos stays; the next cargo build starts over)"
+    find target/release -mindepth 1 -maxdepth 1 ! -name vamos -exec rm -rf {} +
+fi
+echo "$(free_gib) GiB free for the Python environment"
 PYTHON="${PYTHON:-python3}"
 if [ ! -x .venv/bin/python ]; then
     if ! "$PYTHON" -m venv .venv; then
