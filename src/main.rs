@@ -99,6 +99,9 @@ enum Command {
     Completions(cli::shell::CompletionsArgs),
     /// Print the man page (roff), or write one page per command into a folder.
     Man(cli::shell::ManArgs),
+    /// Print the REST API's OpenAPI 3.0 document (what `GET /openapi.json` serves), to
+    /// generate a client without a running server.
+    Openapi,
 }
 
 fn main() -> std::process::ExitCode {
@@ -138,6 +141,10 @@ fn run(cli: Cli) -> Result<()> {
             for path in cli::shell::man(Cli::command(), args, &mut std::io::stdout())? {
                 println!("{}", path.display());
             }
+            return Ok(());
+        }
+        Command::Openapi => {
+            println!("{}", vamos::api::rest::openapi::document_json());
             return Ok(());
         }
         _ => {}
@@ -185,6 +192,6 @@ fn run(cli: Cli) -> Result<()> {
         Command::Episode { command } => cli::episode::run(&settings, command),
         Command::Profile { command } => cli::profile::run(&settings, command),
         Command::Model { command } => cli::model::run(&settings, command),
-        Command::Completions(_) | Command::Man(_) => Ok(()),
+        Command::Completions(_) | Command::Man(_) | Command::Openapi => Ok(()),
     }
 }

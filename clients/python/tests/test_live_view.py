@@ -348,3 +348,44 @@ def test_scored_bags_carry_the_map_the_context_and_the_thresholds(tmp_path: Path
         _check_scored_bag(tmp_path / "rest.mcap")
     finally:
         server.stop()
+
+
+def test_the_api_reference_page_shows_every_operation_and_schema(browser: Any, tmp_path: Path) -> None:
+    """``/docs`` in the browser: built from the served document, one entry per operation
+    and per schema, a request body's members (a profile's pipeline) opened on click, and
+    the filter narrowing the list. No token is needed (it reads only ``/openapi.json``)."""
+    from selenium.webdriver.common.by import By
+
+    server = Server(vamos_bin(), tmp_path / "server")
+    try:
+        with urllib.request.urlopen(f"{server.rest}/openapi.json", timeout=30) as r:
+            doc = json.loads(r.read())
+        operations = sum(len(item) for item in doc["paths"].values())
+        d = browser
+        d.get(f"{server.rest}/docs")
+        _wait("the page to render", lambda: d.find_element(By.TAG_NAME, "body").get_attribute("data-ready"))
+        assert d.find_element(By.ID, "message").text == ""
+        ops = d.find_elements(By.CSS_SELECTOR, "#operations > details")
+        assert len(ops) == operations, (len(ops), operations)
+        schemas = d.find_elements(By.CSS_SELECTOR, "#schemas > details")
+        assert len(schemas) == len(doc["components"]["schemas"])
+        assert doc["info"]["version"] in d.find_element(By.ID, "version").text
+
+        put = d.find_element(By.ID, "put-/v1/profiles/{name}")
+        put.find_element(By.TAG_NAME, "summary").click()
+        assert "admin" in put.text and "ProfileSpec" in put.text
+        # The body's members, and a member's own members one click further.
+        pipeline = _wait("the pipeline member", lambda: [
+            e for e in put.find_elements(By.CSS_SELECTOR, ".schema details > summary")
+            if e.text.startswith("pipeline")])
+        pipeline[0].click()
+        _wait("the pipeline's members", lambda: "temporal_window" in put.text and "stride" in put.text)
+
+        box = d.find_element(By.ID, "filter")
+        box.send_keys("episodes:score")
+        shown = [e for e in d.find_elements(By.CSS_SELECTOR, "#operations > details") if e.is_displayed()]
+        assert [e.get_attribute("id") for e in shown] == ["post-/v1/episodes:score"]
+        if os.environ.get("VAMOS_UI_SCREENSHOT"):
+            d.save_screenshot(str(Path(os.environ["VAMOS_UI_SCREENSHOT"]).with_suffix(".docs.png")))
+    finally:
+        server.stop()

@@ -36,7 +36,9 @@ pub const MAX_ONNX_BYTES: u64 = 512 << 20;
 /// the manifest's `flow_variant` (what a bundle was trained on) and the pipeline's
 /// `frames.variant` (what the front end computes). One type for both, so they compare with
 /// `==`; the names are the same in manifests, profiles and settings.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, schemars::JsonSchema,
+)]
 #[serde(rename_all = "snake_case")]
 pub enum FlowVariant {
     /// The observed flow as is.

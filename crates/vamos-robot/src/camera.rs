@@ -150,7 +150,9 @@ impl Intrinsics {
 }
 
 /// How the URDF frame named as the camera is oriented.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, schemars::JsonSchema,
+)]
 #[serde(rename_all = "snake_case")]
 pub enum CameraConvention {
     /// Already optical: z forward, x right, y down (e.g. `*_optical_frame` links).
@@ -183,7 +185,7 @@ impl CameraConvention {
 /// camera): the URDF link it is attached to, that link's axis convention, and the
 /// intrinsics, given either as `fx, fy, cx, cy`, as a `sensor_msgs/CameraInfo` `k`
 /// (row-major 3x3), or as a horizontal field of view `hfov_deg` (square pixels, centred).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct CameraSpec {
     /// The URDF link of the camera.

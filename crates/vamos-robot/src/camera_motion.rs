@@ -21,7 +21,7 @@ use vamos_vision::FlowField;
 use vamos_vision::registration::Similarity;
 
 /// Parameters of the expected-camera-motion fit.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct CameraMotionParams {
     /// Depth assumed for every grid point when no depth image is given (or where it has
@@ -297,7 +297,7 @@ fn fit_similarity(
 }
 
 /// Weights of the camera-motion error.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct CameraErrorWeights {
     /// Pixels of error per degree of rotation difference (0 = the paper's `e_c`).

@@ -15,7 +15,7 @@
 use serde::{Deserialize, Serialize};
 
 /// The debouncing rule of alarms (`[alarm_events]` of a profile). Defaults: 3 of 5.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct Debounce {
     /// Flagged frames among the last `window` needed to start an alarm (1..=window).

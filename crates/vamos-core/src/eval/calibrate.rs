@@ -33,7 +33,7 @@ pub fn max_threshold(values: &[f64]) -> Option<f64> {
 }
 
 /// A conformal threshold on the fused score with its guarantees.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct ConformalThreshold {
     /// Alarm when `score >= threshold`: the next float above `order_statistic`.

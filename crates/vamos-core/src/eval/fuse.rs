@@ -56,7 +56,9 @@ pub enum Detector {
 }
 
 /// How the detectors' values become one score.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, schemars::JsonSchema,
+)]
 #[serde(rename_all = "snake_case")]
 pub enum Fusion {
     /// `Calibrated` for a profile without a flow predictor, `Paper` with one
@@ -100,7 +102,7 @@ pub struct Components {
 /// (maxima over the training episodes; `None` disables that trigger), the detectors'
 /// nominal scales (calibrated fusion), the scene residual's per-cell statistics and the
 /// nominal robot states of the kinematic novelty.
-#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct Thresholds {
     /// Threshold on e_c (pixels at processing resolution, as e_c itself).
@@ -112,14 +114,102 @@ pub struct Thresholds {
     pub scales: Option<NominalScales>,
     /// Per-cell nominal statistics of the scene residual.
     #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[schemars(with = "Option<WholeOrSummary<CellStats>>")]
     pub scene: Option<CellStats>,
     /// The training episodes' robot states (kinematic novelty).
     #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[schemars(with = "Option<WholeOrSummary<StateReference>>")]
     pub kinematics: Option<StateReference>,
     /// Per-cell nominal statistics of the flow predictor's error (`flow_pooling =
     /// "cells"`); absent: `e_o` was calibrated as the paper's mean.
     #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[schemars(with = "Option<WholeOrSummary<CellStats>>")]
     pub flow: Option<CellStats>,
+}
+
+/// The sizes of one of a calibration's bulky statistics (per-cell maps: tens of kB;
+/// nominal robot states: up to about 1 MB), shown in their place where many calibrations
+/// are listed at once (the REST API's lists).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct StatsSummary {
+    /// Cells across (per-cell statistics).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub columns: Option<usize>,
+    /// Cells down (per-cell statistics).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rows: Option<usize>,
+    /// Nominal maps the statistics come from (per-cell statistics).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub maps: Option<usize>,
+    /// Phase windows (per-cell statistics per phase).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub phase_windows: Option<usize>,
+    /// Values per state (nominal robot states).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub dims: Option<usize>,
+    /// Number of states (nominal robot states).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub count: Option<usize>,
+    /// Where the values are.
+    pub detail: String,
+}
+
+impl StatsSummary {
+    /// The sizes of per-cell statistics.
+    pub fn of_cells(stats: &CellStats, detail: &str) -> StatsSummary {
+        StatsSummary {
+            columns: Some(stats.columns),
+            rows: Some(stats.rows),
+            maps: Some(stats.maps),
+            phase_windows: stats.phases.as_ref().map(|p| p.location.len()),
+            dims: None,
+            count: None,
+            detail: detail.into(),
+        }
+    }
+
+    /// The sizes of nominal robot states.
+    pub fn of_states(states: &StateReference, detail: &str) -> StatsSummary {
+        StatsSummary {
+            columns: None,
+            rows: None,
+            maps: None,
+            phase_windows: None,
+            dims: Some(states.dims()),
+            count: Some(states.len()),
+            detail: detail.into(),
+        }
+    }
+}
+
+// Never built: the schema of the JSON a bulky field holds (`#[schemars(with)]`).
+/// A bulky calibration statistic: whole, or (in lists) summarised by its sizes.
+#[derive(schemars::JsonSchema)]
+#[serde(untagged)]
+#[schemars(rename = "{T}OrSummary")]
+#[allow(dead_code)]
+enum WholeOrSummary<T> {
+    Whole(T),
+    Summary(StatsSummary),
+}
+
+impl Thresholds {
+    /// Its JSON with the bulky statistics (`scene`, `flow`, `kinematics`) replaced by
+    /// their [`StatsSummary`], `detail` saying where the values are.
+    pub fn summarised_json(&self, detail: &str) -> serde_json::Result<serde_json::Value> {
+        let mut v = serde_json::to_value(self)?;
+        let cells = [("scene", &self.scene), ("flow", &self.flow)];
+        for (key, stats) in cells {
+            if let Some(stats) = stats {
+                v[key] = serde_json::to_value(StatsSummary::of_cells(stats, detail))?;
+            }
+        }
+        if let Some(states) = &self.kinematics {
+            v["kinematics"] = serde_json::to_value(StatsSummary::of_states(states, detail))?;
+        }
+        Ok(v)
+    }
 }
 
 impl Thresholds {
@@ -144,7 +234,7 @@ impl Thresholds {
 /// - calibrated fusion: each detector where its calibrated score `(e - location) / spread`
 ///   reaches `alarm`, i.e. `location + alarm * spread` (its raw value when it has no
 ///   nominal scale), unless `alarm` lies above [`RATIO_CAP`].
-#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct DetectorThresholds {
     /// The fused-score alarm threshold.

@@ -31,8 +31,8 @@ pub use episodes::{
     episode_outcomes, evaluate, frames_by_type, pre_onset_false_alarm_rate,
 };
 pub use fuse::{
-    Components, Detector, DetectorThresholds, Fused, Fusion, RATIO_CAP, TRIGGER_BASE, Thresholds,
-    UNTRIGGERED_MAX, Window, fuse, fuse_calibrated, fuse_frame,
+    Components, Detector, DetectorThresholds, Fused, Fusion, RATIO_CAP, StatsSummary, TRIGGER_BASE,
+    Thresholds, UNTRIGGERED_MAX, Window, fuse, fuse_calibrated, fuse_frame,
 };
 pub use metrics::{PrPoint, RocPoint, average_precision, pr_curve, roc_auc, roc_curve};
 pub use nominal::{CellNorm, CellStats, NominalScales, PhaseCells, Pooling, Scale, pool_cells};

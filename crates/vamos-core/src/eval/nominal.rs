@@ -33,7 +33,7 @@ pub const CELL_SPREAD_QUANTILE: f64 = 0.95;
 pub const MIN_CELL_SAMPLES: usize = 20;
 
 /// A detector's nominal location and spread.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct Scale {
     /// Median over nominal frames.
@@ -68,7 +68,7 @@ impl Scale {
 }
 
 /// The nominal scales of every detector (absent: the detector had no finite value).
-#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct NominalScales {
     /// Camera-motion error.
@@ -102,7 +102,7 @@ impl NominalScales {
 }
 
 /// Per-cell nominal statistics of a map of `columns x rows` cells (row-major).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct CellStats {
     /// Cells across.
@@ -129,7 +129,7 @@ pub struct CellStats {
 
 /// Per-cell statistics per phase window: window `i` is centred on `i * step_s` seconds
 /// since the episode's first frame and spans `window_s`, `step_s = window_s / 2`.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct PhaseCells {
     /// Width of a window, seconds.

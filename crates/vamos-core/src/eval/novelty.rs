@@ -37,7 +37,7 @@ pub const MAX_STATES: usize = 20_000;
 pub const MAX_DIMS: usize = 65_536;
 
 /// The nominal states of a profile's training episodes.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(try_from = "EncodedStates", into = "EncodedStates")]
 pub struct StateReference {
     /// The stored form.
@@ -47,7 +47,7 @@ pub struct StateReference {
 }
 
 /// A [`StateReference`] as it is stored.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 struct EncodedStates {
     /// Values per state (the pipeline's state layout; a frame whose state has another

@@ -17,7 +17,7 @@ use vamos_robot::geometry::{LinkMesh, TriMesh};
 use vamos_robot::mesh::{box_mesh, cylinder_mesh, sphere_mesh};
 
 /// One attached shape.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct Attachment {
     /// The link it moves with.
@@ -40,7 +40,7 @@ pub struct Attachment {
 }
 
 /// A cylinder's size.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct Cylinder {
     /// Radius, metres.

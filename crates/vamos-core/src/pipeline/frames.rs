@@ -66,7 +66,7 @@ pub enum PipelineError {
 }
 
 /// Parameters of the front end.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct FrameProcessorParams {
     /// Processing width, pixels. Images of another size are resized. Default 320, chosen

@@ -43,7 +43,7 @@ use serde::{Deserialize, Serialize};
 use vamos_robot::camera_motion::{CameraErrorWeights, CameraMotionParams};
 
 /// The `[pipeline]` settings.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct PipelineConfig {
     /// Process every `stride`-th image (the paper: 3, i.e. 10 Hz flow from a 30 Hz camera).
@@ -83,7 +83,7 @@ pub struct PipelineConfig {
 
 /// Which detectors contribute to the score. A detector also needs its inputs: camera and
 /// body need a robot and joint states, flow a model.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct DetectorSwitches {
     /// Camera-motion error `e_c`.

@@ -52,7 +52,9 @@ pub enum ProfileError {
 }
 
 /// Which calibrated threshold on the fused score sets the anomaly flag.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, schemars::JsonSchema,
+)]
 #[serde(rename_all = "snake_case")]
 pub enum AlarmRule {
     /// The split-conformal threshold (episode-level false-alarm budget); falls back to
@@ -102,7 +104,7 @@ pub struct ProfileFile {
 /// Manual thresholds that replace calibrated ones (`[thresholds]` of a profile; the
 /// service's `PATCH` of a profile's thresholds). Each value given replaces its calibrated
 /// counterpart; an absent one leaves the calibration's in force.
-#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct ThresholdOverrides {
     /// Threshold on e_c, pixels at processing resolution.
@@ -151,7 +153,7 @@ impl ThresholdOverrides {
 }
 
 /// Thresholds and how they were obtained (`<profile>.calibration.json`).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct Calibration {
     /// When, seconds since the Unix epoch.

@@ -19,7 +19,9 @@ use serde::{Deserialize, Serialize};
 use vamos_vision::{FlowField, GrayImage};
 
 /// How `e_b` compares expected and observed body motion.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, schemars::JsonSchema,
+)]
 #[serde(rename_all = "snake_case")]
 pub enum BodyError {
     /// The paper: medians of both flows over the mask.
@@ -30,7 +32,9 @@ pub enum BodyError {
 }
 
 /// How `e_o` pools the flow predictor's per-pixel error.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, schemars::JsonSchema,
+)]
 #[serde(rename_all = "snake_case")]
 pub enum FlowPooling {
     /// The paper: the mean squared error over the valid pixels of the `S x S` map.
@@ -43,7 +47,7 @@ pub enum FlowPooling {
 }
 
 /// The `[pipeline.residual]` settings.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct ResidualParams {
     /// Side of a scene cell, pixels at the processing resolution.

@@ -73,7 +73,10 @@ pub fn env_viewer_digests() -> Vec<[u8; 32]> {
 }
 
 /// What a caller may do.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, serde::Serialize, schemars::JsonSchema,
+)]
+#[serde(rename_all = "lowercase")]
 pub enum Role {
     /// Read only: the live view, session and alarm lists, thumbnails.
     Viewer,

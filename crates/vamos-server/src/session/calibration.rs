@@ -21,7 +21,7 @@ fn default_alpha() -> f64 {
 /// What a calibration job scores: training episodes, held-out episodes (files or
 /// folders of `.mcap` files) and the conformal level. As a JSON body of
 /// `POST /v1/profiles/{name}/calibrate` it names files on the server.
-#[derive(Debug, Clone, serde::Deserialize)]
+#[derive(Debug, Clone, serde::Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct CalibrationRequest {
     /// Nominal training episodes.
@@ -102,7 +102,7 @@ pub enum CalibrationFailed {
 
 /// An episode of a profile's nominal set: the kept recording of a session whose alarm an
 /// operator marked as a false alarm.
-#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, schemars::JsonSchema)]
 pub struct NominalEpisode {
     /// The session.
     pub session_id: String,

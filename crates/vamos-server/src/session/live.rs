@@ -138,7 +138,7 @@ pub fn anomaly_map(score: &FrameScore, thresholds: &Thresholds, alarm: f64) -> O
 }
 
 /// One scored frame on a live timeline.
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, schemars::JsonSchema)]
 pub struct FramePoint {
     /// Frame index among processed frames.
     pub frame: u64,

@@ -42,7 +42,7 @@ pub struct ReadyFrame {
 }
 
 /// The latest score of a session, for listings.
-#[derive(Debug, Clone, Copy, serde::Serialize)]
+#[derive(Debug, Clone, Copy, serde::Serialize, schemars::JsonSchema)]
 pub struct LatestScore {
     /// Image stamp, nanoseconds.
     pub stamp_ns: i64,
@@ -53,7 +53,7 @@ pub struct LatestScore {
 }
 
 /// A session as listed by the REST API.
-#[derive(Debug, Clone, serde::Serialize)]
+#[derive(Debug, Clone, serde::Serialize, schemars::JsonSchema)]
 pub struct SessionSummary {
     /// Session id.
     pub id: String,

@@ -11,7 +11,7 @@ use serde::{Deserialize, Serialize};
 pub const KEPT_MARKED_ALARMS: usize = 5000;
 
 /// Detector values of one frame (absent: off, not yet defined, or not finite).
-#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct AlarmComponents {
     /// Image stamp, nanoseconds.
@@ -37,7 +37,7 @@ pub struct AlarmComponents {
 pub use vamos_core::eval::DetectorThresholds as AlarmThresholds;
 
 /// An operator's verdict on an alarm.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct FalseAlarmMark {
     /// When, seconds since the Unix epoch.
@@ -50,7 +50,7 @@ pub struct FalseAlarmMark {
 }
 
 /// One alarm: a debounced run of anomalous frames of a session.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct AlarmRecord {
     /// Unique id (`al-<boot>-<n>`).

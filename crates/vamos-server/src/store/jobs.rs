@@ -14,7 +14,7 @@ use vamos_core::pipeline::Calibration;
 pub const KEPT_JOBS: usize = 200;
 
 /// Where a job is.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum JobState {
     /// Still working.
@@ -35,7 +35,7 @@ impl JobState {
 }
 
 /// A job as `GET /v1/jobs/{id}` shows it, and as it is stored.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct JobInfo {
     /// Its id (unique in this data directory).
@@ -71,7 +71,7 @@ pub struct JobInfo {
 }
 
 /// What a recalibration proposes, to be looked at before it is applied.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct Proposal {
     /// `created_unix_s` of the calibration it revises (applying it is refused once the
@@ -89,7 +89,7 @@ pub struct Proposal {
 }
 
 /// One episode of a [`Proposal`].
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct ProposalEpisode {
     /// The episode (a kept session recording).

@@ -29,7 +29,7 @@ impl Default for StoreLimits {
 }
 
 /// One stored version of a model.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct ModelVersionInfo {
     /// Version number: 1 for a name's first upload, then one more than the largest ever
     /// given under that name (never reused while the model exists).
@@ -48,18 +48,18 @@ pub struct ModelVersionInfo {
 }
 
 /// A model: its versions and which one is active.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct ModelInfo {
     /// Name.
     pub name: String,
-    /// The version profiles without a pinned version use (`None`: no version left).
+    /// The version profiles without a pinned version use (`null`: no version left).
     pub active: Option<u32>,
     /// Versions, oldest first.
     pub versions: Vec<ModelVersionInfo>,
 }
 
 /// A stored robot package.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct RobotInfo {
     /// Name.
     pub name: String,
@@ -83,7 +83,7 @@ pub struct RobotInfo {
 }
 
 /// A model a profile uses.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct ModelRef {
     /// The model's name in the store.
@@ -96,7 +96,7 @@ pub struct ModelRef {
 /// What a profile binds (the body of `PUT /v1/profiles/{name}`): a robot and camera,
 /// pipeline parameters, a model and thresholds. Absent parts fall back as in a profile
 /// file ([`vamos_core::pipeline::profile`]).
-#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct ProfileSpec {
     /// The robot's name in the store (needs `camera`).
@@ -130,7 +130,7 @@ pub struct ProfileSpec {
 }
 
 /// A stored profile.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct ProfileInfo {
     /// Name.
     pub name: String,
@@ -140,7 +140,7 @@ pub struct ProfileInfo {
     pub calibration: Option<Calibration>,
     /// The `e_c`/`e_b` thresholds in force: calibrated, overrides on top.
     pub thresholds: Thresholds,
-    /// The fused-score alarm threshold in force (`None`: no alarms, i.e. `+inf`).
+    /// The fused-score alarm threshold in force (`null`: no alarms, i.e. `+inf`).
     pub alarm_threshold: Option<f64>,
     /// First stored, seconds since the Unix epoch.
     pub created_unix_s: u64,
@@ -155,10 +155,10 @@ pub struct ProfileInfo {
 /// A change of a profile's threshold overrides (`PATCH /v1/profiles/{name}/thresholds`):
 /// for each of `e_c`, `e_b`, `alarm`, a number sets the override, `null` clears it (the
 /// calibrated value is back in force) and an absent key leaves it as it is.
-#[derive(Debug, Clone, Copy, PartialEq, Default, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Default, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct ThresholdsPatch {
-    /// `e_c` override: `Some(Some(x))` sets, `Some(None)` clears, `None` leaves.
+    /// `e_c` override: a number sets it, `null` clears it, absent leaves it.
     #[serde(default, deserialize_with = "present")]
     pub e_c: Option<Option<f64>>,
     /// `e_b` override, as `e_c`.

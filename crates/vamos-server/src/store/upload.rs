@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 
 /// How a robot package is packed; decides the stored file's extension, which
 /// [`vamos_robot::Robot::load`] dispatches on.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum RobotFormat {
     /// A single URDF file (meshes cannot come with it: use an archive for those).

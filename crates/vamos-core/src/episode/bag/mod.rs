@@ -86,7 +86,7 @@ pub mod default_topic {
 
 /// Topic names of an episode; `None` = the default name if present, else the only topic
 /// of the matching schema.
-#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct EpisodeTopics {
     /// `sensor_msgs/msg/Image` or `sensor_msgs/msg/CompressedImage`; several candidates:

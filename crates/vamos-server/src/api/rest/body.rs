@@ -6,9 +6,26 @@ use crate::api::state::Shared;
 use crate::session::budget::UploadTicket;
 use crate::store::{StoreError, Upload, UploadKind};
 use axum::body::{Body, Bytes};
+use axum::extract::{FromRequestParts, Query};
+use axum::http::request::Parts;
 use axum::http::{HeaderMap, header};
 use axum::response::Response;
 use futures_util::StreamExt;
+
+/// A query string read as `T`; a bad one is a 400 with a JSON error body, as every other
+/// refusal (axum's own `Query` answers those in plain text).
+pub(super) struct ApiQuery<T>(pub T);
+
+impl<T: serde::de::DeserializeOwned, S: Send + Sync> FromRequestParts<S> for ApiQuery<T> {
+    type Rejection = ApiError;
+
+    async fn from_request_parts(parts: &mut Parts, state: &S) -> Result<Self, ApiError> {
+        match Query::<T>::from_request_parts(parts, state).await {
+            Ok(Query(q)) => Ok(ApiQuery(q)),
+            Err(e) => Err(ApiError::bad_request(e.body_text())),
+        }
+    }
+}
 
 /// Runs a store call on a blocking thread.
 pub(super) async fn blocking<T: Send + 'static>(
@@ -39,10 +56,6 @@ pub(super) async fn json_bytes(body: Body, limit: usize) -> Result<Bytes, ApiErr
 
 pub(super) fn json_body<T: serde::de::DeserializeOwned>(body: &[u8]) -> Result<T, ApiError> {
     serde_json::from_slice(body).map_err(|e| ApiError::bad_request(format!("bad JSON body: {e}")))
-}
-
-pub(super) fn to_json(v: &impl serde::Serialize) -> Result<serde_json::Value, ApiError> {
-    serde_json::to_value(v).map_err(ApiError::internal)
 }
 
 /// The declared `Content-Length`, if any.

@@ -8,15 +8,48 @@ use super::errors::ApiError;
 use super::profiles::refuse_file_profile;
 use crate::api::state::Shared;
 use crate::session::budget::UploadTicket;
-use crate::session::calibration::{CalibrationRequest, nominal_set};
+use crate::session::calibration::{CalibrationRequest, NominalEpisode, nominal_set};
+use crate::store::JobInfo;
 use axum::Json;
 use axum::body::Body;
 use axum::extract::{Path, State};
 use axum::http::{HeaderMap, StatusCode, header};
 use axum::response::{IntoResponse, Response};
-use serde_json::json;
+use serde::Serialize;
 use std::path::PathBuf;
 use std::sync::Arc;
+
+/// A job started (`202`).
+#[derive(Debug, Serialize, schemars::JsonSchema)]
+pub struct JobStarted {
+    /// Its id: `GET /v1/jobs/{id}` follows it.
+    pub job: u64,
+}
+
+/// `DELETE /v1/jobs/{id}` of a running job (`202`).
+#[derive(Debug, Serialize, schemars::JsonSchema)]
+pub struct JobCancelling {
+    /// Its id.
+    pub job: u64,
+    /// Always `true`: it stops before its next episode and is then `cancelled`.
+    pub cancelling: bool,
+}
+
+/// `GET /v1/jobs`.
+#[derive(Debug, Serialize, schemars::JsonSchema)]
+pub struct JobList {
+    /// Every job, oldest first; the calibrations' bulky statistics summarised by their
+    /// sizes (`GET /v1/jobs/{id}` gives them whole).
+    #[schemars(with = "Vec<JobInfo>")]
+    pub jobs: Vec<serde_json::Value>,
+}
+
+/// `GET /v1/profiles/{name}/nominal`.
+#[derive(Debug, Serialize, schemars::JsonSchema)]
+pub struct NominalList {
+    /// The profile's nominal set, oldest mark first.
+    pub episodes: Vec<NominalEpisode>,
+}
 
 /// Largest JSON calibration request (paths on the server), bytes.
 const MAX_CALIBRATE_JSON_BYTES: usize = 1 << 20;
@@ -233,20 +266,19 @@ pub(super) async fn start_calibration(
     };
     req.check()?;
     let id = s.calibrator().start(name, req, episodes, holdout, upload)?;
-    Ok((StatusCode::ACCEPTED, Json(json!({ "job": id }))).into_response())
+    Ok((StatusCode::ACCEPTED, Json(JobStarted { job: id })).into_response())
 }
 
 /// `GET /v1/jobs`: every job, oldest first, the calibrations' bulky statistics
 /// summarised (`GET /v1/jobs/{id}` gives them whole).
-pub(super) async fn list_jobs(State(s): State<Arc<Shared>>) -> Result<Response, ApiError> {
+pub(super) async fn list_jobs(State(s): State<Arc<Shared>>) -> Result<Json<JobList>, ApiError> {
     let jobs = s
         .jobs
         .list()
-        .into_iter()
-        .map(|job| serde_json::to_value(job).map(super::profiles::summarised))
-        .collect::<Result<Vec<_>, _>>()
-        .map_err(|e| ApiError::internal(format!("jobs: {e}")))?;
-    Ok(Json(json!({ "jobs": jobs })).into_response())
+        .iter()
+        .map(|job| super::profiles::summarised(job, None, job.calibration.as_ref()))
+        .collect::<Result<Vec<_>, _>>()?;
+    Ok(Json(JobList { jobs }))
 }
 
 pub(super) fn job_id(id: &str) -> Result<u64, ApiError> {
@@ -274,11 +306,11 @@ pub(super) async fn delete_job(
     let jobs = s.clone();
     let cancelled = blocking(move || jobs.jobs.cancel(id)).await?;
     if cancelled {
-        return Ok((
-            StatusCode::ACCEPTED,
-            Json(json!({ "job": id, "cancelling": true })),
-        )
-            .into_response());
+        let body = JobCancelling {
+            job: id,
+            cancelling: true,
+        };
+        return Ok((StatusCode::ACCEPTED, Json(body)).into_response());
     }
     let jobs = s.clone();
     blocking(move || jobs.jobs.delete(id)).await?;
@@ -293,7 +325,7 @@ pub(super) async fn nominal(
 ) -> Result<Response, ApiError> {
     let (store, dir) = (s.store.clone(), s.hub.recordings_dir());
     let episodes = blocking(move || nominal_set(&store, &dir, &name)).await?;
-    Ok(Json(json!({ "episodes": episodes })).into_response())
+    Ok(Json(NominalList { episodes }).into_response())
 }
 
 /// `POST /v1/profiles/{name}/recalibrate`: starts a recalibration from the profile's
@@ -312,7 +344,7 @@ pub(super) async fn start_recalibration(
     })
     .await
     .map_err(ApiError::internal)??;
-    Ok((StatusCode::ACCEPTED, Json(json!({ "job": id }))).into_response())
+    Ok((StatusCode::ACCEPTED, Json(JobStarted { job: id })).into_response())
 }
 
 /// `POST /v1/jobs/{id}/apply`: applies a finished recalibration's proposal (200, the job).

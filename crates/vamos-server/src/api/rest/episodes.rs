@@ -2,7 +2,7 @@
 //! operation ([`crate::session::episode`], the one gRPC's `ScoreEpisode` calls); the
 //! scores as JSON, or the scored bag.
 
-use super::body::{content_length, file_body};
+use super::body::{ApiQuery, content_length, file_body};
 use super::errors::ApiError;
 use crate::api::grpc::convert::frame_score_fields;
 use crate::api::state::Shared;
@@ -11,7 +11,7 @@ use crate::session::upload::EpisodeBuffer;
 use crate::session::{ScoredFrame, SessionError};
 use axum::Json;
 use axum::body::Body;
-use axum::extract::{Query, State};
+use axum::extract::State;
 use axum::http::{HeaderMap, header};
 use axum::response::{IntoResponse, Response};
 use futures_util::StreamExt;
@@ -21,19 +21,32 @@ use std::path::Path;
 use std::sync::Arc;
 use vamos_core::episode::{EpisodeConfig, McapEpisode, ScoreBagWriter, ScoreTopics};
 use vamos_core::eval::DetectorThresholds;
+use vamos_proto::ScoreJson;
 
 /// Query of `POST /v1/episodes:score`.
-#[derive(Debug, serde::Deserialize)]
-pub(super) struct ScoreQuery {
+#[derive(Debug, serde::Deserialize, schemars::JsonSchema)]
+pub struct ScoreQuery {
+    /// The profile to score with.
     profile: String,
+    /// The episode's name in logs, metrics and alarms (default: none).
     #[serde(default)]
     name: Option<String>,
 }
 
+/// The JSON answer of `POST /v1/episodes:score`.
+#[derive(Debug, serde::Serialize, schemars::JsonSchema)]
+pub struct EpisodeScores {
+    /// Every scored frame, in order.
+    pub frames: Vec<ScoreJson>,
+    /// Why reading stopped early (a damaged or truncated bag: the frames before it are
+    /// scored), if it did.
+    pub damage: Option<String>,
+}
+
 /// A frame's score as the JSON object the REST API prints: the gRPC answer's fields and
 /// names, as `vamos stream` prints them ([`vamos_proto::score_json`]).
-pub fn score_json(f: &ScoredFrame) -> serde_json::Value {
-    vamos_proto::score_json(&frame_score_fields(f))
+pub fn score_json(f: &ScoredFrame) -> ScoreJson {
+    ScoreJson::from(&frame_score_fields(f))
 }
 
 /// `POST /v1/episodes:score?profile=P[&name=N]` with an MCAP body: the scores as JSON
@@ -42,7 +55,7 @@ pub fn score_json(f: &ScoredFrame) -> serde_json::Value {
 pub(super) async fn score_episode(
     State(s): State<Arc<Shared>>,
     headers: HeaderMap,
-    Query(q): Query<ScoreQuery>,
+    ApiQuery(q): ApiQuery<ScoreQuery>,
     body: Body,
 ) -> Result<Response, ApiError> {
     let profile = s
@@ -115,8 +128,8 @@ pub(super) async fn score_episode(
     let damage = damage.map(|e| e.to_string());
     match input {
         None => {
-            let frames: Vec<_> = frames.iter().map(score_json).collect();
-            Ok(Json(json!({ "frames": frames, "damage": damage })).into_response())
+            let frames = frames.iter().map(score_json).collect();
+            Ok(Json(EpisodeScores { frames, damage }).into_response())
         }
         Some(input) => {
             let dir = s.upload_dir();

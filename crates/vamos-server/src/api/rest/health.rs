@@ -1,27 +1,49 @@
 //! Probes, metrics and the API description: `/healthz`, `/readyz`, the KServe-v2
 //! health and model-readiness routes, `/metrics`, `/openapi.json`.
 
-use super::OPENAPI_JSON;
+use super::openapi;
 use crate::api::state::Shared;
 use axum::Json;
 use axum::extract::{Path, State};
 use axum::http::{StatusCode, header};
 use axum::response::{IntoResponse, Response};
-use serde_json::json;
+use serde::Serialize;
 use std::sync::Arc;
 use std::sync::atomic::Ordering;
 
-pub(super) async fn healthz() -> impl IntoResponse {
-    Json(json!({ "status": "live" }))
+/// What a probe answers.
+#[derive(Debug, Serialize, schemars::JsonSchema)]
+pub struct Health {
+    /// `live` (`/healthz`), `ready` or `not ready` (`/readyz`).
+    pub status: &'static str,
+}
+
+/// A model's readiness (`GET /v2/models/{name}/ready`; with `version`, also
+/// `GET /v2/models/{name}/versions/{version}/ready`).
+#[derive(Debug, Serialize, schemars::JsonSchema)]
+pub struct ModelReady {
+    /// The name asked for.
+    pub name: String,
+    /// The version asked for.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub version: Option<String>,
+    /// Ready to score.
+    pub ready: bool,
+}
+
+pub(super) async fn healthz() -> Json<Health> {
+    Json(Health { status: "live" })
 }
 
 pub(super) async fn readyz(State(s): State<Arc<Shared>>) -> Response {
     if s.ready.load(Ordering::SeqCst) && !*s.stop.borrow() && s.hub.live_workers() > 0 {
-        Json(json!({ "status": "ready" })).into_response()
+        Json(Health { status: "ready" }).into_response()
     } else {
         (
             StatusCode::SERVICE_UNAVAILABLE,
-            Json(json!({ "status": "not ready" })),
+            Json(Health {
+                status: "not ready",
+            }),
         )
             .into_response()
     }
@@ -39,7 +61,11 @@ pub(super) async fn metrics(State(s): State<Arc<Shared>>) -> Response {
 }
 
 pub(super) async fn openapi() -> Response {
-    ([(header::CONTENT_TYPE, "application/json")], OPENAPI_JSON).into_response()
+    (
+        [(header::CONTENT_TYPE, "application/json")],
+        openapi::document_json(),
+    )
+        .into_response()
 }
 
 /// KServe-v2-style model readiness: `name` is a profile or model (`name@version` label)
@@ -63,13 +89,15 @@ pub(super) async fn model_ready(
                 .any(|x| x.version == v && x.problem.is_none())
         })
     });
-    if loaded || stored {
-        Json(json!({ "name": name, "ready": true })).into_response()
+    let status = if loaded || stored {
+        StatusCode::OK
     } else {
-        (
-            StatusCode::NOT_FOUND,
-            Json(json!({ "name": name, "ready": false })),
-        )
-            .into_response()
-    }
+        StatusCode::NOT_FOUND
+    };
+    let ready = ModelReady {
+        name,
+        version: None,
+        ready: loaded || stored,
+    };
+    (status, Json(ready)).into_response()
 }

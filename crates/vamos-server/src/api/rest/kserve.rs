@@ -17,47 +17,83 @@
 
 use super::body::blocking;
 use super::errors::ApiError;
+use super::health::ModelReady;
 use crate::api::state::Shared;
 use crate::store::{ModelInfo, ModelVersionInfo};
 use axum::Json;
 use axum::extract::{Path, State};
 use axum::http::StatusCode;
 use axum::response::{IntoResponse, Response};
-use serde_json::{Value, json};
+use serde::Serialize;
 use std::sync::Arc;
 
-/// The protocol extensions served (KServe's `extensions` list): none of the optional ones.
-const EXTENSIONS: &[&str] = &[];
-
-/// `GET /v2`: server metadata.
-pub(super) async fn server_metadata() -> Response {
-    Json(json!({
-        "name": "vamos",
-        "version": env!("CARGO_PKG_VERSION"),
-        "extensions": EXTENSIONS,
-    }))
-    .into_response()
+/// KServe v2 server metadata (`GET /v2`).
+#[derive(Debug, Serialize, schemars::JsonSchema)]
+pub struct ServerMetadata {
+    /// `vamos`.
+    pub name: &'static str,
+    /// The server's version.
+    pub version: &'static str,
+    /// The optional protocol extensions served: none.
+    pub extensions: Vec<String>,
 }
 
-fn tensor(name: &str, datatype: &str, shape: &[i64]) -> Value {
-    json!({ "name": name, "datatype": datatype, "shape": shape })
+/// One tensor of KServe v2 model metadata.
+#[derive(Debug, Serialize, schemars::JsonSchema)]
+pub struct TensorMetadata {
+    /// Tensor name.
+    pub name: &'static str,
+    /// KServe data type (`BYTES`, `FP32`, `FP64`, `BOOL`).
+    pub datatype: &'static str,
+    /// Shape; -1 for a size that varies.
+    pub shape: Vec<i64>,
+}
+
+/// KServe v2 model metadata (`GET /v2/models/{name}[/versions/{version}]`).
+#[derive(Debug, Serialize, schemars::JsonSchema)]
+pub struct ModelMetadata {
+    /// The profile's or stored model's name.
+    pub name: String,
+    /// Served versions (a profile has none).
+    pub versions: Vec<String>,
+    /// `vamos_profile` (what a robot streams and gets back) or `vamos_bundle` (a stored
+    /// flow-predictor bundle).
+    pub platform: &'static str,
+    /// Inputs.
+    pub inputs: Vec<TensorMetadata>,
+    /// Outputs.
+    pub outputs: Vec<TensorMetadata>,
+}
+
+/// `GET /v2`: server metadata.
+pub(super) async fn server_metadata() -> Json<ServerMetadata> {
+    Json(ServerMetadata {
+        name: "vamos",
+        version: env!("CARGO_PKG_VERSION"),
+        extensions: Vec::new(),
+    })
+}
+
+fn tensor(name: &'static str, datatype: &'static str, shape: &[i64]) -> TensorMetadata {
+    TensorMetadata {
+        name,
+        datatype,
+        shape: shape.to_vec(),
+    }
 }
 
 /// Metadata of a profile: a model without versions.
-fn profile_metadata(name: &str) -> Value {
-    json!({
-        "name": name,
-        "versions": [],
-        "platform": "vamos_profile",
-        "inputs": [
+fn profile_metadata(name: &str) -> ModelMetadata {
+    ModelMetadata {
+        name: name.into(),
+        versions: Vec::new(),
+        platform: "vamos_profile",
+        inputs: vec![
             tensor("image", "BYTES", &[1]),
             tensor("joint_positions", "FP64", &[-1]),
         ],
-        "outputs": [
-            tensor("score", "FP64", &[1]),
-            tensor("alarm", "BOOL", &[1]),
-        ],
-    })
+        outputs: vec![tensor("score", "FP64", &[1]), tensor("alarm", "BOOL", &[1])],
+    }
 }
 
 /// The stored versions that are served (no checksum or file problem).
@@ -66,7 +102,7 @@ fn served(model: &ModelInfo) -> impl Iterator<Item = &ModelVersionInfo> {
 }
 
 /// Metadata of a stored model; `version` narrows `versions` to that one.
-fn bundle_metadata(model: &ModelInfo, version: Option<&ModelVersionInfo>) -> Value {
+fn bundle_metadata(model: &ModelInfo, version: Option<&ModelVersionInfo>) -> ModelMetadata {
     // The network input of the version asked for, else of the active one; the manifest
     // is what the upload's validator recorded.
     let shown = version.or_else(|| {
@@ -80,13 +116,17 @@ fn bundle_metadata(model: &ModelInfo, version: Option<&ModelVersionInfo>) -> Val
         Some(v) => vec![v.version.to_string()],
         None => served(model).map(|v| v.version.to_string()).collect(),
     };
-    json!({
-        "name": model.name,
-        "versions": versions,
-        "platform": "vamos_bundle",
-        "inputs": [tensor("flow", "FP32", &[-1, dim("channels"), dim("size"), dim("size")])],
-        "outputs": [tensor("e_o", "FP32", &[-1])],
-    })
+    ModelMetadata {
+        name: model.name.clone(),
+        versions,
+        platform: "vamos_bundle",
+        inputs: vec![tensor(
+            "flow",
+            "FP32",
+            &[-1, dim("channels"), dim("size"), dim("size")],
+        )],
+        outputs: vec![tensor("e_o", "FP32", &[-1])],
+    }
 }
 
 /// Whether `name` is a profile: a profile file of the configuration or a stored one.
@@ -158,9 +198,10 @@ pub(super) async fn version_ready(
     } else {
         StatusCode::NOT_FOUND
     };
-    (
-        status,
-        Json(json!({ "name": name, "version": version, "ready": ready })),
-    )
-        .into_response()
+    let ready = ModelReady {
+        name,
+        version: Some(version),
+        ready,
+    };
+    (status, Json(ready)).into_response()
 }

@@ -7,19 +7,22 @@
 //! page reads the event stream with `fetch` (a streamed body), not `EventSource` (which
 //! cannot send headers); no token ever travels in a URL.
 
+use super::body::ApiQuery;
 use super::errors::ApiError;
 use crate::api::auth::Role;
 use crate::api::state::Shared;
 use crate::session::SessionError;
+use crate::session::SessionSummary;
 use crate::session::alarms::mark_false_alarm;
+use crate::session::live::FramePoint;
+use crate::store::AlarmRecord;
 use axum::Json;
-use axum::extract::{Path, Query, State};
+use axum::extract::{Path, State};
 use axum::http::{HeaderMap, header};
 use axum::response::sse::{Event, KeepAlive, Sse};
 use axum::response::{IntoResponse, Response};
 use futures_util::stream::Stream;
-use serde::Deserialize;
-use serde_json::json;
+use serde::{Deserialize, Serialize};
 use std::convert::Infallible;
 use std::sync::Arc;
 use std::time::Duration;
@@ -28,20 +31,93 @@ use std::time::Duration;
 const LIVE_PERIOD: Duration = Duration::from_millis(500);
 
 /// `?session=&marked=&profile=` of the alarm list.
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
-pub(super) struct AlarmQuery {
+pub struct AlarmQuery {
+    /// Only this session's alarms.
     session: Option<String>,
+    /// The stored false alarms (oldest mark first) instead of the recent alarms.
     #[serde(default)]
     marked: bool,
+    /// Only alarms of sessions on this profile.
     profile: Option<String>,
+}
+
+/// A list of alarms.
+#[derive(Debug, Serialize, schemars::JsonSchema)]
+pub struct AlarmList {
+    /// The alarms.
+    pub alarms: Vec<AlarmRecord>,
+}
+
+/// A session's timeline (`GET /v1/sessions/{id}/timeline`; the `timeline` event of
+/// `GET /v1/live`).
+#[derive(Debug, Serialize, schemars::JsonSchema)]
+pub struct Timeline {
+    /// The session.
+    pub session: SessionSummary,
+    /// Each detector's threshold in force, in its own units.
+    pub thresholds: vamos_core::eval::DetectorThresholds,
+    /// The kept points, oldest first (after frame `after` when given).
+    pub points: Vec<FramePoint>,
+}
+
+/// The caller (`GET /v1/whoami`).
+#[derive(Debug, Serialize, schemars::JsonSchema)]
+pub struct Whoami {
+    /// The token's role.
+    pub role: Role,
+    /// Whether the server checks tokens (`false`: everyone is admin).
+    pub tokens: bool,
+}
+
+/// An open session with its last alarm (the `sessions` event of `GET /v1/live`).
+#[derive(Debug, Serialize, schemars::JsonSchema)]
+pub struct LiveSession {
+    /// The session.
+    pub summary: SessionSummary,
+    /// Its most recent alarm.
+    pub last_alarm: Option<AlarmRecord>,
+}
+
+/// The `sessions` event of `GET /v1/live`.
+#[derive(Debug, Serialize, schemars::JsonSchema)]
+pub struct LiveSessions {
+    /// The open sessions.
+    pub sessions: Vec<LiveSession>,
+}
+
+/// The `gone` event of `GET /v1/live`: the session asked for is not open.
+#[derive(Debug, Serialize, schemars::JsonSchema)]
+pub struct LiveGone {
+    /// Its id.
+    pub session: String,
+    /// Why (ended, or the server restarted).
+    pub error: String,
+}
+
+/// One round of `GET /v1/live`: every event, or (without `Accept: text/event-stream`) the
+/// one JSON snapshot.
+#[derive(Debug, Serialize, schemars::JsonSchema)]
+pub struct LiveSnapshot {
+    /// The open sessions.
+    pub sessions: LiveSessions,
+    /// With `?session=ID`: its new timeline points.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub timeline: Option<Timeline>,
+    /// With `?session=ID`: its recent alarms.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub alarms: Option<AlarmList>,
+    /// With `?session=ID` once it is not open.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub gone: Option<LiveGone>,
 }
 
 /// `GET /v1/alarms`: the recent alarms (newest first), or with `marked=true` the stored
 /// false alarms (oldest mark first), of a session / profile when given.
 pub(super) async fn list_alarms(
     State(s): State<Arc<Shared>>,
-    Query(q): Query<AlarmQuery>,
+    ApiQuery(q): ApiQuery<AlarmQuery>,
 ) -> Result<Response, ApiError> {
     if q.marked {
         let store = s.store.clone();
@@ -53,7 +129,7 @@ pub(super) async fn list_alarms(
             .into_iter()
             .filter(|a| q.session.as_ref().is_none_or(|x| &a.session_id == x))
             .collect();
-        return Ok(Json(json!({ "alarms": marked })).into_response());
+        return Ok(Json(AlarmList { alarms: marked }).into_response());
     }
     let alarms: Vec<_> = s
         .hub
@@ -62,7 +138,7 @@ pub(super) async fn list_alarms(
         .into_iter()
         .filter(|a| q.profile.as_ref().is_none_or(|p| &a.profile == p))
         .collect();
-    Ok(Json(json!({ "alarms": alarms })).into_response())
+    Ok(Json(AlarmList { alarms }).into_response())
 }
 
 /// `GET /v1/alarms/{id}`: a recent alarm, else a stored (marked) one.
@@ -110,9 +186,10 @@ pub(super) async fn alarm_thumbnail(
 }
 
 /// The body of a false-alarm mark (optional).
-#[derive(Debug, Default, Deserialize)]
+#[derive(Debug, Default, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
-struct MarkBody {
+pub struct MarkBody {
+    /// Why it is a false alarm (kept with the mark).
     #[serde(default)]
     note: String,
 }
@@ -161,13 +238,14 @@ pub(super) async fn session_alarms(
         // An unknown session is a 404; an open one without alarms an empty list.
         open_session(&s, &id)?;
     }
-    Ok(Json(json!({ "alarms": alarms })).into_response())
+    Ok(Json(AlarmList { alarms }).into_response())
 }
 
 /// `?after=N` of a timeline.
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
-pub(super) struct TimelineQuery {
+pub struct TimelineQuery {
+    /// Only the points after this frame index (what a page already has).
     after: Option<u64>,
 }
 
@@ -176,22 +254,19 @@ pub(super) struct TimelineQuery {
 pub(super) async fn timeline(
     State(s): State<Arc<Shared>>,
     Path(id): Path<String>,
-    Query(q): Query<TimelineQuery>,
+    ApiQuery(q): ApiQuery<TimelineQuery>,
 ) -> Result<Response, ApiError> {
     let session = open_session(&s, &id)?;
     let points = session.timeline(q.after);
-    Ok(Json(timeline_json(&session, &points)).into_response())
+    Ok(Json(timeline_of(&session, points)).into_response())
 }
 
-fn timeline_json(
-    session: &crate::session::Session,
-    points: &[crate::session::live::FramePoint],
-) -> serde_json::Value {
-    json!({
-        "session": session.summary(),
-        "thresholds": session.profile().setup.detector_thresholds(),
-        "points": points,
-    })
+fn timeline_of(session: &crate::session::Session, points: Vec<FramePoint>) -> Timeline {
+    Timeline {
+        session: session.summary(),
+        thresholds: session.profile().setup.detector_thresholds(),
+        points,
+    }
 }
 
 /// `GET /v1/sessions/{id}/frame`: the latest frame, shrunk (PNG, gray).
@@ -229,18 +304,18 @@ pub(super) async fn whoami(
     headers: HeaderMap,
 ) -> Result<Response, ApiError> {
     let role = super::authorize(&s, &headers, Role::Viewer)?;
-    let name = match role {
-        Role::Admin => "admin",
-        Role::Robot => "robot",
-        Role::Viewer => "viewer",
-    };
-    Ok(Json(json!({ "role": name, "tokens": s.tokens.enabled() })).into_response())
+    Ok(Json(Whoami {
+        role,
+        tokens: s.tokens.enabled(),
+    })
+    .into_response())
 }
 
 /// `?session=ID` of the live stream.
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
-pub(super) struct LiveQuery {
+pub struct LiveQuery {
+    /// Also this session's timeline and alarms (or `gone`).
     session: Option<String>,
 }
 
@@ -260,7 +335,7 @@ struct LiveState {
 /// of the same (`{"sessions": .., "timeline": .., "alarms": .., "gone": ..}`).
 pub(super) async fn live(
     State(s): State<Arc<Shared>>,
-    Query(q): Query<LiveQuery>,
+    ApiQuery(q): ApiQuery<LiveQuery>,
     headers: HeaderMap,
 ) -> Response {
     let wants_stream = headers
@@ -275,11 +350,7 @@ pub(super) async fn live(
             after: None,
             first: true,
         };
-        let mut snapshot = serde_json::Map::new();
-        for (name, data) in live_events(&mut st) {
-            snapshot.insert(name.to_string(), data);
-        }
-        return Json(snapshot).into_response();
+        return Json(live_round(&mut st)).into_response();
     }
     live_stream(s, q.session).into_response()
 }
@@ -306,47 +377,70 @@ fn live_stream(
         if *st.stop.borrow() {
             return None;
         }
-        let events: Vec<Event> = live_events(&mut st)
-            .into_iter()
-            .map(|(name, data)| Event::default().event(name).data(data.to_string()))
-            .collect();
+        let events = live_events(&live_round(&mut st));
         Some((futures_util::stream::iter(events.into_iter().map(Ok)), st))
     });
     use futures_util::StreamExt;
     Sse::new(stream.flatten()).keep_alive(KeepAlive::default())
 }
 
-/// The events of one round, as `(name, data)`.
-fn live_events(st: &mut LiveState) -> Vec<(&'static str, serde_json::Value)> {
+/// One round: the session list, and the session asked for.
+fn live_round(st: &mut LiveState) -> LiveSnapshot {
     let s = &st.shared;
-    let sessions: Vec<serde_json::Value> = s
+    let sessions = s
         .hub
         .sessions()
         .into_iter()
         .map(|summary| {
-            let last = s.hub.alarms.list(Some(&summary.id)).into_iter().next();
-            json!({ "summary": summary, "last_alarm": last })
+            let last_alarm = s.hub.alarms.list(Some(&summary.id)).into_iter().next();
+            LiveSession {
+                summary,
+                last_alarm,
+            }
         })
         .collect();
-    let mut out = vec![("sessions", json!({ "sessions": sessions }))];
+    let mut round = LiveSnapshot {
+        sessions: LiveSessions { sessions },
+        timeline: None,
+        alarms: None,
+        gone: None,
+    };
     if let Some(id) = &st.session {
         match s.hub.session(id) {
             Some(session) => {
                 let points = session.timeline(st.after);
-                out.push(("timeline", timeline_json(&session, &points)));
                 if let Some(last) = points.last() {
                     st.after = Some(last.frame);
                 }
-                out.push(("alarms", json!({ "alarms": s.hub.alarms.list(Some(id)) })));
+                round.timeline = Some(timeline_of(&session, points));
+                round.alarms = Some(AlarmList {
+                    alarms: s.hub.alarms.list(Some(id)),
+                });
             }
-            None => out.push((
-                "gone",
-                json!({
-                    "session": id,
-                    "error": SessionError::UnknownSession { id: id.clone() }.to_string(),
-                }),
-            )),
+            None => {
+                round.gone = Some(LiveGone {
+                    session: id.clone(),
+                    error: SessionError::UnknownSession { id: id.clone() }.to_string(),
+                });
+            }
         }
     }
-    out
+    round
+}
+
+/// A round as server-sent events, in the order `sessions`, `timeline`, `alarms`, `gone`.
+fn live_events(round: &LiveSnapshot) -> Vec<Event> {
+    fn event<T: Serialize>(name: &str, data: Option<&T>) -> Option<Event> {
+        let data = serde_json::to_string(data?).ok()?;
+        Some(Event::default().event(name).data(data))
+    }
+    [
+        event("sessions", Some(&round.sessions)),
+        event("timeline", round.timeline.as_ref()),
+        event("alarms", round.alarms.as_ref()),
+        event("gone", round.gone.as_ref()),
+    ]
+    .into_iter()
+    .flatten()
+    .collect()
 }

@@ -1,24 +1,58 @@
 //! The data directory's models: list, read, upload (validated with ONNX Runtime),
 //! delete, and the active version.
 
-use super::body::{blocking, json_body, receive, to_json};
+use super::body::{blocking, json_body, receive};
 use super::errors::ApiError;
 use crate::api::state::Shared;
 use crate::session::reload::{Reloaded, reload_model_sessions};
-use crate::store::{UploadKind, model_bundle_summary};
+use crate::store::{ModelInfo, ModelVersionInfo, UploadKind, model_bundle_summary};
 use axum::Json;
 use axum::body::{Body, Bytes};
 use axum::extract::{Path, State};
 use axum::http::{HeaderMap, StatusCode};
 use axum::response::{IntoResponse, Response};
-use serde_json::json;
+use serde::Serialize;
+use std::collections::BTreeMap;
 use std::sync::Arc;
 use vamos_model::FlowModel;
 
-pub(super) async fn list_models(State(s): State<Arc<Shared>>) -> Result<Response, ApiError> {
+/// `GET /v1/models`.
+#[derive(Debug, Serialize, schemars::JsonSchema)]
+pub struct ModelList {
+    /// The stored models, by name.
+    pub models: Vec<ModelInfo>,
+}
+
+/// `PUT /v1/models/{name}`: the version stored.
+#[derive(Debug, Serialize, schemars::JsonSchema)]
+pub struct ModelUploaded {
+    /// The model's name.
+    pub name: String,
+    /// Its active version now (a first upload becomes active).
+    pub active: Option<u32>,
+    /// The new version.
+    #[serde(flatten)]
+    pub version: ModelVersionInfo,
+}
+
+/// `POST /v1/models/{name}/active`: the model, and the sessions moved when asked.
+#[derive(Debug, Serialize, schemars::JsonSchema)]
+pub struct ActiveModel {
+    /// The model with its new active version.
+    #[serde(flatten)]
+    pub model: ModelInfo,
+    /// With `reload_sessions`: the sessions moved to the new version.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub reloaded_sessions: Option<Vec<String>>,
+    /// With `reload_sessions`: the sessions that could not be moved, and why.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub reload_errors: BTreeMap<String, String>,
+}
+
+pub(super) async fn list_models(State(s): State<Arc<Shared>>) -> Result<Json<ModelList>, ApiError> {
     let store = s.store.clone();
     let models = blocking(move || Ok(store.models())).await?;
-    Ok(Json(json!({ "models": models })).into_response())
+    Ok(Json(ModelList { models }))
 }
 
 pub(super) async fn get_model(
@@ -61,9 +95,11 @@ pub(super) async fn put_model(
     })
     .await?;
     s.profiles.invalidate_model(&name);
-    let mut body = to_json(&info)?;
-    body["name"] = json!(name);
-    body["active"] = json!(active);
+    let body = ModelUploaded {
+        name,
+        active,
+        version: info,
+    };
     Ok((StatusCode::CREATED, Json(body)).into_response())
 }
 
@@ -93,9 +129,10 @@ pub(super) async fn delete_model_version(
 }
 
 /// Body of `POST /v1/models/{name}/active`.
-#[derive(Debug, serde::Deserialize)]
+#[derive(Debug, serde::Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
-pub(super) struct ActiveRequest {
+pub struct ActiveRequest {
+    /// The version to make active.
     version: u32,
     /// Also move the running sessions whose profile uses this model to the new version
     /// (by default they keep the version they opened with).
@@ -117,17 +154,18 @@ pub(super) async fn set_active_model(
     })
     .await?;
     s.profiles.invalidate_model(&name);
-    let mut body = to_json(&model)?;
+    let mut body = ActiveModel {
+        model,
+        reloaded_sessions: None,
+        reload_errors: BTreeMap::new(),
+    };
     if req.reload_sessions {
         let Reloaded { reloaded, failed } = reload_model_sessions(&s.hub, &s.profiles, &name).await;
-        let failed: serde_json::Map<String, serde_json::Value> = failed
+        body.reloaded_sessions = Some(reloaded);
+        body.reload_errors = failed
             .into_iter()
-            .map(|(id, e)| (id, json!(e.to_string())))
+            .map(|(id, e)| (id, e.to_string()))
             .collect();
-        body["reloaded_sessions"] = json!(reloaded);
-        if !failed.is_empty() {
-            body["reload_errors"] = serde_json::Value::Object(failed);
-        }
     }
     Ok(Json(body).into_response())
 }

@@ -11,18 +11,66 @@ use axum::body::Bytes;
 use axum::extract::{Path, State};
 use axum::http::StatusCode;
 use axum::response::{IntoResponse, Response};
-use serde_json::json;
+use serde::Serialize;
 use std::sync::Arc;
+use vamos_core::eval::Thresholds;
+use vamos_core::pipeline::Calibration;
 
-pub(super) fn file_profile_json(p: &LoadedProfile) -> serde_json::Value {
-    json!({
-        "name": p.name,
-        "source": "file",
-        "model": p.model_label,
-        "robot": p.setup.robot.is_some(),
-        "calibrated": p.setup.profile.calibration.is_some(),
-        "alarm_threshold": finite(p.setup.profile.alarm_threshold()),
-    })
+/// Where a profile comes from.
+#[derive(Debug, Clone, Copy, Serialize, schemars::JsonSchema)]
+#[serde(rename_all = "lowercase")]
+pub enum ProfileSource {
+    /// A profile file of the server's settings (read only through the API; it shadows a
+    /// stored profile of the same name).
+    File,
+    /// The data directory.
+    Store,
+}
+
+/// A profile as the REST API shows it.
+#[derive(Debug, Serialize, schemars::JsonSchema)]
+pub struct ProfileView {
+    /// Name.
+    pub name: String,
+    /// Where it comes from.
+    pub source: ProfileSource,
+    /// The flow-predictor model it scores with (`name@version`), or `none`.
+    pub model: String,
+    /// It names a robot (the camera and body detectors can run).
+    pub robot: bool,
+    /// It has a calibration.
+    pub calibrated: bool,
+    /// The fused-score alarm threshold in force (`null`: no alarms).
+    pub alarm_threshold: Option<f64>,
+    /// The stored profile (stored profiles only). In `GET /v1/profiles` its thresholds'
+    /// bulky statistics are summarised by their sizes.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    #[schemars(with = "Option<ProfileInfo>")]
+    pub profile: Option<serde_json::Value>,
+    /// `PUT` only: why the stored profile does not load (robot, camera or model missing
+    /// or wrong); it is stored anyway.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub load_error: Option<String>,
+}
+
+/// `GET /v1/profiles`.
+#[derive(Debug, Serialize, schemars::JsonSchema)]
+pub struct ProfileList {
+    /// The profile files, then the stored profiles they do not shadow.
+    pub profiles: Vec<ProfileView>,
+}
+
+pub(super) fn file_profile_view(p: &LoadedProfile) -> ProfileView {
+    ProfileView {
+        name: p.name.clone(),
+        source: ProfileSource::File,
+        model: p.model_label.clone(),
+        robot: p.setup.robot.is_some(),
+        calibrated: p.setup.profile.calibration.is_some(),
+        alarm_threshold: finite(p.setup.profile.alarm_threshold()),
+        profile: None,
+        load_error: None,
+    }
 }
 
 /// What a list leaves out of a calibration: the scene residual's and the flow error's
@@ -30,41 +78,31 @@ pub(super) fn file_profile_json(p: &LoadedProfile) -> serde_json::Value {
 /// their sizes. `GET /v1/profiles/{name}` and `GET /v1/jobs/{id}` give them whole.
 const LEFT_OUT: &str = "left out of lists; GET the profile or job itself for the values";
 
-/// Replaces the bulky parts of a serialised `Thresholds` by their sizes (see [`LEFT_OUT`]).
-fn summarise_thresholds(thresholds: &mut serde_json::Value) {
-    for (key, sizes) in [
-        ("scene", &["columns", "rows", "maps"][..]),
-        ("flow", &["columns", "rows", "maps"][..]),
-        ("kinematics", &["dims", "count"][..]),
-    ] {
-        if let Some(part) = thresholds.get_mut(key).filter(|v| v.is_object()) {
-            let mut summary = serde_json::Map::new();
-            for size in sizes {
-                if let Some(n) = part.get(*size) {
-                    summary.insert((*size).into(), n.clone());
-                }
-            }
-            if let Some(windows) = part.pointer("/phases/location").and_then(|l| l.as_array()) {
-                summary.insert("phase_windows".into(), windows.len().into());
-            }
-            summary.insert("detail".into(), LEFT_OUT.into());
-            *part = summary.into();
-        }
+/// The JSON of `value`, whose `thresholds` and `calibration.thresholds` are `thresholds`
+/// and `calibration`'s, with their bulky statistics summarised ([`LEFT_OUT`]).
+pub(super) fn summarised(
+    value: &impl Serialize,
+    thresholds: Option<&Thresholds>,
+    calibration: Option<&Calibration>,
+) -> Result<serde_json::Value, ApiError> {
+    let internal = |e: serde_json::Error| ApiError::internal(format!("summary: {e}"));
+    let mut v = serde_json::to_value(value).map_err(internal)?;
+    if let Some(t) = thresholds {
+        v["thresholds"] = t.summarised_json(LEFT_OUT).map_err(internal)?;
     }
+    if let Some(c) = calibration {
+        v["calibration"]["thresholds"] =
+            c.thresholds.summarised_json(LEFT_OUT).map_err(internal)?;
+    }
+    Ok(v)
 }
 
-/// The list form of a serialised object holding `thresholds` and/or
-/// `calibration.thresholds` (a stored profile, a job): bulky statistics summarised.
-pub(super) fn summarised(mut v: serde_json::Value) -> serde_json::Value {
-    for path in ["/thresholds", "/calibration/thresholds"] {
-        if let Some(t) = v.pointer_mut(path) {
-            summarise_thresholds(t);
-        }
-    }
-    v
-}
-
-pub(super) fn stored_profile_json(s: &Shared, info: &ProfileInfo) -> serde_json::Value {
+/// A stored profile's view; `summary`: its statistics summarised, as lists show them.
+pub(super) fn stored_profile_view(
+    s: &Shared,
+    info: &ProfileInfo,
+    summary: bool,
+) -> Result<ProfileView, ApiError> {
     let model = match s.profiles.get_cached(&info.name) {
         Some(p) => p.model_label.clone(),
         None => info.spec.model.as_ref().map_or_else(
@@ -75,43 +113,40 @@ pub(super) fn stored_profile_json(s: &Shared, info: &ProfileInfo) -> serde_json:
             },
         ),
     };
-    json!({
-        "name": info.name,
-        "source": "store",
-        "model": model,
-        "robot": info.spec.robot.is_some(),
-        "calibrated": info.calibration.is_some(),
-        "alarm_threshold": info.alarm_threshold,
-        "profile": info,
+    let profile = if summary {
+        summarised(info, Some(&info.thresholds), info.calibration.as_ref())?
+    } else {
+        serde_json::to_value(info).map_err(|e| ApiError::internal(format!("profile: {e}")))?
+    };
+    Ok(ProfileView {
+        name: info.name.clone(),
+        source: ProfileSource::Store,
+        model,
+        robot: info.spec.robot.is_some(),
+        calibrated: info.calibration.is_some(),
+        alarm_threshold: info.alarm_threshold,
+        profile: Some(profile),
+        load_error: None,
     })
 }
 
 /// `GET /v1/profiles`: the profile files, then the stored profiles they do not shadow
 /// (their bulky calibration statistics summarised, [`summarised`]).
-pub(super) async fn profiles(State(s): State<Arc<Shared>>) -> Result<Response, ApiError> {
+pub(super) async fn profiles(State(s): State<Arc<Shared>>) -> Result<Json<ProfileList>, ApiError> {
     let mut list: Vec<_> = s
         .profiles
         .loaded()
         .iter()
         .filter(|p| s.profiles.is_file(&p.name))
-        .map(|p| file_profile_json(p))
+        .map(|p| file_profile_view(p))
         .collect();
-    list.sort_by(|a, b| a["name"].as_str().cmp(&b["name"].as_str()));
+    list.sort_by(|a, b| a.name.cmp(&b.name));
     let store = s.store.clone();
     let stored = blocking(move || Ok(store.profiles())).await?;
-    list.extend(
-        stored
-            .iter()
-            .filter(|p| !s.profiles.is_file(&p.name))
-            .map(|p| {
-                let mut v = stored_profile_json(&s, p);
-                if let Some(profile) = v.get_mut("profile") {
-                    *profile = summarised(profile.take());
-                }
-                v
-            }),
-    );
-    Ok(Json(json!({ "profiles": list })).into_response())
+    for p in stored.iter().filter(|p| !s.profiles.is_file(&p.name)) {
+        list.push(stored_profile_view(&s, p, true)?);
+    }
+    Ok(Json(ProfileList { profiles: list }))
 }
 
 pub(super) fn finite(v: f64) -> Option<f64> {
@@ -130,17 +165,17 @@ pub(super) fn refuse_file_profile(s: &Shared, name: &str) -> Result<(), ApiError
 pub(super) async fn get_profile(
     State(s): State<Arc<Shared>>,
     Path(name): Path<String>,
-) -> Result<Response, ApiError> {
+) -> Result<Json<ProfileView>, ApiError> {
     if let Some(p) = s
         .profiles
         .get_cached(&name)
         .filter(|_| s.profiles.is_file(&name))
     {
-        return Ok(Json(file_profile_json(&p)).into_response());
+        return Ok(Json(file_profile_view(&p)));
     }
     let store = s.store.clone();
     let info = blocking(move || store.profile(&name)).await?;
-    Ok(Json(stored_profile_json(&s, &info)).into_response())
+    Ok(Json(stored_profile_view(&s, &info, false)?))
 }
 
 /// `PUT /v1/profiles/{name}`: stores the profile, then loads it (robot, camera, model) so
@@ -150,7 +185,7 @@ pub(super) async fn put_profile(
     State(s): State<Arc<Shared>>,
     Path(name): Path<String>,
     body: Bytes,
-) -> Result<Response, ApiError> {
+) -> Result<Json<ProfileView>, ApiError> {
     refuse_file_profile(&s, &name)?;
     let spec: ProfileSpec = json_body(&body)?;
     let store = s.store.clone();
@@ -163,9 +198,9 @@ pub(super) async fn put_profile(
         .await
         .err()
         .map(|e| e.to_string());
-    let mut body = stored_profile_json(&s, &info);
-    body["load_error"] = json!(load_error);
-    Ok(Json(body).into_response())
+    let mut body = stored_profile_view(&s, &info, false)?;
+    body.load_error = load_error;
+    Ok(Json(body))
 }
 
 pub(super) async fn delete_profile(
@@ -184,12 +219,12 @@ pub(super) async fn patch_thresholds(
     State(s): State<Arc<Shared>>,
     Path(name): Path<String>,
     body: Bytes,
-) -> Result<Response, ApiError> {
+) -> Result<Json<ProfileView>, ApiError> {
     refuse_file_profile(&s, &name)?;
     let patch: ThresholdsPatch = json_body(&body)?;
     let store = s.store.clone();
     let n = name.clone();
     let info = blocking(move || store.patch_thresholds(&n, patch)).await?;
     s.profiles.invalidate_profile(&name);
-    Ok(Json(stored_profile_json(&s, &info)).into_response())
+    Ok(Json(stored_profile_view(&s, &info, false)?))
 }

@@ -1,21 +1,27 @@
 //! The data directory's robots: list, read, upload (URDF or package archive), delete.
 
-use super::body::{blocking, receive};
+use super::body::{ApiQuery, blocking, receive};
 use super::errors::ApiError;
 use crate::api::state::Shared;
-use crate::store::{RobotFormat, UploadKind, robot_summary};
+use crate::store::{RobotFormat, RobotInfo, UploadKind, robot_summary};
 use axum::Json;
 use axum::body::Body;
-use axum::extract::{Path, Query, State};
+use axum::extract::{Path, State};
 use axum::http::{HeaderMap, StatusCode, header};
 use axum::response::{IntoResponse, Response};
-use serde_json::json;
 use std::sync::Arc;
 
-pub(super) async fn list_robots(State(s): State<Arc<Shared>>) -> Result<Response, ApiError> {
+/// `GET /v1/robots`.
+#[derive(Debug, serde::Serialize, schemars::JsonSchema)]
+pub struct RobotList {
+    /// The stored robots, by name.
+    pub robots: Vec<RobotInfo>,
+}
+
+pub(super) async fn list_robots(State(s): State<Arc<Shared>>) -> Result<Json<RobotList>, ApiError> {
     let store = s.store.clone();
     let robots = blocking(move || Ok(store.robots())).await?;
-    Ok(Json(json!({ "robots": robots })).into_response())
+    Ok(Json(RobotList { robots }))
 }
 
 pub(super) async fn get_robot(
@@ -28,8 +34,12 @@ pub(super) async fn get_robot(
 }
 
 /// Query of `PUT /v1/robots/{name}`.
-#[derive(Debug, serde::Deserialize)]
-pub(super) struct RobotQuery {
+#[derive(Debug, serde::Deserialize, schemars::JsonSchema)]
+pub struct RobotQuery {
+    /// How the body is packed: `urdf` (one URDF file; its meshes must be inline or
+    /// absent), `tar.gz` (or `tgz`) or `zip` (a package: a URDF and its meshes).
+    /// Absent: told from the Content-Type (`application/xml`, `application/gzip`,
+    /// `application/zip`).
     #[serde(default)]
     format: Option<String>,
 }
@@ -72,7 +82,7 @@ pub(super) fn robot_format(q: &RobotQuery, headers: &HeaderMap) -> Result<RobotF
 pub(super) async fn put_robot(
     State(s): State<Arc<Shared>>,
     Path(name): Path<String>,
-    Query(q): Query<RobotQuery>,
+    ApiQuery(q): ApiQuery<RobotQuery>,
     headers: HeaderMap,
     body: Body,
 ) -> Result<Response, ApiError> {

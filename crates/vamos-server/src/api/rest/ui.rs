@@ -1,4 +1,5 @@
-//! The live view's static page (`GET /ui`) and its assets (`GET /ui/{asset}`), embedded
+//! The live view's static page (`GET /ui`), the REST API's reference page (`GET /docs`)
+//! and their assets (`GET /ui/{asset}`), embedded
 //! in the binary (`assets/ui/`, plain HTML, CSS and JavaScript: no build step). The page
 //! holds no data: it asks for a token, keeps it in the tab's `sessionStorage`, and reads
 //! everything through the token-checked API (`/v1/whoami`, `/v1/live`, `/v1/alarms`,
@@ -12,6 +13,9 @@ use axum::response::{IntoResponse, Response};
 const INDEX_HTML: &str = include_str!("../../../../../assets/ui/index.html");
 const APP_JS: &str = include_str!("../../../../../assets/ui/app.js");
 const APP_CSS: &str = include_str!("../../../../../assets/ui/app.css");
+const DOCS_HTML: &str = include_str!("../../../../../assets/ui/docs.html");
+const DOCS_JS: &str = include_str!("../../../../../assets/ui/docs.js");
+const DOCS_CSS: &str = include_str!("../../../../../assets/ui/docs.css");
 
 /// What the page may load: its own files only, nothing inline from elsewhere.
 const CSP: &str = "default-src 'self'; img-src 'self' blob: data:; style-src 'self'; \
@@ -35,12 +39,19 @@ pub(super) async fn index() -> Response {
     asset_response("text/html; charset=utf-8", INDEX_HTML)
 }
 
-/// `GET /ui/{asset}`: `app.js`, `app.css`.
+/// `GET /docs`: the REST API's reference page (it reads `/openapi.json`).
+pub(super) async fn docs() -> Response {
+    asset_response("text/html; charset=utf-8", DOCS_HTML)
+}
+
+/// `GET /ui/{asset}`: `app.js`, `app.css`, and the reference page's `docs.js`, `docs.css`.
 pub(super) async fn asset(Path(name): Path<String>) -> Result<Response, ApiError> {
     match name.as_str() {
         "app.js" => Ok(asset_response("text/javascript; charset=utf-8", APP_JS)),
         "app.css" => Ok(asset_response("text/css; charset=utf-8", APP_CSS)),
         "index.html" => Ok(asset_response("text/html; charset=utf-8", INDEX_HTML)),
+        "docs.js" => Ok(asset_response("text/javascript; charset=utf-8", DOCS_JS)),
+        "docs.css" => Ok(asset_response("text/css; charset=utf-8", DOCS_CSS)),
         _ => Err(ApiError::not_found(format!(
             "no asset {name:?} in the live view"
         ))),
@@ -58,5 +69,6 @@ mod tests {
         assert!(APP_JS.contains("Authorization"));
         assert!(!APP_JS.contains("?token") && !APP_JS.contains("&token"));
         assert!(APP_JS.contains("sessionStorage"));
+        assert!(DOCS_HTML.contains("/ui/docs.js") && DOCS_JS.contains("/openapi.json"));
     }
 }

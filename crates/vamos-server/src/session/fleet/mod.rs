@@ -95,7 +95,7 @@ pub enum FleetError {
 }
 
 /// The replica's view of the shared store, for `GET /v1/store` and the metrics.
-#[derive(Debug, Clone, Default, Serialize)]
+#[derive(Debug, Clone, Default, Serialize, schemars::JsonSchema)]
 pub struct FleetStatus {
     /// `writer` or `reader`.
     pub role: &'static str,
