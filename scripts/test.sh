@@ -12,7 +12,9 @@
 #     including the end-to-end test that runs the Rust binary built in step 1; then the
 #     ROS 2 tests: the Python ROS 2 package's (clients/ros2/vamos_bridge: no ROS needed, see
 #     its README) and `vamos bridge` on the wire against Eclipse Cyclone DDS
-#     (clients/ros2/dds_wire).
+#     (clients/ros2/dds_wire); then, from a second virtual environment (.venv-ros) with
+#     ROS 2's own wheels, a real rclpy node on Fast DDS against `vamos bridge`
+#     (clients/ros2/rclpy_wire).
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 
@@ -49,3 +51,11 @@ echo "== ROS 2 tests (clients/ros2: the package without ROS; vamos bridge agains
 # Two runs: each folder has its own pytest configuration (vamos_bridge's setup.cfg).
 VAMOS_BIN="$PWD/target/release/vamos" .venv/bin/python -m pytest clients/ros2/vamos_bridge -q
 VAMOS_BIN="$PWD/target/release/vamos" .venv/bin/python -m pytest clients/ros2/dds_wire -q
+
+echo "== ROS 2 itself (rclpy on Fast DDS, from the ROS 2 wheels on PyPI; its own environment, .venv-ros)"
+if [ ! -x .venv-ros/bin/python ]; then
+    "$PYTHON" -m venv .venv-ros
+fi
+.venv-ros/bin/python -m pip install --quiet --upgrade pip
+.venv-ros/bin/python -m pip install --quiet -r clients/ros2/rclpy_wire/requirements.txt
+VAMOS_BIN="$PWD/target/release/vamos" .venv-ros/bin/python -m pytest clients/ros2/rclpy_wire -q -p no:cacheprovider
