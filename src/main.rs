@@ -99,6 +99,9 @@ enum Command {
     Completions(cli::shell::CompletionsArgs),
     /// Print the man page (roff), or write one page per command into a folder.
     Man(cli::shell::ManArgs),
+    /// Print the JSON Schema of the settings file, a profile file or camera.json (for
+    /// editors: validation and completion).
+    Schema(cli::schema::SchemaArgs),
     /// Print the REST API's OpenAPI 3.0 document (what `GET /openapi.json` serves), to
     /// generate a client without a running server.
     Openapi,
@@ -147,6 +150,7 @@ fn run(cli: Cli) -> Result<()> {
             println!("{}", vamos::api::rest::openapi::document_json());
             return Ok(());
         }
+        Command::Schema(args) => return cli::schema::run(args),
         _ => {}
     }
     let mut settings = Settings::load(cli.config.as_deref())?;
@@ -192,6 +196,6 @@ fn run(cli: Cli) -> Result<()> {
         Command::Episode { command } => cli::episode::run(&settings, command),
         Command::Profile { command } => cli::profile::run(&settings, command),
         Command::Model { command } => cli::model::run(&settings, command),
-        Command::Completions(_) | Command::Man(_) | Command::Openapi => Ok(()),
+        Command::Completions(_) | Command::Man(_) | Command::Openapi | Command::Schema(_) => Ok(()),
     }
 }

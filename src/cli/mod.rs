@@ -19,6 +19,7 @@ pub mod progress;
 pub mod register;
 pub mod render;
 pub mod robot;
+pub mod schema;
 pub mod score;
 pub mod serve;
 pub mod shell;

@@ -182,7 +182,9 @@ pub enum ModelError {
 }
 
 /// Which implementation runs the model's head (fcomb).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(
+    Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema,
+)]
 #[serde(rename_all = "snake_case")]
 pub enum HeadBackend {
     /// Native code (`model::head`) when `head.onnx` is a recognised fcomb that agrees
@@ -194,7 +196,9 @@ pub enum HeadBackend {
 }
 
 /// How each predictor's random generator is seeded.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(
+    Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema,
+)]
 #[serde(rename_all = "snake_case")]
 pub enum SeedPolicy {
     /// Every predictor starts from `seed`: replaying an episode gives the same scores.
@@ -206,7 +210,7 @@ pub enum SeedPolicy {
 }
 
 /// The `[model]` settings section.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct ModelConfig {
     /// Intra-op threads of each ONNX Runtime session (encoder and head). 1 keeps the

@@ -6,7 +6,7 @@ use serde::{Deserialize, Serialize};
 /// Limits and tessellation for loading a robot. Defaults fit real arms (pybullet's panda
 /// has 105k visual triangles, ~9 MB of meshes) with a wide margin, while refusing
 /// accidental or hostile inputs (a 1 GB scan, a zip bomb) before they take the memory.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct RobotConfig {
     /// Largest mesh file read, bytes (default 64 MiB). Larger files are left out with a

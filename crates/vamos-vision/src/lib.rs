@@ -21,7 +21,9 @@ pub mod synthetic;
 pub use image::{FlowField, GrayImage, ImageError};
 
 /// The `[vision]` section: parameters of the vision kernels.
-#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+#[derive(
+    Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize, schemars::JsonSchema,
+)]
 #[serde(default, deny_unknown_fields)]
 pub struct VisionConfig {
     /// Worker threads for the vision kernels; 0 = one per core.

@@ -347,7 +347,7 @@ pub fn centre_crop(
 }
 
 /// How a flow field becomes the flow predictor's input (REFERENCE.md section 3).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct NetworkInputParams {
     /// Side of the square network input, pixels. Paper: 64.

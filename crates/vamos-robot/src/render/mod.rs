@@ -183,7 +183,9 @@ pub enum RenderError {
 }
 
 /// Which renderer draws the body.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, schemars::JsonSchema,
+)]
 #[serde(rename_all = "snake_case")]
 pub enum RenderBackend {
     /// With the `wgpu` feature and a hardware GPU adapter: both back-ends, the first
@@ -200,7 +202,9 @@ pub enum RenderBackend {
 }
 
 /// Which frame's pixel grid the render (mask, depth, flow) lives on; see the module docs.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, schemars::JsonSchema,
+)]
 #[serde(rename_all = "snake_case")]
 pub enum FlowGrid {
     /// Draw at the current time `t` (the target frame of the flow `t-1 -> t`); the flow
@@ -213,7 +217,7 @@ pub enum FlowGrid {
 }
 
 /// The `[render]` settings section: how the robot body is rendered.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct RenderConfig {
     /// Back-end: `auto`, `cpu` or `wgpu`.

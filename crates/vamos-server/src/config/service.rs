@@ -4,7 +4,9 @@ use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
 
 /// What a session does when its queue is full (the robot sends faster than it is scored).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, schemars::JsonSchema,
+)]
 #[serde(rename_all = "snake_case")]
 pub enum QueuePolicy {
     /// Drop the oldest waiting image and queue the new one (the score stays current).
@@ -15,7 +17,7 @@ pub enum QueuePolicy {
 }
 
 /// TLS for both transports (PEM files).
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct TlsConfig {
     /// Certificate chain, PEM.
@@ -25,7 +27,9 @@ pub struct TlsConfig {
 }
 
 /// What a replica does with the shared store.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, schemars::JsonSchema,
+)]
 #[serde(rename_all = "snake_case")]
 pub enum FleetRole {
     /// Takes the REST changes and publishes its data directory (one per fleet).
@@ -37,7 +41,7 @@ pub enum FleetRole {
 
 /// `[service.shared_store]`: models, robots and profiles shared by a fleet of replicas
 /// (see `deploy/SCALING.md`).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct SharedStoreConfig {
     /// `file:///mnt/vamos-shared` (a shared file system) or `s3://bucket/prefix` (any
@@ -62,7 +66,7 @@ impl Default for SharedStoreConfig {
 }
 
 /// The `[service]` section.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct ServiceConfig {
     /// gRPC address (`Monitor`, health, reflection).

@@ -5,7 +5,7 @@ use serde::{Deserialize, Serialize};
 use super::FlowError;
 
 /// How the second image and its gradient are sampled at the warped positions.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "lowercase")]
 pub enum Interpolation {
     /// 2x2 taps. Cheaper, slightly less accurate.
@@ -18,7 +18,7 @@ pub enum Interpolation {
 ///
 /// `Default` holds OpenCV `DualTVL1`'s defaults; [`FlowParams::realtime`] is the fast
 /// preset. Intensities are in 0..=255 units (see [`GrayImage`](crate::GrayImage)).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct FlowParams {
     /// Time step of the dual (Chambolle) update, dimensionless. Default 0.25.

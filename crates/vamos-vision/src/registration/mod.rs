@@ -157,7 +157,7 @@ pub enum RegistrationError {
 }
 
 /// How the correlation peak is located between samples.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum SubPixelMethod {
     /// Gaussian through the peak and its two neighbours, per axis (a parabola through
@@ -170,7 +170,7 @@ pub enum SubPixelMethod {
 }
 
 /// Knobs of the Fourier-Mellin registration. `Default` holds the recommended values.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct RegistrationParams {
     /// Share of each image side, per border, covered by the Hann taper of the

@@ -103,7 +103,7 @@ pub struct EpisodeTopics {
 }
 
 /// The `[episode]` settings section: reading recorded episodes.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct EpisodeConfig {
     /// Topic names (empty = defaults and auto-detection).
