@@ -19,9 +19,18 @@ async fn calibration_from_uploaded_episodes_with_job_limits_cancel_and_restart()
             .mime_str("application/x-mcap")
             .unwrap()
     };
+    // The second as rosbag2 compresses a file (`.mcap.zstd`): decompressed on arrival,
+    // charged to the upload, named after its stem like the others.
+    let compressed = {
+        let bytes = std::fs::read(fixture().join("train").join("train_0001.mcap")).unwrap();
+        reqwest::multipart::Part::bytes(zstd::encode_all(bytes.as_slice(), 3).unwrap())
+            .file_name("train_0001.mcap.zstd")
+            .mime_str("application/zstd")
+            .unwrap()
+    };
     let form = reqwest::multipart::Form::new()
         .part("episodes", part("train_0000.mcap"))
-        .part("episodes", part("train_0001.mcap"))
+        .part("episodes", compressed)
         .text("alpha", "0.2");
     let resp = api.calibrate_form(form).await;
     assert_eq!(resp.status(), StatusCode::ACCEPTED);

@@ -67,37 +67,14 @@ impl EpisodeBuffer {
     /// compressed file is removed and the ticket holds the copy's size. Any other file is
     /// left as it is. Blocking (file I/O).
     pub fn decompress(mut self, limit: u64) -> Result<Self, SessionError> {
-        let not_an_episode = |source| SessionError::NotAnEpisode { source };
-        if !is_zstd_file(self.file.path()).map_err(not_an_episode)? {
-            return Ok(self);
+        let held = self.size;
+        if let Some((copy, written)) =
+            charged_copy(self.file.path(), limit, &mut self.ticket, held)?
+        {
+            self.file = copy; // the compressed file is removed as its handle drops
+            self.size = written;
+            self.ticket.holds(written)?;
         }
-        let dir = self.file.path().parent().unwrap_or(Path::new("."));
-        let copy = tempfile::Builder::new()
-            .prefix("episode-")
-            .suffix(".mcap")
-            .tempfile_in(dir)
-            .map_err(|source| SessionError::Buffer { source })?;
-        let mut out = ChargedWriter {
-            file: copy,
-            written: 0,
-            held: self.size,
-            ticket: &mut self.ticket,
-            refused: None,
-        };
-        let result = decompress_zstd_into(self.file.path(), limit, &mut out);
-        let ChargedWriter {
-            file: copy,
-            written,
-            refused,
-            ..
-        } = out;
-        if let Some(refused) = refused {
-            return Err(refused.into());
-        }
-        result.map_err(not_an_episode)?;
-        self.file = copy; // the compressed file is removed as its handle drops
-        self.size = written;
-        self.ticket.holds(written)?;
         Ok(self)
     }
 
@@ -112,6 +89,66 @@ impl EpisodeBuffer {
     pub fn into_parts(self) -> (tempfile::NamedTempFile, UploadTicket) {
         (self.file, self.ticket)
     }
+}
+
+/// A zstd-compressed episode file of an upload (rosbag2's file compression,
+/// `.mcap.zstd`; told by its magic, whatever its name) decompressed in place: the copy
+/// ([`charged_copy`]) replaces it. Returns the file's new size, `None` for a file that is
+/// not compressed (left as it is). On a refusal nothing is left but the compressed file.
+/// Blocking (file I/O).
+pub fn decompress_in_place(
+    path: &Path,
+    limit: u64,
+    ticket: &mut UploadTicket,
+    held: u64,
+) -> Result<Option<u64>, SessionError> {
+    let Some((copy, written)) = charged_copy(path, limit, ticket, held)? else {
+        return Ok(None);
+    };
+    copy.persist(path)
+        .map_err(|e| SessionError::Buffer { source: e.error })?;
+    Ok(Some(written))
+}
+
+/// The decompressed copy of the zstd-compressed file at `path`, beside it, at most
+/// `limit` bytes, each byte charged to `ticket` on top of `held` (what the upload's files
+/// take, this one included) before it is written (refused like the upload itself when
+/// the budget is spent), and its size; `None` for a file that is not compressed.
+fn charged_copy(
+    path: &Path,
+    limit: u64,
+    ticket: &mut UploadTicket,
+    held: u64,
+) -> Result<Option<(tempfile::NamedTempFile, u64)>, SessionError> {
+    let not_an_episode = |source| SessionError::NotAnEpisode { source };
+    if !is_zstd_file(path).map_err(not_an_episode)? {
+        return Ok(None);
+    }
+    let dir = path.parent().unwrap_or(Path::new("."));
+    let copy = tempfile::Builder::new()
+        .prefix("episode-")
+        .suffix(".mcap")
+        .tempfile_in(dir)
+        .map_err(|source| SessionError::Buffer { source })?;
+    let mut out = ChargedWriter {
+        file: copy,
+        written: 0,
+        held,
+        ticket,
+        refused: None,
+    };
+    let result = decompress_zstd_into(path, limit, &mut out);
+    let ChargedWriter {
+        file: copy,
+        written,
+        refused,
+        ..
+    } = out;
+    if let Some(refused) = refused {
+        return Err(refused.into());
+    }
+    result.map_err(not_an_episode)?;
+    Ok(Some((copy, written)))
 }
 
 /// A decompressed copy whose every byte is charged to the upload's ticket (on top of
@@ -214,5 +251,55 @@ mod tests {
             0,
             "no file left"
         );
+    }
+
+    #[test]
+    fn an_upload_part_is_decompressed_in_place_charged_on_top_of_the_others() {
+        let dir = tempfile::tempdir().unwrap();
+        let gauge = IntGauge::new("d", "d").unwrap();
+        let raw = vec![5u8; 300_000];
+        let packed = zstd(&raw);
+        let part = dir.path().join("b.mcap");
+        std::fs::write(&part, &packed).unwrap();
+        let held = 100_000 + packed.len() as u64;
+        // The other files (100 kB) and this one, then its copy on top: over a 350 kB budget.
+        let uploads = Uploads::new(4, 350_000, gauge.clone());
+        let mut ticket = uploads.admit(None).unwrap_or_else(|e| panic!("{e}"));
+        ticket.written(held).unwrap_or_else(|e| panic!("{e}"));
+        let err = decompress_in_place(&part, 1 << 20, &mut ticket, held).unwrap_err();
+        assert!(err.to_string().contains("upload disk budget"), "{err}");
+        assert_eq!(
+            std::fs::read(&part).unwrap(),
+            packed,
+            "the part is left as it was"
+        );
+        assert_eq!(
+            std::fs::read_dir(dir.path()).unwrap().count(),
+            1,
+            "no copy left"
+        );
+        drop(ticket);
+        assert_eq!(gauge.get(), 0);
+        // With room: the part becomes its copy.
+        let uploads = Uploads::new(4, 1_000_000, gauge.clone());
+        let mut ticket = uploads.admit(None).unwrap_or_else(|e| panic!("{e}"));
+        ticket.written(held).unwrap_or_else(|e| panic!("{e}"));
+        let size = decompress_in_place(&part, 1 << 20, &mut ticket, held)
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(size, Some(raw.len() as u64));
+        assert_eq!(std::fs::read(&part).unwrap(), raw);
+        assert_eq!(
+            gauge.get(),
+            (held + raw.len() as u64) as i64,
+            "charged as written"
+        );
+        // A part that is not compressed is left alone.
+        assert_eq!(
+            decompress_in_place(&part, 1 << 20, &mut ticket, held)
+                .unwrap_or_else(|e| panic!("{e}")),
+            None
+        );
+        drop(ticket);
+        assert_eq!(gauge.get(), 0);
     }
 }

@@ -9,6 +9,7 @@ use super::profiles::refuse_file_profile;
 use crate::api::state::Shared;
 use crate::session::budget::UploadTicket;
 use crate::session::calibration::{CalibrationRequest, NominalEpisode, nominal_set};
+use crate::session::upload::decompress_in_place;
 use crate::store::JobInfo;
 use axum::Json;
 use axum::body::Body;
@@ -79,6 +80,8 @@ pub(super) fn episode_file_name(raw: Option<&str>, index: usize) -> String {
     let base = raw
         .and_then(|n| n.rsplit(['/', '\\']).next())
         .unwrap_or("")
+        .trim_end_matches(".zstd")
+        .trim_end_matches(".zst")
         .trim_end_matches(".mcap");
     let mut clean: String = base
         .chars()
@@ -105,7 +108,7 @@ pub(super) async fn receive_calibration(
     s: &Shared,
     content_type: &str,
     body: Body,
-    mut ticket: UploadTicket,
+    ticket: UploadTicket,
 ) -> Result<CalibrationUpload, ApiError> {
     let boundary = multer::parse_boundary(content_type)
         .map_err(|e| ApiError::bad_request(format!("bad multipart content type: {e}")))?;
@@ -124,11 +127,12 @@ pub(super) async fn receive_calibration(
         dir.path(),
         per_file,
         total_limit,
-        &mut ticket,
+        s.settings.episode.max_decompressed_bytes,
+        ticket,
     )
     .await
     {
-        Ok((request, episodes, holdout)) => Ok(CalibrationUpload {
+        Ok((request, episodes, holdout, ticket)) => Ok(CalibrationUpload {
             dir,
             request,
             episodes,
@@ -152,8 +156,9 @@ pub(super) async fn read_calibration_parts(
     dir: &std::path::Path,
     per_file: u64,
     total_limit: u64,
-    ticket: &mut UploadTicket,
-) -> Result<(CalibrationRequest, Vec<String>, Vec<String>), ApiError> {
+    decompress_limit: u64,
+    mut ticket: UploadTicket,
+) -> Result<(CalibrationRequest, Vec<String>, Vec<String>, UploadTicket), ApiError> {
     use tokio::io::AsyncWriteExt;
     let mut request = CalibrationRequest::default();
     let (mut episodes, mut holdout) = (Vec::new(), Vec::new());
@@ -207,15 +212,33 @@ pub(super) async fn read_calibration_parts(
             file.write_all(&chunk).await.map_err(ApiError::internal)?;
         }
         file.flush().await.map_err(ApiError::internal)?;
+        drop(file);
         if size == 0 {
             return Err(ApiError::bad_request(format!(
                 "episode {file_name:?} is empty"
             )));
         }
+        // A `.mcap.zstd` episode is decompressed here, its copy charged to the upload like
+        // its bytes (the job then reads the copy; nothing is decompressed outside the
+        // upload's disk budget).
+        let (returned, decompressed) = {
+            let path = path.clone();
+            tokio::task::spawn_blocking(move || {
+                let r = decompress_in_place(&path, decompress_limit, &mut ticket, total);
+                (ticket, r)
+            })
+            .await
+            .map_err(ApiError::internal)?
+        };
+        ticket = returned;
+        if let Some(copy) = decompressed? {
+            total = total - size + copy;
+            ticket.holds(total).map_err(ApiError::too_many)?;
+        }
         paths.push(path);
         names.push(file_name);
     }
-    Ok((request, episodes, holdout))
+    Ok((request, episodes, holdout, ticket))
 }
 
 /// `POST /v1/profiles/{name}/calibrate`: starts a calibration job (202 `{"job": id}`)
