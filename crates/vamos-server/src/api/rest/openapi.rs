@@ -37,6 +37,11 @@ pub fn document_json() -> &'static str {
     &DOCUMENT
 }
 
+/// The 429 of an upload.
+const UPLOAD_BUSY: &str = "Too many uploads in progress (max_uploads) or the upload disk \
+                           budget spent (max_upload_disk_mb), checked before the body is \
+                           read: retry later";
+
 /// An object name in the data directory (models, robots, profiles).
 const NAME_RULE: &str = "1 to 64 of A-Z a-z 0-9 . _ -, not starting with .";
 
@@ -493,11 +498,7 @@ fn operation(method: &str, path: &str, g: &mut SchemaGenerator) -> Option<Op> {
         .bytes_body("The model bundle (vamos-train export)")
         .ok::<ModelUploaded>(g, 201, "The version stored")
         .error(413, "Bundle larger than max_model_bytes")
-        .error(
-            429,
-            "Too many uploads in progress (max_uploads) or the upload disk budget spent \
-             (max_upload_disk_mb), checked before the body is read: retry later",
-        )
+        .error(429, UPLOAD_BUSY)
         .errors(&[400, 500]),
         ("DELETE", "/v1/models/{name}") => {
             Op::new("Delete a model with all its versions (refused while a profile uses it)")
@@ -527,11 +528,7 @@ fn operation(method: &str, path: &str, g: &mut SchemaGenerator) -> Option<Op> {
         .bytes_body("The URDF file or package archive")
         .ok::<RobotInfo>(g, 201, "The robot stored")
         .error(413, "Package larger than max_robot_bytes")
-        .error(
-            429,
-            "Too many uploads in progress (max_uploads) or the upload disk budget spent \
-             (max_upload_disk_mb), checked before the body is read: retry later",
-        )
+        .error(429, UPLOAD_BUSY)
         .errors(&[400, 500]),
         ("DELETE", "/v1/robots/{name}") => {
             Op::new("Delete a robot (refused while a profile uses it)")
