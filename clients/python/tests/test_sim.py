@@ -73,6 +73,60 @@ def test_urdf_asset_is_the_generator_output_and_loads_in_pybullet() -> None:
         pb.disconnect(client)
 
 
+def test_fixed_camera_looks_at_its_target_whatever_the_joints(tmp_path: Path) -> None:
+    import pybullet as pb
+
+    urdf = tmp_path / "fixed.urdf"
+    urdf.write_text(rb.urdf_text("fixed"))
+    assert rb.urdf_text("fixed").startswith(rb.urdf_text().removesuffix("</robot>\n"))
+    client = pb.connect(pb.DIRECT)
+    try:
+        body = pb.loadURDF(str(urdf), useFixedBase=True, physicsClientId=client)
+        infos = [pb.getJointInfo(body, i, physicsClientId=client) for i in range(pb.getNumJoints(body, client))]
+        movable = [i[1].decode() for i in infos if i[2] != pb.JOINT_FIXED]
+        assert movable == list(rb.MOVABLE_JOINTS)
+        cam = [i[12].decode() for i in infos].index(rb.FIXED_CAMERA_FRAME)
+        poses = []
+        for q in (0.0, 0.7):
+            for i in infos:
+                if i[2] != pb.JOINT_FIXED:
+                    pb.resetJointState(body, i[0], q, physicsClientId=client)
+            pos, orn = pb.getLinkState(body, cam, computeForwardKinematics=True, physicsClientId=client)[4:6]
+            poses.append((pos, orn))
+        assert poses[0][0] == pytest.approx(poses[1][0], abs=1e-9)
+        assert poses[0][1] == pytest.approx(poses[1][1], abs=1e-9)
+        pos, orn = poses[0]
+        assert pos == pytest.approx(rb.FIXED_CAMERA_XYZ, abs=1e-6)
+        m = pb.getMatrixFromQuaternion(orn)
+        z_axis = np.array((m[2], m[5], m[8]))
+        look = np.array(rb.FIXED_CAMERA_TARGET) - np.array(pos)
+        assert z_axis == pytest.approx(look / np.linalg.norm(look), abs=1e-6)
+        # Image rows run down: the optical y axis points below the horizon.
+        assert m[7] < 0.0
+    finally:
+        pb.disconnect(client)
+
+
+def test_fixed_camera_episode(tmp_path: Path) -> None:
+    assert main(["generate", "--out", str(tmp_path), "--smoke", "--seed", "5", "--train", "1", "--test-nominal",
+                 "0", "--test-anomalous", "0", "--camera", "fixed", "--workers", "1", "--no-progress"]) == 0
+    ds = json.loads((tmp_path / "dataset.json").read_text())
+    assert ds["camera_mount"] == "fixed"
+    assert (tmp_path / "robot" / "vamos_arm.urdf").read_text() == rb.urdf_text("fixed")
+    assert json.loads((tmp_path / "camera.json").read_text())["frame"] == rb.FIXED_CAMERA_FRAME
+    msgs = _read(tmp_path / "train" / "train_0000.mcap")
+    assert msgs["/robot_description"][0].ros_msg.data == rb.urdf_text("fixed")
+    images = msgs["/camera/image_raw"]
+    assert {m.ros_msg.header.frame_id for m in images} == {rb.FIXED_CAMERA_FRAME}
+    assert {m.ros_msg.header.frame_id for m in msgs["/camera/camera_info"]} == {rb.FIXED_CAMERA_FRAME}
+    # The camera stands still while the arm works: the image's top rows (wall) stay the
+    # same from the first frame to the middle one, while the arm changes the image.
+    first, middle = (np.frombuffer(m.ros_msg.data, np.uint8).reshape(120, 160, 3).astype(int)
+                     for m in (images[0], images[len(images) // 2]))
+    assert np.abs(first[:8] - middle[:8]).mean() < 1.0
+    assert np.abs(first - middle).mean() > 1.5
+
+
 def test_smoke_dataset_layout(smoke: Path) -> None:
     ds = json.loads((smoke / "dataset.json").read_text())
     assert ds["seed"] == 5 and ds["counts"] == {"train": 2, "val": 0, "test": 3}

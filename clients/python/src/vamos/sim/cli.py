@@ -55,19 +55,22 @@ def _count(text: str) -> int:
 
 
 def plan_episodes(seed: int, train: int, val: int, test_nominal: int, test_anomalous: int, types: Sequence[str],
-                  width: int, height: int, fps: int, short: bool, robot: str = "primitive") -> list[EpisodeSpec]:
+                  width: int, height: int, fps: int, short: bool, robot: str = "primitive",
+                  camera: str = "head") -> list[EpisodeSpec]:
     """The episodes of a dataset: nominal train/val/test, then anomalous test episodes
     cycling through `types`."""
     specs: list[EpisodeSpec] = []
     for split, n in (("train", train), ("val", val)):
-        specs += [EpisodeSpec(f"{split}_{i:04d}", split, i, None, seed, width, height, fps, short, robot)
+        specs += [EpisodeSpec(f"{split}_{i:04d}", split, i, None, seed, width, height, fps, short, robot,
+                              camera)
                   for i in range(n)]
-    specs += [EpisodeSpec(f"test_{i:04d}", "test", i, None, seed, width, height, fps, short, robot)
+    specs += [EpisodeSpec(f"test_{i:04d}", "test", i, None, seed, width, height, fps, short, robot, camera)
               for i in range(test_nominal)]
     for k in range(test_anomalous):
         i = test_nominal + k
         kind = types[k % len(types)]
-        specs.append(EpisodeSpec(f"test_{i:04d}_{kind}", "test", i, kind, seed, width, height, fps, short, robot))
+        specs.append(EpisodeSpec(f"test_{i:04d}_{kind}", "test", i, kind, seed, width, height, fps, short, robot,
+                                 camera))
     return specs
 
 
@@ -84,9 +87,11 @@ def generate(out: Path, specs: list[EpisodeSpec], seed: int, workers: int,
 
     out.mkdir(parents=True, exist_ok=True)
     model = rb.ROBOTS[specs[0].robot if specs else "primitive"]
-    model.write_package(out / "robot")
+    camera = specs[0].camera if specs else "head"
+    model.write_package(out / "robot", camera)
     if specs:
-        (out / "camera.json").write_text(json.dumps(camera_spec(specs[0].width, specs[0].height), indent=2) + "\n")
+        spec = camera_spec(specs[0].width, specs[0].height, camera)
+        (out / "camera.json").write_text(json.dumps(spec, indent=2) + "\n")
     start = time.perf_counter()
     jobs = [(s, str(out)) for s in specs]
     results: list[EpisodeResult] = []
@@ -115,6 +120,7 @@ def generate(out: Path, specs: list[EpisodeSpec], seed: int, workers: int,
         "short": first.short if first else False,
         "robot": f"robot/{model.name}.urdf",
         "camera": "camera.json",
+        "camera_mount": camera,
         "counts": {split: sum(1 for s in specs if s.split == split) for split in ("train", "val", "test")},
         "anomalous": sum(1 for s in specs if s.anomaly),
         "episodes": [{"name": r.name, "split": r.split, "path": f"{r.split}/{r.name}.mcap",
@@ -152,6 +158,9 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--robot", choices=sorted(rb.ROBOTS), default="primitive",
                    help="primitive: the URDF-primitive 6-DoF arm (default); panda: pybullet_data's franka_panda "
                         "(7 DoF, meshes copied into DIR/robot/meshes), same head and camera")
+    g.add_argument("--camera", choices=rb.CAMERAS, default="head",
+                   help="head: on the robot's pan-tilt head, moving with it (default); fixed: fixed to the "
+                        "world on a bracket above and left of the robot, looking at the shelf's front")
     g.add_argument("--fps", type=int, default=10, help="image rate, Hz; must divide 200 (default 10)")
     g.add_argument("--smoke", action="store_true",
                    help="a handful of short (~3 s), small (160x120) episodes: 2 train, 1 nominal and 2 anomalous test")
@@ -177,7 +186,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print("error: --workers must be at least 1", file=sys.stderr)
         return 2
     specs = plan_episodes(args.seed, counts["train"], counts["val"], counts["test_nominal"], counts["test_anomalous"],
-                          args.types, width, height, args.fps, args.smoke, args.robot)
+                          args.types, width, height, args.fps, args.smoke, args.robot, args.camera)
     try:
         dataset = generate(args.out, specs, args.seed, args.workers, progress=not args.no_progress)
     except SimError as err:

@@ -80,6 +80,8 @@ class EpisodeSpec:
     short: bool = False
     #: Robot: "primitive" (the URDF-primitive arm) or "panda" (pybullet_data's franka_panda).
     robot: str = "primitive"
+    #: Camera: "head" (on the pan-tilt head) or "fixed" (fixed to the world; robot.CAMERAS).
+    camera: str = "head"
     #: Draw number: a draw whose poses the arm cannot reach is replaced by the next one.
     attempt: int = 0
 
@@ -116,10 +118,10 @@ def intrinsics(width: int, height: int) -> tuple[float, float, float, float]:
     return f, f, (width - 1) / 2.0, (height - 1) / 2.0
 
 
-def camera_spec(width: int, height: int) -> dict[str, Any]:
+def camera_spec(width: int, height: int, camera: str = "head") -> dict[str, Any]:
     """The camera description in vamos's ``camera.json`` format (``CameraSpec``)."""
     fx, fy, cx, cy = intrinsics(width, height)
-    return {"frame": rb.CAMERA_FRAME, "convention": "optical", "width": width, "height": height,
+    return {"frame": rb.camera_frame(camera), "convention": "optical", "width": width, "height": height,
             "fx": fx, "fy": fy, "cx": cx, "cy": cy}
 
 
@@ -351,7 +353,7 @@ class Episode:
     def _load_robot(self) -> None:
         p = self.p
         self.model = rb.ROBOTS[self.spec.robot]
-        path = self.model.write_package(self.tex_dir / "robot")
+        path = self.model.write_package(self.tex_dir / "robot", self.spec.camera)
         self.urdf = path.read_text()
         self.robot = int(p.loadURDF(str(path), useFixedBase=True, flags=pb.URDF_USE_INERTIA_FROM_FILE))
         self.joint = {}
@@ -366,7 +368,8 @@ class Episode:
         self.movable = [self.joint[n] for n in self.model.movable_joints]
         self.n_arm = len(self.arm)
         self.tool = self.link[self.model.tool_link]
-        self.camera = self.link[rb.CAMERA_FRAME]
+        self.camera_frame = rb.camera_frame(self.spec.camera)
+        self.camera = self.link[self.camera_frame]
         self.limits = [p.getJointInfo(self.robot, j)[8:10] for j in self.movable]
         self.efforts = [p.getJointInfo(self.robot, j)[10] for j in self.movable]
         # The grasped book never collides with the gripper (the fixed-constraint grasp).
@@ -664,8 +667,8 @@ class Episode:
                 n_js += 1
             if step % img_every == 0:
                 stamp = EPOCH_NS + step * _DT_NS
-                bag.image(stamp, rb.CAMERA_FRAME, self._render(t), spec.width, spec.height)
-                bag.camera_info(stamp, rb.CAMERA_FRAME, spec.width, spec.height, fx, fy, cx, cy)
+                bag.image(stamp, self.camera_frame, self._render(t), spec.width, spec.height)
+                bag.camera_info(stamp, self.camera_frame, spec.width, spec.height, fx, fy, cx, cy)
                 n_images += 1
                 last_image_t = t
             p.stepSimulation()

@@ -29,6 +29,15 @@ MOVABLE_JOINTS = ARM_JOINTS + FINGER_JOINTS + HEAD_JOINTS
 TOOL_LINK = "tool_link"
 #: The camera's optical frame.
 CAMERA_FRAME = "head_camera_optical_frame"
+#: The optical frame of the world-fixed camera (``--camera fixed``).
+FIXED_CAMERA_FRAME = "scene_camera_optical_frame"
+#: Where the world-fixed camera is (on a bracket above and left of the robot, metres in
+#: ``base_link``) and the point it looks at (the shelf's front edge, between table and slot).
+FIXED_CAMERA_XYZ = (-0.4, 0.6, 1.45)
+FIXED_CAMERA_TARGET = (0.5, 0.0, 0.62)
+#: The cameras an episode can be seen from: the head's (moves with pan and tilt) or the
+#: world-fixed one.
+CAMERAS = ("head", "fixed")
 #: Position of the head pan joint in ``base_link`` (top of the mast), metres.
 HEAD_PAN_XYZ = (-0.6, -0.3, 1.55)
 #: Height of the tilt axis above the pan joint, metres.
@@ -149,8 +158,30 @@ def _head() -> str:
     return "".join(parts)
 
 
-def urdf_text() -> str:
-    """The robot's URDF (deterministic text)."""
+def camera_frame(camera: str) -> str:
+    """The optical frame images are rendered from, for a camera of :data:`CAMERAS`."""
+    return FIXED_CAMERA_FRAME if camera == "fixed" else CAMERA_FRAME
+
+
+def _fixed_camera() -> str:
+    """A camera mount fixed to ``base_link`` (the world: the robot's base does not move),
+    its body frame (x forward, z up) looking from :data:`FIXED_CAMERA_XYZ` at
+    :data:`FIXED_CAMERA_TARGET`, and its optical frame."""
+    d = [t - p for t, p in zip(FIXED_CAMERA_TARGET, FIXED_CAMERA_XYZ, strict=True)]
+    yaw = math.atan2(d[1], d[0])
+    pitch = math.atan2(-d[2], math.hypot(d[0], d[1]))
+    parts = [_joint("scene_camera_joint", "fixed", "base_link", "scene_camera_link", FIXED_CAMERA_XYZ,
+                    rpy=(0.0, pitch, yaw))]
+    parts.append(_link("scene_camera_link", 0.0, []))
+    parts.append(_joint("scene_camera_optical_joint", "fixed", "scene_camera_link", FIXED_CAMERA_FRAME,
+                        (0.0, 0.0, 0.0), rpy=(-math.pi / 2, 0.0, -math.pi / 2)))
+    parts.append(_link(FIXED_CAMERA_FRAME, 0.0, []))
+    return "".join(parts)
+
+
+def urdf_text(camera: str = "head") -> str:
+    """The robot's URDF (deterministic text); with ``camera="fixed"`` it also describes the
+    world-fixed camera (the head stays: it moves as in every episode)."""
     b, c = "box", "cylinder"
     parts = _header(ROBOT_NAME)
     parts.append(_base())
@@ -186,6 +217,8 @@ def urdf_text() -> str:
     parts.append(_joint("tool_joint", "fixed", "gripper_base", TOOL_LINK, (0.0, 0.0, 0.085)))
     parts.append(_link(TOOL_LINK, 0.0, []))
     parts.append(_head())
+    if camera == "fixed":
+        parts.append(_fixed_camera())
     parts.append("</robot>\n")
     return "".join(parts)
 
@@ -196,9 +229,10 @@ def _panda_source() -> Path:
     return Path(pybullet_data.getDataPath()) / "franka_panda"
 
 
-def panda_urdf_text() -> str:
+def panda_urdf_text(camera: str = "head") -> str:
     """The franka_panda arm of pybullet_data (meshes, ``package://meshes/...``) on the same
-    pedestal, with the same pan-tilt head and camera."""
+    pedestal, with the same pan-tilt head and camera (and the world-fixed one, as
+    :func:`urdf_text`)."""
     text = (_panda_source() / "panda.urdf").read_text()
     body = text[text.index(">", text.index("<robot")) + 1:text.rindex("</robot>")]
     parts = _header(PANDA_NAME)
@@ -206,6 +240,8 @@ def panda_urdf_text() -> str:
     parts.append(_joint("panda_mount_joint", "fixed", "base_link", "panda_link0", (0.0, 0.0, 0.6)))
     parts.append(body)
     parts.append(_head())
+    if camera == "fixed":
+        parts.append(_fixed_camera())
     parts.append("</robot>\n")
     return "".join(parts)
 
@@ -234,16 +270,16 @@ class RobotModel:
         """Every movable joint, in the order of the published joint states (the URDF order)."""
         return self.arm_joints + self.finger_joints + HEAD_JOINTS
 
-    def urdf_text(self) -> str:
-        """The URDF text."""
-        return panda_urdf_text() if self.name == PANDA_NAME else urdf_text()
+    def urdf_text(self, camera: str = "head") -> str:
+        """The URDF text (with the world-fixed camera's links for ``camera="fixed"``)."""
+        return panda_urdf_text(camera) if self.name == PANDA_NAME else urdf_text(camera)
 
-    def write_package(self, folder: Path) -> Path:
+    def write_package(self, folder: Path, camera: str = "head") -> Path:
         """Writes the robot package folder (URDF, and meshes + licence for the panda);
         returns the URDF path."""
         folder.mkdir(parents=True, exist_ok=True)
         path = folder / f"{self.name}.urdf"
-        path.write_text(self.urdf_text())
+        path.write_text(self.urdf_text(camera))
         if self.name == PANDA_NAME:
             src = _panda_source()
             shutil.copytree(src / "meshes", folder / "meshes", dirs_exist_ok=True)
