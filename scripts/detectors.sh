@@ -10,9 +10,14 @@
 # scene_kinematics, scene_phase_kinematics_w3, all_kinematics_positions (velocity_s = 0),
 # all_kinematics_links (state = "links"), all_kinematics_w3, all_phase_kinematics_w3,
 # no_photometric (the default without the scene residual's photometric check), default (a
-# profile that sets nothing: what a user gets; default: all). Each row leaves
+# profile that sets nothing: what a user gets; default: all), and with a flow predictor:
+# calibrated (every detector, calibrated fusion), cells (the same with the localised e_o:
+# flow_pooling = "cells"), cells_w3 (and temporal_window = 3). Each row leaves
 # OUT_DIR/ROW/{profile.toml, profile.calibration.json, eval.json} and prints one line.
-# Needs the release binary (cargo build --release); about 90 s per row on 2 cores.
+# MODEL=PATH (a model bundle trained on SIM_DIR's training episodes, e.g. by
+# scripts/benchmark.sh) gives every row the flow predictor.
+# Needs the release binary (cargo build --release); about 90 s per row on 2 cores without
+# a model.
 set -eu
 sim=$(cd "${1:?usage: scripts/detectors.sh SIM_DIR OUT_DIR [ROW...]}" && pwd)
 out=${2:?usage: scripts/detectors.sh SIM_DIR OUT_DIR [ROW...]}
@@ -22,6 +27,10 @@ vamos=${VAMOS:-"$root/target/release/vamos"}
 rows=${*:-paper all all_quantile scene_camera scene scene_phase all_phase scene_phase_w3 kinematics scene_kinematics scene_phase_kinematics_w3 all_kinematics_positions all_kinematics_links all_kinematics_w3 all_phase_kinematics_w3 no_photometric default}
 # The dataset's robot (vamos-sim writes one URDF into SIM_DIR/robot).
 urdf=$(ls "$sim"/robot/*.urdf | head -n 1)
+model_line=
+if [ -n "${MODEL:-}" ]; then
+    model_line="model = \"$(cd "$(dirname "$MODEL")" && pwd)/$(basename "$MODEL")\""
+fi
 for row in $rows; do
     case $row in
         paper) extra='fusion = "paper"
@@ -95,6 +104,14 @@ state = "links"' ;;
         no_photometric) extra='[pipeline.residual]
 photometric = false' ;;
         default) extra='' ;;
+        calibrated) extra='fusion = "calibrated"' ;;
+        cells) extra='fusion = "calibrated"
+[pipeline.residual]
+flow_pooling = "cells"' ;;
+        cells_w3) extra='fusion = "calibrated"
+temporal_window = 3
+[pipeline.residual]
+flow_pooling = "cells"' ;;
         *) echo "unknown row $row" >&2; exit 2 ;;
     esac
     d="$out/$row"
@@ -103,6 +120,7 @@ photometric = false' ;;
 name = "detectors-$row"
 robot = "$urdf"
 camera = "$sim/camera.json"
+$model_line
 flow_preset = "realtime"
 alarm = "conformal"
 [pipeline]

@@ -28,6 +28,7 @@
 //! leaves the scorer as it was for the stages that had not run yet; the next good frame
 //! goes on from the last good one.
 
+use super::attach::AttachedShapes;
 use super::frames::{FrameProcessor, ProcessedFrame};
 use super::residual::{self, FlowPooling};
 use super::{DetectorSwitches, PipelineConfig};
@@ -66,6 +67,10 @@ struct BodyState {
     previous_positions: Option<(i64, Vec<f64>)>,
     /// The previous processed frame's body mask (empty when it had none).
     previous_mask: Vec<bool>,
+    /// The profile's attached shapes and the link poses with theirs (reused buffers for
+    /// the current and the previous view).
+    shapes: AttachedShapes,
+    shape_poses: (Vec<Isometry3<f64>>, Vec<Isometry3<f64>>),
 }
 
 /// The detector of one stream (a session or an episode); see the module docs.
@@ -176,15 +181,13 @@ impl Scorer {
             Some(setup) => {
                 let mut renderer = vamos_robot::render::create_renderer(&render)?;
                 // The robot's own meshes are used in place; a copy only with attachments.
-                let with_attachments;
-                let meshes = if config.attach.is_empty() {
+                let (with_attachments, shapes, _) =
+                    AttachedShapes::new(&setup.robot, &config.attach);
+                renderer.prepare(if shapes.is_empty() {
                     setup.robot.link_meshes()
                 } else {
-                    with_attachments =
-                        super::attach::meshes_with_attachments(&setup.robot, &config.attach).0;
-                    with_attachments.as_slice()
-                };
-                renderer.prepare(meshes)?;
+                    &with_attachments
+                })?;
                 Some(BodyState {
                     mapper: setup.robot.joint_mapper(),
                     setup,
@@ -193,6 +196,8 @@ impl Scorer {
                     previous: None,
                     previous_positions: None,
                     previous_mask: Vec::new(),
+                    shapes,
+                    shape_poses: Default::default(),
                 })
             }
             None => None,
@@ -340,19 +345,36 @@ impl Scorer {
                             height: h,
                             source,
                         })?;
-                let previous = body
-                    .previous
-                    .as_ref()
-                    .map(|(links, camera_from_base)| RobotView {
+                // With attached shapes, both views' poses gain the shapes' (there or not
+                // as decided at this frame).
+                let (current_links, previous_links) = if body.shapes.is_empty() {
+                    (
+                        links.as_slice(),
+                        body.previous.as_ref().map(|(l, _)| l.as_slice()),
+                    )
+                } else {
+                    let (now, before) = &mut body.shape_poses;
+                    body.shapes.poses(links, camera_from_base, now);
+                    if let Some((l, c)) = &body.previous {
+                        body.shapes.poses(l, c, before);
+                    }
+                    (
+                        now.as_slice(),
+                        body.previous.as_ref().map(|_| before.as_slice()),
+                    )
+                };
+                let previous = body.previous.as_ref().zip(previous_links).map(
+                    |((_, camera_from_base), links)| RobotView {
                         camera_from_base: *camera_from_base,
                         base_from_link: links,
-                    });
+                    },
+                );
                 body.renderer.render(
                     &RenderFrame {
                         intrinsics: &k,
                         current: RobotView {
                             camera_from_base: *camera_from_base,
-                            base_from_link: links,
+                            base_from_link: current_links,
                         },
                         previous,
                         shade: false,
@@ -612,6 +634,7 @@ impl BodyState {
         joints: JointInput<'_>,
     ) -> Result<(Vec<Isometry3<f64>>, Isometry3<f64>, Vec<f64>), ScorerError> {
         let q = self.mapper.map(joints.names, joints.positions)?.positions;
+        self.shapes.update(q.as_slice());
         let links = self.setup.robot.forward(&q)?;
         let camera_from_base =
             self.setup

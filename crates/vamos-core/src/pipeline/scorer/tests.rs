@@ -49,10 +49,21 @@ fn setup() -> RobotSetup {
 }
 
 fn scorer(robot: Option<RobotSetup>, thresholds: Thresholds, stride: usize) -> Scorer {
+    scorer_with(robot, thresholds, stride, Vec::new())
+}
+
+/// [`scorer`] with shapes attached to the robot.
+fn scorer_with(
+    robot: Option<RobotSetup>,
+    thresholds: Thresholds,
+    stride: usize,
+    attach: Vec<crate::pipeline::attach::Attachment>,
+) -> Scorer {
     let mut config = PipelineConfig {
         stride,
         // The paper's bands (the tests below read `triggered` as the paper's trigger).
         fusion: crate::eval::Fusion::Paper,
+        attach,
         ..PipelineConfig::default()
     };
     config.frames.width = W;
@@ -419,4 +430,52 @@ fn the_expected_image_flow_of_a_pan_is_the_rotation_homography() {
         expected_image_flow(&pose(0.0), &pose(0.02), &k, 0.0, &mut flow).is_err(),
         "depth 0"
     );
+}
+
+#[test]
+fn a_gated_attachment_is_masked_only_while_its_joint_condition_holds() {
+    let setup = setup();
+    let step = 0.01;
+    let body_pixels = |attach| {
+        let mut s = scorer_with(
+            Some(setup.clone()),
+            Thresholds::paper(None, None),
+            1,
+            attach,
+        );
+        run(&mut s, &setup, 5, step, |k| step * k as f64)
+            .iter()
+            .map(|f| f.body_pixels)
+            .collect::<Vec<_>>()
+    };
+    let ball = |present_while| crate::pipeline::attach::Attachment {
+        link: "base".into(),
+        cuboid: None,
+        cylinder: None,
+        sphere: Some(0.08),
+        xyz: [0.8, -0.2, 0.0],
+        rpy: [0.0; 3],
+        present_while,
+    };
+    let bare = body_pixels(Vec::new());
+    let always = body_pixels(vec![ball(None)]);
+    // There while the pan reads below 0.015 rad: the first two frames.
+    let gated = body_pixels(vec![ball(Some(crate::pipeline::attach::JointCondition {
+        joint: "pan".into(),
+        below: Some(0.015),
+        above: None,
+    }))]);
+    for k in 0..5 {
+        assert!(
+            always[k] > bare[k] + 300,
+            "frame {k}: the ball adds its pixels ({} vs {})",
+            always[k],
+            bare[k]
+        );
+        let expected = if k < 2 { always[k] } else { bare[k] };
+        assert_eq!(
+            gated[k], expected,
+            "frame {k}: {gated:?} {always:?} {bare:?}"
+        );
+    }
 }

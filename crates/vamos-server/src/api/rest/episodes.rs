@@ -45,7 +45,7 @@ pub struct EpisodeScores {
 
 /// A frame's score as the JSON object the REST API prints: the gRPC answer's fields and
 /// names, as `vamos stream` prints them ([`vamos_proto::score_json`]).
-pub fn score_json(f: &ScoredFrame) -> ScoreJson {
+fn score_json(f: &ScoredFrame) -> ScoreJson {
     ScoreJson::from(&frame_score_fields(f))
 }
 

@@ -38,7 +38,6 @@ mod ui;
 
 #[doc(hidden)]
 pub use calibration::parse_calibrate_request;
-pub use episodes::score_json;
 pub use errors::ApiError;
 #[doc(hidden)]
 pub use models::parse_active_request;
