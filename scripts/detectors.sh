@@ -12,7 +12,10 @@
 # no_photometric (the default without the scene residual's photometric check), default (a
 # profile that sets nothing: what a user gets; default: all), and with a flow predictor:
 # calibrated (every detector, calibrated fusion), cells (the same with the localised e_o:
-# flow_pooling = "cells"), cells_w3 (and temporal_window = 3). Each row leaves
+# flow_pooling = "cells"), cells_w3 (and temporal_window = 3); attach (the default with the
+# carried book attached to the tool as a box of the simulator's mean book size), attach_while
+# (the same, there only while the first finger joint reads below 3/4 of its opening: while the
+# gripper is closed on the book). Each row leaves
 # OUT_DIR/ROW/{profile.toml, profile.calibration.json, eval.json} and prints one line.
 # MODEL=PATH (a model bundle trained on SIM_DIR's training episodes, e.g. by
 # scripts/benchmark.sh) gives every row the flow predictor.
@@ -27,6 +30,16 @@ vamos=${VAMOS:-"$root/target/release/vamos"}
 rows=${*:-paper all all_quantile scene_camera scene scene_phase all_phase scene_phase_w3 kinematics scene_kinematics scene_phase_kinematics_w3 all_kinematics_positions all_kinematics_links all_kinematics_w3 all_phase_kinematics_w3 no_photometric default}
 # The dataset's robot (vamos-sim writes one URDF into SIM_DIR/robot).
 urdf=$(ls "$sim"/robot/*.urdf | head -n 1)
+# The tool link and the finger joint of the simulator's two robots, and three quarters of
+# the finger's opening: above any book it closes on, below open.
+case $(basename "$urdf" .urdf) in
+    vamos_panda) tool=panda_grasptarget finger=panda_finger_joint1 closed_below=0.03 ;;
+    *) tool=tool_link finger=finger_left_joint closed_below=0.0375 ;;
+esac
+book="[[pipeline.attach]]
+link = \"$tool\"
+box = [0.15, 0.035, 0.215]
+xyz = [0.0, 0.0, 0.07]"
 model_line=
 if [ -n "${MODEL:-}" ]; then
     model_line="model = \"$(cd "$(dirname "$MODEL")" && pwd)/$(basename "$MODEL")\""
@@ -105,6 +118,9 @@ state = "links"' ;;
 photometric = false' ;;
         default) extra='' ;;
         calibrated) extra='fusion = "calibrated"' ;;
+        attach) extra="$book" ;;
+        attach_while) extra="$book
+while = { joint = \"$finger\", below = $closed_below }" ;;
         cells) extra='fusion = "calibrated"
 [pipeline.residual]
 flow_pooling = "cells"' ;;

@@ -18,9 +18,13 @@ fn model() -> Arc<FlowModel> {
     Arc::new(FlowModel::load(&path, &LoadOptions::default()).unwrap())
 }
 
-/// 128x96 processing, with the past offsets `A, B` when given.
+/// 128x96 processing under the paper's fusion (the score is `e_o` below the `e_c`/`e_b`
+/// thresholds), with the past offsets `A, B` when given.
 fn config(offsets: Option<(usize, usize)>) -> PipelineConfig {
-    let mut config = PipelineConfig::default();
+    let mut config = PipelineConfig {
+        fusion: vamos::eval::Fusion::Paper,
+        ..PipelineConfig::default()
+    };
     config.frames.width = 128;
     config.frames.height = 96;
     if let Some((a, b)) = offsets {

@@ -61,9 +61,8 @@ pub enum Detector {
 )]
 #[serde(rename_all = "snake_case")]
 pub enum Fusion {
-    /// `Calibrated` for a profile without a flow predictor, `Paper` with one
-    /// ([`Fusion::resolve`]): without `e_o` the paper's rule ranks every untriggered frame
-    /// the same, so day one (no trained model yet) gets the fusion that ranks.
+    /// `Calibrated`, except under a calibration that was fitted for the paper's rule
+    /// ([`Fusion::resolve`]).
     #[default]
     Auto,
     /// The paper: e_o, or the triggered band when e_c or e_b passes its training maximum.
@@ -73,12 +72,18 @@ pub enum Fusion {
 }
 
 impl Fusion {
-    /// The fusion a profile scores with, `flow_model`: whether it has a flow predictor.
-    pub fn resolve(self, flow_model: bool) -> Fusion {
-        match self {
-            Fusion::Auto if flow_model => Fusion::Paper,
-            Fusion::Auto => Fusion::Calibrated,
-            other => other,
+    /// The fusion a profile scores with under `thresholds` (its calibration's), with or
+    /// without a flow predictor (`flow_model`). `Paper` and `Calibrated` are themselves.
+    /// `Auto` is the fusion the calibration was fitted for ([`Thresholds::fusion`]);
+    /// `Calibrated` when there is no calibration. A calibration that does not say (made
+    /// before 2026-12-06, when `auto` meant the paper's rule with a flow predictor) keeps
+    /// the rule its alarm threshold was fitted for: `Paper` with a flow predictor.
+    pub fn resolve(self, thresholds: &Thresholds, flow_model: bool) -> Fusion {
+        match (self, thresholds.fusion) {
+            (Fusion::Auto, Some(fitted @ (Fusion::Paper | Fusion::Calibrated))) => fitted,
+            (Fusion::Auto, _) if flow_model && thresholds.is_calibrated() => Fusion::Paper,
+            (Fusion::Auto, _) => Fusion::Calibrated,
+            (explicit, _) => explicit,
         }
     }
 }
@@ -125,6 +130,11 @@ pub struct Thresholds {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     #[schemars(with = "Option<WholeOrSummary<CellStats>>")]
     pub flow: Option<CellStats>,
+    /// The fusion the calibration fitted its alarm threshold for (`paper` or
+    /// `calibrated`): what `fusion = "auto"` scores with. Absent in calibrations made
+    /// before 2026-12-06.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fusion: Option<Fusion>,
 }
 
 /// The sizes of one of a calibration's bulky statistics (per-cell maps: tens of kB;
@@ -221,6 +231,18 @@ impl Thresholds {
             ..Thresholds::default()
         }
     }
+
+    /// Whether these come from a calibration (any fitted value), not the empty set a
+    /// profile has before one.
+    pub fn is_calibrated(&self) -> bool {
+        self.e_c.is_some()
+            || self.e_b.is_some()
+            || self.scales.is_some()
+            || self.scene.is_some()
+            || self.kinematics.is_some()
+            || self.flow.is_some()
+            || self.fusion.is_some()
+    }
 }
 
 /// Each detector's own alarm threshold, in the detector's own units: the value at which
@@ -260,7 +282,7 @@ impl DetectorThresholds {
     pub fn new(thresholds: &Thresholds, alarm: f64, fusion: Fusion, flow_model: bool) -> Self {
         let finite = |v: Option<f64>| v.filter(|x| x.is_finite());
         let alarm = finite(Some(alarm));
-        match fusion.resolve(flow_model) {
+        match fusion.resolve(thresholds, flow_model) {
             Fusion::Paper | Fusion::Auto => DetectorThresholds {
                 alarm,
                 e_c: finite(thresholds.e_c),
@@ -371,7 +393,7 @@ fn overshoot(value: Option<f64>, threshold: Option<f64>) -> Option<f64> {
 /// [`Fusion::Auto`] resolves on whether the frame has `e_o`: callers resolve it once per
 /// profile with [`Fusion::resolve`] so that warm-up frames fuse like the rest).
 pub fn fuse_frame(c: &Components, thresholds: &Thresholds, fusion: Fusion) -> Fused {
-    match fusion.resolve(c.e_o.is_some()) {
+    match fusion.resolve(thresholds, c.e_o.is_some()) {
         Fusion::Paper | Fusion::Auto => fuse(c.e_c, c.e_b, c.e_o, thresholds),
         Fusion::Calibrated => fuse_calibrated(c, thresholds.scales.as_ref()),
     }

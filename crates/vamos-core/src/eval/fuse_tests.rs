@@ -19,6 +19,7 @@ fn each_detector_alone_at_its_own_threshold_reaches_the_alarm() {
         scene: None,
         kinematics: None,
         flow: None,
+        fusion: None,
     };
     let none = Components::default();
     // Calibrated: location + alarm * spread, the raw value without a scale.
@@ -66,6 +67,7 @@ const T: Thresholds = Thresholds {
     scene: None,
     kinematics: None,
     flow: None,
+    fusion: None,
 };
 
 #[test]
@@ -90,12 +92,27 @@ fn window_keeps_the_largest_recent_score() {
 }
 
 #[test]
-fn auto_fusion_is_calibrated_without_a_flow_model() {
+fn auto_fusion_is_calibrated_unless_fitted_for_the_paper() {
     assert_eq!(Fusion::default(), Fusion::Auto);
-    assert_eq!(Fusion::Auto.resolve(false), Fusion::Calibrated);
-    assert_eq!(Fusion::Auto.resolve(true), Fusion::Paper);
-    assert_eq!(Fusion::Paper.resolve(false), Fusion::Paper);
-    assert_eq!(Fusion::Calibrated.resolve(true), Fusion::Calibrated);
+    let none = Thresholds::default();
+    // Before a calibration, and under one that recorded its fusion: calibrated, or what
+    // it was fitted for.
+    for model in [false, true] {
+        assert_eq!(Fusion::Auto.resolve(&none, model), Fusion::Calibrated);
+        for fitted in [Fusion::Paper, Fusion::Calibrated] {
+            let t = Thresholds {
+                fusion: Some(fitted),
+                ..T
+            };
+            assert_eq!(Fusion::Auto.resolve(&t, model), fitted);
+        }
+    }
+    // A calibration made before fusions were recorded was fitted for what `auto` meant
+    // then: the paper's rule with a flow predictor.
+    assert_eq!(Fusion::Auto.resolve(&T, true), Fusion::Paper);
+    assert_eq!(Fusion::Auto.resolve(&T, false), Fusion::Calibrated);
+    assert_eq!(Fusion::Paper.resolve(&none, false), Fusion::Paper);
+    assert_eq!(Fusion::Calibrated.resolve(&T, true), Fusion::Calibrated);
     // Unresolved, a frame without e_o fuses like the calibrated rule: it ranks
     // below any threshold (the paper's rule would give 0 to both).
     let th = Thresholds::paper(Some(10.0), Some(10.0));

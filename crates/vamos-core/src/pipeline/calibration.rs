@@ -58,7 +58,9 @@ pub fn calibrate<E>(
     pipeline: &PipelineConfig,
     mut score: impl FnMut(&[PathBuf], Thresholds) -> Result<Vec<EpisodeScores>, E>,
 ) -> Result<CalibrationOutcome, E> {
-    let fusion = pipeline.fusion.resolve(model_sha256.is_some());
+    let fusion = pipeline
+        .fusion
+        .resolve(&Thresholds::default(), model_sha256.is_some());
     let train = score(training, Thresholds::default())?;
     let mut notes = Vec::new();
     let frames: Vec<&FrameScore> = train.iter().flat_map(|e| &e.frames).collect();
@@ -103,6 +105,7 @@ pub fn calibrate<E>(
         scene,
         kinematics,
         flow,
+        fusion: Some(fusion),
     };
     // The training frames' fused scores as the scorer gives them (windowed per episode).
     let mut window = Window::new(pipeline.temporal_window);
@@ -213,7 +216,7 @@ pub fn revise(
     flow_model: bool,
     nominal: &[EpisodeScores],
 ) -> Revision {
-    let fusion = pipeline.fusion.resolve(flow_model);
+    let fusion = pipeline.fusion.resolve(&calibration.thresholds, flow_model);
     let mut notes = Vec::new();
     let mut revised = calibration.clone();
     let component_max = |get: fn(&FrameScore) -> Option<f64>| {

@@ -516,7 +516,9 @@ impl Scorer {
                 e_k,
             },
             &self.thresholds,
-            self.config.fusion.resolve(self.predictor.is_some()),
+            self.config
+                .fusion
+                .resolve(&self.thresholds, self.predictor.is_some()),
         ));
         timings.total_us = micros(start);
         Ok(Some(FrameScore {
