@@ -309,8 +309,9 @@ def _check_scored_bag(path: Path) -> None:
     # The thresholds once, the anomaly map with every frame that has e_o.
     (schema, thr), = topics["/vamos/thresholds"]
     assert schema == "std_msgs/msg/String" and json.loads(thr.data) == {
-        # With a model the fusion is the paper's: e_o alarms at the alarm threshold itself.
-        "alarm": 0.0, "e_c": None, "e_b": None, "e_o": 0.0, "e_r": None, "e_k": None}
+        # `fusion = "auto"` is the calibrated fusion; without fitted scales (no calibration)
+        # each detector's raw value meets the alarm threshold itself.
+        "alarm": 0.0, "e_c": 0.0, "e_b": 0.0, "e_o": 0.0, "e_r": 0.0, "e_k": 0.0}
     maps = topics["/vamos/anomaly_map"]
     assert maps and len(maps) == len(topics["/vamos/e_o"])
     for schema, m in maps:
