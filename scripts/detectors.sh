@@ -15,7 +15,7 @@
 # flow_pooling = "cells"), cells_w3 (and temporal_window = 3); attach (the default with the
 # carried book attached to the tool as a box of the simulator's mean book size), attach_while
 # (the same, there only while the first finger joint reads below 3/4 of its opening: while the
-# gripper is closed on the book). Each row leaves
+# gripper is closed on the book), attach_while_w3 (and temporal_window = 3). Each row leaves
 # OUT_DIR/ROW/{profile.toml, profile.calibration.json, eval.json} and prints one line.
 # MODEL=PATH (a model bundle trained on SIM_DIR's training episodes, e.g. by
 # scripts/benchmark.sh) gives every row the flow predictor.
@@ -120,6 +120,9 @@ photometric = false' ;;
         calibrated) extra='fusion = "calibrated"' ;;
         attach) extra="$book" ;;
         attach_while) extra="$book
+while = { joint = \"$finger\", below = $closed_below }" ;;
+        attach_while_w3) extra="temporal_window = 3
+$book
 while = { joint = \"$finger\", below = $closed_below }" ;;
         cells) extra='fusion = "calibrated"
 [pipeline.residual]
