@@ -46,6 +46,9 @@ profile() { # VARIANT [MODEL]
         echo 'alarm = "conformal"'
         echo '[pipeline]'
         echo 'stride = 1'
+        # The paper's rule, as the paper's table measures it (`auto` is the calibrated
+        # fusion since 2026-12-06; scripts/detectors.sh has those rows).
+        echo 'fusion = "paper"'
         echo '[pipeline.frames]'
         echo "width = $WIDTH"
         echo "height = $HEIGHT"

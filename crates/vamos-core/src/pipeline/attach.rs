@@ -17,7 +17,7 @@
 //! that is absent this frame is moved behind the camera instead of re-preparing the
 //! renderer.
 
-use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
+use nalgebra::{Isometry3, Translation3, UnitQuaternion};
 use serde::{Deserialize, Serialize};
 use vamos_robot::Robot;
 use vamos_robot::geometry::{LinkMesh, TriMesh};
@@ -257,11 +257,8 @@ impl AttachedShapes {
     ) {
         out.clear();
         out.extend_from_slice(links);
-        let hidden = camera_from_base.inverse()
-            * Isometry3::from_parts(
-                Translation3::from(Vector3::new(0.0, 0.0, -HIDDEN_BEHIND_M)),
-                UnitQuaternion::identity(),
-            );
+        let hidden =
+            camera_from_base.inverse() * Isometry3::translation(0.0, 0.0, -HIDDEN_BEHIND_M);
         out.extend(self.shapes.iter().zip(&self.present).map(
             |(s, &present)| match links.get(s.link) {
                 Some(pose) if present => *pose,

@@ -67,10 +67,10 @@ struct BodyState {
     previous_positions: Option<(i64, Vec<f64>)>,
     /// The previous processed frame's body mask (empty when it had none).
     previous_mask: Vec<bool>,
-    /// The profile's attached shapes and the link poses with theirs (reused buffers for
-    /// the current and the previous view).
+    /// The profile's attached shapes, and the link poses with theirs the renderer is given
+    /// (reused buffers for the current and the previous view).
     shapes: AttachedShapes,
-    shape_poses: (Vec<Isometry3<f64>>, Vec<Isometry3<f64>>),
+    view_poses: (Vec<Isometry3<f64>>, Vec<Isometry3<f64>>),
 }
 
 /// The detector of one stream (a session or an episode); see the module docs.
@@ -197,7 +197,7 @@ impl Scorer {
                     previous_positions: None,
                     previous_mask: Vec::new(),
                     shapes,
-                    shape_poses: Default::default(),
+                    view_poses: Default::default(),
                 })
             }
             None => None,
@@ -345,36 +345,23 @@ impl Scorer {
                             height: h,
                             source,
                         })?;
-                // With attached shapes, both views' poses gain the shapes' (there or not
-                // as decided at this frame).
-                let (current_links, previous_links) = if body.shapes.is_empty() {
-                    (
-                        links.as_slice(),
-                        body.previous.as_ref().map(|(l, _)| l.as_slice()),
-                    )
-                } else {
-                    let (now, before) = &mut body.shape_poses;
-                    body.shapes.poses(links, camera_from_base, now);
-                    if let Some((l, c)) = &body.previous {
-                        body.shapes.poses(l, c, before);
-                    }
-                    (
-                        now.as_slice(),
-                        body.previous.as_ref().map(|_| before.as_slice()),
-                    )
-                };
-                let previous = body.previous.as_ref().zip(previous_links).map(
-                    |((_, camera_from_base), links)| RobotView {
+                // Both views' link poses with the attached shapes' (there or not as decided
+                // at this frame).
+                let (now, before) = &mut body.view_poses;
+                body.shapes.poses(links, camera_from_base, now);
+                let previous = body.previous.as_ref().map(|(links, camera_from_base)| {
+                    body.shapes.poses(links, camera_from_base, before);
+                    RobotView {
                         camera_from_base: *camera_from_base,
-                        base_from_link: links,
-                    },
-                );
+                        base_from_link: before,
+                    }
+                });
                 body.renderer.render(
                     &RenderFrame {
                         intrinsics: &k,
                         current: RobotView {
                             camera_from_base: *camera_from_base,
-                            base_from_link: current_links,
+                            base_from_link: now,
                         },
                         previous,
                         shade: false,
