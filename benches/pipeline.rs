@@ -166,6 +166,7 @@ fn bench_pipeline(c: &mut Criterion) {
                         positions: &joints[i],
                     }),
                     intrinsics: None,
+                    depth: None,
                 })
                 .expect("push")
                 .expect("stride 1")

@@ -15,7 +15,7 @@ use std::hint::black_box;
 use vamos::eval::{CellStats, Pooling, StateReference, pool_cells};
 use vamos::pipeline::residual::{body_residual, cell_grid, grow_union, scene_cells};
 use vamos::robot::Intrinsics;
-use vamos::robot::camera_motion::expected_image_flow;
+use vamos::robot::camera_motion::{Depth, expected_image_flow};
 use vamos::vision::synthetic::Texture;
 use vamos::vision::{FlowField, GrayImage};
 
@@ -33,7 +33,8 @@ fn bench_residual(c: &mut Criterion) {
     let image = GrayImage::from_fn(W, H, |x, y| texture.eval(x as f64, y as f64) as f32);
     // Observed: the expected motion plus a little noise and a moving patch.
     let mut expected = FlowField::zeros(0, 0);
-    expected_image_flow(&previous, &current, &k, 1.0, &mut expected).expect("finite poses");
+    expected_image_flow(&previous, &current, &k, Depth::Assumed, 1.0, &mut expected)
+        .expect("finite poses");
     let observed = FlowField::from_fn(W, H, |x, y| {
         let (u, v) = expected.get(x, y);
         let n = ((x * 7 + y * 13) % 11) as f32 * 0.02;
@@ -70,7 +71,8 @@ fn bench_residual(c: &mut Criterion) {
     ] {
         c.bench_function(name, |b| {
             b.iter(|| {
-                expected_image_flow(&previous, &current, &k, 1.0, &mut flow).expect("finite poses");
+                expected_image_flow(&previous, &current, &k, Depth::Assumed, 1.0, &mut flow)
+                    .expect("finite poses");
                 let exclude = grow_union(&mask, &previous_mask, W, H, 3);
                 let cells = scene_cells(&observed, &flow, &exclude, 8, Some(&image), target);
                 black_box(pool_cells(

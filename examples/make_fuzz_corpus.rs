@@ -398,6 +398,7 @@ fn stream_requests() -> Result<()> {
             step: 0,
             big_endian: false,
             data,
+            depth: None,
         })
     };
     let phase = In::Phase(proto::PhaseMarker {
@@ -453,6 +454,7 @@ fn stream_requests() -> Result<()> {
                     step: 8,
                     big_endian: false,
                     data: vec![7; 16],
+                    depth: None,
                 }),
                 image(30, "jpeg", 0, 0, jpeg(8, 8)?),
             ],

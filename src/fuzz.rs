@@ -175,7 +175,23 @@ pub fn image_message(data: &[u8]) {
         step: u16_at(6),
         big_endian: data[1] & 1 == 1,
         data: data[8..].to_vec(),
+        depth: None,
     };
+    // The same bytes as a depth image: only the depth encodings decode, at their size.
+    let live = crate::api::grpc::convert::live_image(image.clone());
+    if let Ok((depth, _)) = crate::session::worker::decode_live_depth(&live, FUZZ_MAX_PIXELS, None)
+    {
+        assert!(
+            matches!(image.encoding.as_str(), "mono16" | "16UC1" | "32FC1"),
+            "a depth image decoded from {}",
+            image.encoding
+        );
+        assert_eq!(
+            depth.size(),
+            (image.width as usize, image.height as usize),
+            "decoded depth size differs from the message's"
+        );
+    }
     if let Ok((img, _)) = decode_streamed(&image) {
         assert_finite(&img, "Image message");
         if !matches!(image.encoding.as_str(), "png" | "jpeg") {
@@ -391,6 +407,7 @@ pub fn stream_session(data: &[u8]) {
                         positions: p,
                     }),
                     intrinsics: intrinsics.as_ref(),
+                    depth: None,
                 };
                 if let Ok(Some(score)) = scorer.push(&input) {
                     assert!(

@@ -88,6 +88,7 @@ async fn oversized_uploads_are_refused_before_their_body_is_read() {
             step: 8192,
             big_endian: false,
             data: vec![0; 8192 * 4096],
+            depth: None,
         })),
     };
     let open = proto::StreamRequest {

@@ -70,6 +70,7 @@ fn run(s: &mut Scorer, frames: usize) -> Vec<FrameScore> {
                 image: &image,
                 joints: None,
                 intrinsics: None,
+                depth: None,
             })
             .unwrap()
             .unwrap()

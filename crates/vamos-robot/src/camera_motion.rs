@@ -107,21 +107,23 @@ pub struct ExpectedCameraMotion {
 
 /// The expected flow `t-1 -> t` of every static pixel of frame `t-1` (the source grid,
 /// as TV-L1 indexes its output) from the two camera poses (`camera_from_base`, optical):
-/// the pixel's ray at `depth_m` along the optical axis carried into the current camera
-/// and projected. The rotation part is exact whatever the depth (`K R K^-1`); only the
-/// translation part depends on it. A point that ends behind the camera gets NaN. `out`
-/// is resized to the intrinsics' size.
+/// the pixel's ray at its depth along the optical axis carried into the current camera
+/// and projected. The depth is the pixel's in `depth` (a depth image of frame `t-1` at
+/// the intrinsics' resolution), else `assumed_depth_m`. The rotation part is exact
+/// whatever the depth (`K R K^-1`); only the translation part depends on it. A point that
+/// ends behind the camera gets NaN. `out` is resized to the intrinsics' size.
 pub fn expected_image_flow(
     previous_camera_from_base: &Isometry3<f64>,
     current_camera_from_base: &Isometry3<f64>,
     intrinsics: &Intrinsics,
-    depth_m: f64,
+    depth: Depth<'_>,
+    assumed_depth_m: f64,
     out: &mut FlowField,
 ) -> Result<(), CameraMotionError> {
-    if !(depth_m.is_finite() && depth_m > 0.0) {
+    if !(assumed_depth_m.is_finite() && assumed_depth_m > 0.0) {
         return Err(CameraMotionError::InvalidParams {
             name: "assumed_depth_m",
-            value: depth_m,
+            value: assumed_depth_m,
             reason: "must be a finite depth > 0",
         });
     }
@@ -134,6 +136,17 @@ pub fn expected_image_flow(
         }
     }
     let (w, h) = (intrinsics.width as usize, intrinsics.height as usize);
+    let depth_image = match depth {
+        Depth::Assumed => None,
+        Depth::Image(d) if d.len() == w * h => Some(d),
+        Depth::Image(d) => {
+            return Err(CameraMotionError::DepthSize {
+                len: d.len(),
+                width: intrinsics.width,
+                height: intrinsics.height,
+            });
+        }
+    };
     if out.size() != (w, h) {
         *out = FlowField::zeros(w, h);
     }
@@ -148,11 +161,15 @@ pub fn expected_image_flow(
         let ry = (y as f64 - k.cy) / k.fy;
         for x in 0..w {
             let rx = (x as f64 - k.cx) / k.fx;
+            let i = y * w + x;
+            let depth_m = depth_image
+                .map(|d| f64::from(d[i]))
+                .filter(|z| z.is_finite() && *z > 0.0)
+                .unwrap_or(assumed_depth_m);
             // P' = R (z r) + t, r = (rx, ry, 1).
             let px = depth_m * (r[(0, 0)] * rx + r[(0, 1)] * ry + r[(0, 2)]) + t.x;
             let py = depth_m * (r[(1, 0)] * rx + r[(1, 1)] * ry + r[(1, 2)]) + t.y;
             let pz = depth_m * (r[(2, 0)] * rx + r[(2, 1)] * ry + r[(2, 2)]) + t.z;
-            let i = y * w + x;
             if pz > 0.0 {
                 out.u[i] = (k.fx * px / pz + k.cx - x as f64) as f32;
                 out.v[i] = (k.fy * py / pz + k.cy - y as f64) as f32;
@@ -479,6 +496,39 @@ mod tests {
         )
         .unwrap();
         assert!((q.x - 159.5 - expected).abs() < 1e-9);
+    }
+
+    #[test]
+    fn the_expected_image_flow_takes_each_pixels_depth_from_the_depth_image() {
+        // The camera moves 5 cm to its right: a pixel at depth z moves by -f 0.05 / z.
+        let (a, b) = poses(Isometry3::translation(0.05, 0.0, 0.0));
+        let k = camera();
+        let (w, h) = (320, 240);
+        // The left half at 0.5 m, the right half at 2 m, one hole (0) and one NaN.
+        let mut depth: Vec<f32> = (0..w * h)
+            .map(|i| if i % w < w / 2 { 0.5 } else { 2.0 })
+            .collect();
+        depth[10] = 0.0;
+        depth[w + 10] = f32::NAN;
+        let mut flow = FlowField::zeros(0, 0);
+        expected_image_flow(&a, &b, &k, Depth::Image(&depth), 1.0, &mut flow).unwrap();
+        assert_eq!(flow.size(), (w, h));
+        for (x, y, z) in [(20, 100, 0.5), (300, 100, 2.0), (10, 0, 1.0), (10, 1, 1.0)] {
+            let (u, v) = flow.get(x, y);
+            assert!(
+                (f64::from(u) + 300.0 * 0.05 / z).abs() < 1e-3,
+                "({x},{y}) {u}"
+            );
+            assert!(v.abs() < 1e-4);
+        }
+        // The same motion without a depth image: the assumed depth everywhere.
+        let mut assumed = FlowField::zeros(0, 0);
+        expected_image_flow(&a, &b, &k, Depth::Assumed, 2.0, &mut assumed).unwrap();
+        assert!((f64::from(assumed.get(20, 100).0) + 7.5).abs() < 1e-3);
+        // A depth image of another size is refused, naming both sizes.
+        let err =
+            expected_image_flow(&a, &b, &k, Depth::Image(&depth[1..]), 1.0, &mut flow).unwrap_err();
+        assert!(err.to_string().contains("320x240"), "{err}");
     }
 
     #[test]

@@ -289,6 +289,7 @@ impl From<Image> for proto::Image {
             step: m.step,
             big_endian: m.is_bigendian != 0,
             data: m.data.into_vec(),
+            depth: None,
         }
     }
 }

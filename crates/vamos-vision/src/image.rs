@@ -242,6 +242,89 @@ impl GrayImage {
     }
 }
 
+/// A depth image registered to a camera image (the same field of view, any resolution of
+/// the same aspect ratio): metres along the optical axis, row-major. A value that is not
+/// finite or not positive means no depth at that pixel (what depth cameras report where
+/// they see nothing).
+#[derive(Clone, Debug, PartialEq)]
+pub struct DepthImage {
+    width: usize,
+    height: usize,
+    metres: Vec<f32>,
+}
+
+/// Largest relative difference between a depth image's aspect ratio and its camera
+/// image's: a depth image of another shape is not registered to it.
+pub const DEPTH_ASPECT_TOLERANCE: f64 = 0.01;
+
+impl DepthImage {
+    /// Wraps a row-major buffer of metres; fails when it is empty or its length is not
+    /// `width * height`.
+    pub fn new(width: usize, height: usize, metres: Vec<f32>) -> Result<Self, ImageError> {
+        if width == 0 || height == 0 {
+            return Err(ImageError::Empty { width, height });
+        }
+        if metres.len() != width * height {
+            return Err(ImageError::BufferSize {
+                width,
+                height,
+                expected: width * height,
+                actual: metres.len(),
+            });
+        }
+        Ok(Self {
+            width,
+            height,
+            metres,
+        })
+    }
+
+    /// `(width, height)` in pixels.
+    pub fn size(&self) -> (usize, usize) {
+        (self.width, self.height)
+    }
+
+    /// Metres per pixel, row-major.
+    pub fn metres(&self) -> &[f32] {
+        &self.metres
+    }
+
+    /// Whether this depth image can be registered to a `width x height` camera image:
+    /// the same aspect ratio within [`DEPTH_ASPECT_TOLERANCE`].
+    pub fn fits(&self, width: usize, height: usize) -> bool {
+        if width == 0 || height == 0 {
+            return false;
+        }
+        let own = self.width as f64 / self.height as f64;
+        let other = width as f64 / height as f64;
+        (own / other - 1.0).abs() <= DEPTH_ASPECT_TOLERANCE
+    }
+
+    /// Samples the image at `width x height` (nearest pixel centre: depth is never
+    /// blended across an object's edge) into `out`, with no depth (NaN) where the image
+    /// has none. Memory is the output's, whatever the input's size.
+    pub fn resample_into(&self, width: usize, height: usize, out: &mut Vec<f32>) {
+        out.clear();
+        out.reserve(width * height);
+        let column = |x: usize| {
+            (((x as f64 + 0.5) * self.width as f64 / width as f64) as usize).min(self.width - 1)
+        };
+        for y in 0..height {
+            let sy = (((y as f64 + 0.5) * self.height as f64 / height as f64) as usize)
+                .min(self.height - 1);
+            let row = &self.metres[sy * self.width..(sy + 1) * self.width];
+            out.extend((0..width).map(|x| {
+                let d = row[column(x)];
+                if d.is_finite() && d > 0.0 {
+                    d
+                } else {
+                    f32::NAN
+                }
+            }));
+        }
+    }
+}
+
 /// A dense two-component flow field, planar.
 ///
 /// `u[i]`, `v[i]` at pixel `i = y * width + x` are the **forward** displacement in
@@ -375,6 +458,32 @@ mod tests {
             }
         ));
         assert!(FlowField::new(2, 2, vec![0.0; 4], vec![0.0; 3]).is_err());
+    }
+
+    #[test]
+    fn depth_images_resample_by_nearest_pixel_and_mark_missing_depth() {
+        assert!(matches!(
+            DepthImage::new(0, 2, vec![]),
+            Err(ImageError::Empty { .. })
+        ));
+        assert!(matches!(
+            DepthImage::new(2, 2, vec![1.0; 3]),
+            Err(ImageError::BufferSize { .. })
+        ));
+        // 4x2 in metres, with a hole (0), a NaN and a negative value.
+        let d = DepthImage::new(4, 2, vec![1.0, 2.0, 0.0, 4.0, 5.0, f32::NAN, -1.0, 8.0]).unwrap();
+        assert!(d.fits(8, 4) && d.fits(640, 320) && !d.fits(4, 3) && !d.fits(0, 1));
+        let mut out = vec![7.0; 3];
+        d.resample_into(2, 1, &mut out);
+        // Output pixel centres 0.5 and 1.5 of 2 sample input columns 1 and 3 of row 1.
+        assert_eq!(out.len(), 2);
+        assert!(out[0].is_nan(), "{out:?}");
+        assert_eq!(out[1], 8.0);
+        d.resample_into(8, 4, &mut out);
+        let row0: Vec<String> = out[..8].iter().map(|v| format!("{v}")).collect();
+        assert_eq!(row0, ["1", "1", "2", "2", "NaN", "NaN", "4", "4"]);
+        let row3: Vec<String> = out[24..].iter().map(|v| format!("{v}")).collect();
+        assert_eq!(row3, ["5", "5", "NaN", "NaN", "NaN", "NaN", "8", "8"]);
     }
 
     #[test]

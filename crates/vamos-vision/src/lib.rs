@@ -18,7 +18,7 @@ pub mod preprocess;
 pub mod registration;
 pub mod synthetic;
 
-pub use image::{FlowField, GrayImage, ImageError};
+pub use image::{DepthImage, FlowField, GrayImage, ImageError};
 
 /// The `[vision]` section: parameters of the vision kernels.
 #[derive(

@@ -377,3 +377,102 @@ fn topics_resolve_by_config_default_and_schema() {
         "{e}"
     );
 }
+
+#[test]
+fn a_configured_depth_topic_gives_each_frame_the_nearest_depth_image() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("depth.mcap");
+    let mut w = ScoreBagWriter::create(&path, None).unwrap();
+    let rgb = [9u8; 4 * 2 * 3];
+    let ms = 1_000_000i64;
+    for (i, stamp) in [100 * ms, 200 * ms, 300 * ms, 400 * ms, 500 * ms]
+        .into_iter()
+        .enumerate()
+    {
+        let raw = ImageData::Raw {
+            width: 4,
+            height: 2,
+            encoding: "rgb8",
+            data: &rgb,
+        };
+        w.write_image("/camera/image_raw", stamp, raw).unwrap();
+        // Depth: 16UC1 millimetres 5 ms after the image (within the default 20 ms); the
+        // third frame's 30 ms after (too far), the fourth's in another aspect ratio, the
+        // fifth's in an encoding that is not depth.
+        let mm: Vec<u8> = (0..8u16)
+            .flat_map(|p| (1000 * (i as u16 + 1) + p).to_le_bytes())
+            .collect();
+        let depth = match i {
+            2 => (stamp + 30 * ms, 4, 2, "16UC1", mm.clone()),
+            3 => (stamp + 5 * ms, 8, 1, "16UC1", mm.clone()),
+            4 => (stamp + 5 * ms, 4, 2, "mono8", vec![1u8; 8]),
+            _ => (stamp + 5 * ms, 4, 2, "16UC1", mm.clone()),
+        };
+        let (at, dw, dh, encoding, data) = depth;
+        let raw = ImageData::Raw {
+            width: dw,
+            height: dh,
+            encoding,
+            data: &data,
+        };
+        w.write_image("/camera/depth/image_raw", at, raw).unwrap();
+    }
+    w.finish().unwrap();
+
+    // Without configuration the depth topic is not used (and not taken for the image).
+    let ep = McapEpisode::open(&path, &EpisodeConfig::default()).unwrap();
+    assert_eq!(ep.info().chosen.image, "/camera/image_raw");
+    assert_eq!(ep.info().chosen.depth, None);
+    let (frames, errors) = read_all(&ep);
+    assert!(errors.is_empty() && frames.len() == 5, "{errors:?}");
+    assert!(frames.iter().all(|f| f.depth.is_none()));
+
+    let cfg = |depth: &str| EpisodeConfig {
+        topics: EpisodeTopics {
+            depth: Some(depth.into()),
+            ..Default::default()
+        },
+        ..EpisodeConfig::default()
+    };
+    let ep = McapEpisode::open(&path, &cfg("/camera/depth/image_raw")).unwrap();
+    assert_eq!(ep.info().depth_messages, 5);
+    let (frames, errors) = read_all(&ep);
+    assert!(errors.is_empty() && frames.len() == 5, "{errors:?}");
+    for (i, f) in frames.iter().enumerate() {
+        match i {
+            0 | 1 => {
+                let d = f.depth.as_ref().expect("depth within the gap");
+                assert_eq!(d.size(), (4, 2));
+                let want = 1.0 * (i as f32 + 1.0);
+                assert!((d.metres()[0] - want).abs() < 1e-6, "{:?}", d.metres());
+                assert!((d.metres()[7] - (want + 0.007)).abs() < 1e-6);
+                assert!(f.warnings.is_empty(), "{:?}", f.warnings);
+            }
+            _ => {
+                assert!(f.depth.is_none(), "frame {i}");
+                let why = match i {
+                    2 => "no /camera/depth/image_raw image within 20 ms",
+                    3 => "depth image 8x1 does not fit the 4x2 image",
+                    _ => "16UC1",
+                };
+                assert!(
+                    f.warnings.iter().any(|w| w.contains(why)),
+                    "frame {i}: {:?}",
+                    f.warnings
+                );
+            }
+        }
+    }
+
+    // A depth topic that is not in the file, or is the image topic: refused, named.
+    for (topic, why) in [
+        ("/nope", "/nope is not in the file"),
+        ("/camera/image_raw", "is the image topic"),
+    ] {
+        let e = McapEpisode::open(&path, &cfg(topic)).unwrap_err();
+        assert!(
+            matches!(&e, EpisodeError::Topic { reason, .. } if reason.contains(why)),
+            "{topic}: {e}"
+        );
+    }
+}

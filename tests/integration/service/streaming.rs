@@ -305,3 +305,123 @@ async fn backpressure_drops_oldest_or_rejects_and_says_so() {
         server.shutdown().await.unwrap();
     }
 }
+
+/// A streamed depth image is used for the frame's successor (at the profile's assumed
+/// depth it changes nothing, at another it does); one that cannot be used is reported and
+/// its image is still scored.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn streamed_depth_images_are_used_and_bad_ones_reported_without_losing_frames() {
+    let f = fixture_setup(8, false);
+    let server = start(&f).await;
+    let name = "test_0001_external_push";
+    let (messages, camera) = episode_messages(&episode(name));
+    let assumed_m = f.setup.config.camera_motion.assumed_depth_m as f32;
+    // 32FC1 at half the image's resolution (the same aspect ratio), one value everywhere.
+    let with_depth = |metres: f32, bad: &dyn Fn(usize) -> Option<proto::DepthImage>| {
+        let mut images = 0;
+        messages
+            .iter()
+            .cloned()
+            .map(|m| match m {
+                In::Image(mut img) => {
+                    images += 1;
+                    img.depth = bad(images).or_else(|| {
+                        Some(proto::DepthImage {
+                            encoding: "32FC1".into(),
+                            width: img.width / 2,
+                            height: img.height / 2,
+                            step: 0,
+                            big_endian: false,
+                            data: metres
+                                .to_le_bytes()
+                                .repeat((img.width * img.height / 4) as usize),
+                        })
+                    });
+                    In::Image(img)
+                }
+                other => other,
+            })
+            .collect::<Vec<_>>()
+    };
+    let offline = offline(&f.setup, &episode(name));
+
+    // At the assumed depth: the same scores as without depth, no message errors.
+    let (scores, events) = stream_all(
+        server.grpc_addr,
+        None,
+        open_msg("sim-arm", "depth-assumed", camera),
+        with_depth(assumed_m, &|_| None),
+    )
+    .await
+    .unwrap();
+    assert_same_scores(&scores, &offline);
+    assert!(
+        !events
+            .iter()
+            .any(|e| e.kind == proto::session_event::Kind::MessageError as i32),
+        "{events:?}"
+    );
+
+    // Nearer than assumed: the head camera's small translation now moves the scene more.
+    let (scores, _) = stream_all(
+        server.grpc_addr,
+        None,
+        open_msg("sim-arm", "depth-near", camera),
+        with_depth(0.2, &|_| None),
+    )
+    .await
+    .unwrap();
+    assert_eq!(scores.len(), offline.len());
+    assert!(
+        scores.iter().zip(&offline).any(|(s, o)| s.e_r != o.e_r),
+        "a depth of 0.2 m changed no e_r"
+    );
+
+    // Bad depth images on the 3rd (not a depth encoding), 5th (another aspect ratio) and
+    // 7th image (too few bytes): each reported; every image scored.
+    let bad = |i: usize| {
+        let d = |encoding: &str, width, height, data: Vec<u8>| proto::DepthImage {
+            encoding: encoding.into(),
+            width,
+            height,
+            step: 0,
+            big_endian: false,
+            data,
+        };
+        match i {
+            3 => Some(d("rgb8", 160, 120, vec![0; 160 * 120 * 3])),
+            5 => Some(d("16UC1", 160, 40, vec![1; 160 * 40 * 2])),
+            7 => Some(d("16UC1", 160, 120, vec![1; 99])),
+            _ => None,
+        }
+    };
+    let (scores, events) = stream_all(
+        server.grpc_addr,
+        None,
+        open_msg("sim-arm", "depth-bad", camera),
+        with_depth(assumed_m, &bad),
+    )
+    .await
+    .unwrap();
+    assert_eq!(
+        scores.len(),
+        offline.len(),
+        "a bad depth image lost a frame"
+    );
+    let errors: Vec<&str> = events
+        .iter()
+        .filter(|e| e.kind == proto::session_event::Kind::MessageError as i32)
+        .map(|e| e.detail.as_str())
+        .collect();
+    assert_eq!(errors.len(), 3, "{errors:?}");
+    for (detail, why) in errors
+        .iter()
+        .zip(["16UC1", "another aspect ratio", "needs"])
+    {
+        assert!(
+            detail.contains("depth image refused") && detail.contains(why),
+            "{detail}"
+        );
+    }
+    server.shutdown().await.unwrap();
+}

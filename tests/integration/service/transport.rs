@@ -108,6 +108,7 @@ async fn tokens_limits_bad_messages_and_disconnects() {
             step: 0,
             big_endian: false,
             data: vec![0; 10],
+            depth: None,
         }),
         In::Joints(proto::JointState {
             stamp_ns: last_stamp + 2,

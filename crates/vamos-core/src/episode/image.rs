@@ -9,8 +9,8 @@
 //! 0..=1 floats (as [`GrayImage::load`] reads colour files).
 
 use super::ros::{MAX_IMAGE_SIDE, MessageError, check_image_size};
-use vamos_vision::GrayImage;
 use vamos_vision::preprocess::gray_from_rgb;
+use vamos_vision::{DepthImage, GrayImage};
 
 /// An image encoding vamos decodes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -242,6 +242,57 @@ impl<'a> EncodedImage<'a> {
         }
     }
 
+    /// Decodes a depth image (REP 118): `16UC1`/`mono16` in millimetres or `32FC1` in
+    /// metres, raw rows only; 0, NaN and infinities are "no depth". The declared size is
+    /// checked against `max_pixels` before anything is decoded.
+    pub fn to_depth(&self, max_pixels: usize) -> Result<DepthImage, MessageError> {
+        let unsupported = || MessageError::Decode {
+            format: self.name.to_string(),
+            reason: "a depth image must be raw 16UC1 (millimetres) or 32FC1 (metres)".into(),
+        };
+        let encoding = self.encoding.ok_or_else(unsupported)?;
+        if !matches!(encoding, Encoding::Mono16 | Encoding::Float32) {
+            return Err(unsupported());
+        }
+        let size = self.check(max_pixels)?;
+        let (w, h) = (size.width, size.height);
+        let step = self.step as usize;
+        let be = self.big_endian;
+        let rows = (0..h).map(|y| &self.data[y * step..]);
+        let metres: Vec<f32> = if encoding == Encoding::Mono16 {
+            rows.flat_map(|r| {
+                r[..2 * w].chunks_exact(2).map(|p| {
+                    let mm = if be {
+                        u16::from_be_bytes([p[0], p[1]])
+                    } else {
+                        u16::from_le_bytes([p[0], p[1]])
+                    };
+                    if mm == 0 {
+                        f32::NAN
+                    } else {
+                        f32::from(mm) / 1000.0
+                    }
+                })
+            })
+            .collect()
+        } else {
+            rows.flat_map(|r| {
+                r[..4 * w].chunks_exact(4).map(|p| {
+                    let a = [p[0], p[1], p[2], p[3]];
+                    if be {
+                        f32::from_be_bytes(a)
+                    } else {
+                        f32::from_le_bytes(a)
+                    }
+                })
+            })
+            .collect()
+        };
+        DepthImage::new(w, h, metres).map_err(|e| MessageError::BadSize {
+            reason: e.to_string(),
+        })
+    }
+
     fn raw_to_gray(
         &self,
         encoding: Encoding,
@@ -359,6 +410,42 @@ mod tests {
         assert_eq!(
             Encoding::from_compressed_format("rgb8; jpeg compressed bgr8"),
             Some(Encoding::Jpeg)
+        );
+    }
+
+    #[test]
+    fn depth_images_decode_millimetres_and_metres_and_refuse_other_encodings() {
+        // 16UC1, big endian, padded rows: 1500 mm and a hole (0).
+        let mm = [0x05u8, 0xdc, 0, 0, 9, 9];
+        let d = EncodedImage::raw("16UC1", 2, 1, 6, true, &mm)
+            .to_depth(100)
+            .unwrap();
+        assert_eq!(d.size(), (2, 1));
+        assert_eq!(d.metres()[0], 1.5);
+        assert!(d.metres()[1].is_nan());
+        let m: Vec<u8> = [2.25f32, f32::INFINITY]
+            .iter()
+            .flat_map(|v| v.to_le_bytes())
+            .collect();
+        let d = EncodedImage::raw("32FC1", 1, 2, 4, false, &m)
+            .to_depth(100)
+            .unwrap();
+        assert_eq!(d.metres()[0], 2.25);
+        for name in ["rgb8", "mono8", "png", "yuv422"] {
+            let err = EncodedImage::raw(name, 1, 1, 3, false, &[0, 0, 0])
+                .to_depth(100)
+                .unwrap_err();
+            assert!(err.to_string().contains("16UC1"), "{name}: {err}");
+        }
+        // Sizes are checked before decoding.
+        let err = EncodedImage::raw("32FC1", 4, 4, 16, false, &m)
+            .to_depth(100)
+            .unwrap_err();
+        assert!(err.to_string().contains("needs"), "{err}");
+        assert!(
+            EncodedImage::raw("16UC1", 20, 20, 40, false, &[0; 800])
+                .to_depth(100)
+                .is_err()
         );
     }
 

@@ -138,6 +138,7 @@ where
             image: &frame.image,
             joints,
             intrinsics: k.as_ref(),
+            depth: frame.depth.as_ref(),
         }) {
             Ok(Some(score)) => {
                 sink(&frame, &score)?;

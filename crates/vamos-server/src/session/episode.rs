@@ -108,7 +108,9 @@ pub async fn score_episode(
                     // Decoded frames wait for room in the memory budget: the session's
                     // queue, and others', drain as they are scored.
                     // (A frame larger than the whole budget takes all of it.)
-                    let bytes = (4 * frame.image.data().len() as u64).min(hub.budget().limit());
+                    let values = frame.image.data().len()
+                        + frame.depth.as_ref().map_or(0, |d| d.metres().len());
+                    let bytes = (4 * values as u64).min(hub.budget().limit());
                     let charge = loop {
                         match hub.budget().charge(bytes) {
                             Ok(c) => break c,
@@ -120,7 +122,7 @@ pub async fn score_episode(
                     };
                     let ready = ReadyFrame {
                         stamp_ns: frame.stamp_ns,
-                        image: ImagePayload::Decoded(frame.image, k),
+                        image: ImagePayload::Decoded(frame.image, k, frame.depth),
                         joints: frame.joints.map(|j| (j.names, j.positions)),
                         arrived: Instant::now(),
                         charge: Some(charge),

@@ -26,6 +26,9 @@ pub struct LiveImage {
     pub big_endian: bool,
     /// Pixels or the file.
     pub data: Vec<u8>,
+    /// A depth image registered to this image (raw `16UC1` millimetres or `32FC1` metres,
+    /// the same stamp), if the robot sends one.
+    pub depth: Option<Box<LiveImage>>,
 }
 
 impl LiveImage {

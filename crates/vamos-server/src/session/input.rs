@@ -34,7 +34,8 @@ impl Hub {
             );
             return;
         }
-        let charge = match self.budget.charge(image.data.len() as u64 + FRAME_OVERHEAD) {
+        let bytes = image.data.len() + image.depth.as_ref().map_or(0, |d| d.data.len());
+        let charge = match self.budget.charge(bytes as u64 + FRAME_OVERHEAD) {
             Ok(c) => c,
             Err(e) => {
                 drop(st);

@@ -1,5 +1,6 @@
 //! Session recordings: a live session's input as its scorer got it (each image as it was
-//! received, the joint positions at its stamp, the camera) written to an MCAP episode in the
+//! received with its depth image if it had one, the joint positions at its stamp, the
+//! camera) written to an MCAP episode in the
 //! data directory's `recordings/` while the session runs (`<name>.mcap.part`, renamed to
 //! `<name>.mcap` when it closes). When an operator marks one of the session's alarms as a
 //! false alarm its recording is kept (a `<name>.keep` mark beside it) and joins the
@@ -23,8 +24,13 @@ use vamos_robot::Intrinsics;
 pub const DIR: &str = "recordings";
 
 /// Topics of a recording when the profile names none (what `vamos-sim` and most camera
-/// drivers use).
-const DEFAULT_TOPICS: [&str; 3] = ["/camera/image_raw", "/camera/camera_info", "/joint_states"];
+/// drivers use): image, camera info, joint states, depth.
+const DEFAULT_TOPICS: [&str; 4] = [
+    "/camera/image_raw",
+    "/camera/camera_info",
+    "/joint_states",
+    "/camera/depth/image_raw",
+];
 
 /// How much recordings may take.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -78,7 +84,7 @@ pub struct Recorder {
     done: PathBuf,
     bytes: u64,
     limit: u64,
-    topics: [String; 3],
+    topics: [String; 4],
     camera: Option<Intrinsics>,
     /// The schema of the images recorded so far.
     image_schema: Option<&'static str>,
@@ -153,6 +159,7 @@ impl Recorder {
                 pick(&topics.image, 0),
                 pick(&topics.camera_info, 1),
                 pick(&topics.joint_states, 2),
+                pick(&topics.depth, 3),
             ],
             camera: None,
             image_schema: None,
@@ -184,7 +191,7 @@ impl Recorder {
         if self.image_schema.is_some_and(|s| s != schema_name) {
             return Err(RecordingError::MixedImages);
         }
-        let cost = image.data.len() as u64
+        let cost = (image.data.len() + image.depth.as_ref().map_or(0, |d| d.data.len())) as u64
             + joints.map_or(0, |(n, p)| (n.len() * 24 + p.len() * 8) as u64);
         if self.full || self.bytes.saturating_add(cost) > self.limit {
             if !self.full {
@@ -226,6 +233,20 @@ impl Recorder {
         };
         self.writer
             .write_cdr(&self.topics[0], schema_name, stamp_ns, &cdr)?;
+        if let Some(d) = &image.depth {
+            let cdr = ImageMsg {
+                header: Header::from_stamp_ns(stamp_ns, "camera"),
+                height: d.height,
+                width: d.width,
+                encoding: d.encoding.clone(),
+                is_bigendian: d.big_endian,
+                step: d.step,
+                data: &d.data,
+            }
+            .encode();
+            self.writer
+                .write_cdr(&self.topics[3], schema::IMAGE, stamp_ns, &cdr)?;
+        }
         self.image_schema = Some(schema_name);
         self.bytes += cost;
         Ok(true)
@@ -304,6 +325,7 @@ mod tests {
             data: (0..3 * width * height)
                 .map(|i| (i as u8).wrapping_mul(7).wrapping_add(seed))
                 .collect(),
+            depth: None,
         }
     }
 
@@ -349,6 +371,7 @@ mod tests {
             step: 0,
             big_endian: false,
             data: png,
+            depth: None,
         };
         let err = r.record(&file, None, None).unwrap_err();
         assert!(matches!(err, RecordingError::MixedImages), "{err}");

@@ -12,7 +12,7 @@ use std::sync::{Arc, Condvar, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 use vamos_core::pipeline::Scorer;
 use vamos_robot::Intrinsics;
-use vamos_vision::GrayImage;
+use vamos_vision::{DepthImage, GrayImage};
 
 pub(super) fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
     m.lock().unwrap_or_else(|e| e.into_inner())
@@ -22,8 +22,9 @@ pub(super) fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
 pub enum ImagePayload {
     /// A streamed image (raw pixels or JPEG/PNG), decoded by the worker.
     Live(LiveImage),
-    /// Already decoded (recorded episodes), with the frame's intrinsics if any.
-    Decoded(GrayImage, Option<Intrinsics>),
+    /// Already decoded (recorded episodes), with the frame's intrinsics and depth image if
+    /// any.
+    Decoded(GrayImage, Option<Intrinsics>, Option<DepthImage>),
 }
 
 /// A frame ready to be scored.

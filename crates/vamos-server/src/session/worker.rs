@@ -12,9 +12,10 @@ use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::sync::Arc;
 use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
+use vamos_core::episode::image::EncodedImage;
 use vamos_core::episode::ros::MessageError;
 use vamos_core::pipeline::{FrameInput, FrameScore, JointInput};
-use vamos_vision::GrayImage;
+use vamos_vision::{DepthImage, GrayImage};
 
 /// Why a live image was not decoded.
 #[derive(Debug, thiserror::Error)]
@@ -44,6 +45,40 @@ pub fn decode_live_image(
     max_pixels: usize,
     budget: Option<&Arc<ByteBudget>>,
 ) -> Result<(GrayImage, Option<Charge>), ImageRefused> {
+    decode_charged(
+        image,
+        max_pixels,
+        budget,
+        |e| e.to_gray(max_pixels),
+        |g| g.data().len(),
+    )
+}
+
+/// A streamed depth image decoded to metres (`16UC1`, `32FC1`), charged to the budget as
+/// [`decode_live_image`] charges images.
+pub fn decode_live_depth(
+    depth: &LiveImage,
+    max_pixels: usize,
+    budget: Option<&Arc<ByteBudget>>,
+) -> Result<(DepthImage, Option<Charge>), ImageRefused> {
+    decode_charged(
+        depth,
+        max_pixels,
+        budget,
+        |e| e.to_depth(max_pixels),
+        |d| d.metres().len(),
+    )
+}
+
+/// Checks the declared size, charges the decoding's peak memory, decodes with `decode`,
+/// then keeps charged only the `f32` values of the result (`values`).
+fn decode_charged<T>(
+    image: &LiveImage,
+    max_pixels: usize,
+    budget: Option<&Arc<ByteBudget>>,
+    decode: impl FnOnce(&EncodedImage<'_>) -> Result<T, MessageError>,
+    values: impl FnOnce(&T) -> usize,
+) -> Result<(T, Option<Charge>), ImageRefused> {
     let encoded = image.encoded();
     let size = encoded.check(max_pixels)?;
     let mut held = match budget {
@@ -57,12 +92,12 @@ pub fn decode_live_image(
         ),
         None => None,
     };
-    let gray = encoded.to_gray(max_pixels)?;
-    // Decoded: only the gray image stays.
+    let decoded = decode(&encoded)?;
+    // Decoded: only the result stays.
     if let Some(c) = held.as_mut() {
-        let _ = c.resize(4 * gray.data().len() as u64);
+        let _ = c.resize(4 * values(&decoded) as u64);
     }
-    Ok((gray, held))
+    Ok((decoded, held))
 }
 
 impl Hub {
@@ -184,23 +219,67 @@ impl Hub {
         );
     }
 
+    /// The depth image streamed with `msg`, decoded, if it fits `image`; one that cannot
+    /// be used is reported to the client as a message error and the frame is scored with
+    /// the assumed depth.
+    fn live_depth(
+        &self,
+        s: &Session,
+        msg: &LiveImage,
+        image: &GrayImage,
+        stamp: i64,
+    ) -> (Option<DepthImage>, Option<Charge>) {
+        let Some(depth) = msg.depth.as_deref() else {
+            return (None, None);
+        };
+        let refused = |why: String| {
+            self.message_error(
+                s,
+                "depth",
+                format!("depth image refused: {why}; the frame is scored with the assumed depth"),
+                stamp,
+            );
+        };
+        match decode_live_depth(depth, self.config.max_image_pixels, Some(&self.budget)) {
+            Ok((d, charge)) if d.fits(image.width(), image.height()) => (Some(d), charge),
+            Ok((d, _)) => {
+                let (w, h) = d.size();
+                refused(format!(
+                    "{w}x{h} does not fit the {}x{} image (another aspect ratio)",
+                    image.width(),
+                    image.height()
+                ));
+                (None, None)
+            }
+            Err(e) => {
+                refused(e.to_string());
+                (None, None)
+            }
+        }
+    }
+
     fn score(&self, s: &Arc<Session>, frame: ReadyFrame) {
         let stamp = frame.stamp_ns;
         let started = Instant::now();
         // Held until the frame is scored: the buffered bytes, then the decoding's.
         let _buffered = frame.charge;
         let decode_span = tracing::debug_span!("decode").entered();
-        let (image, frame_camera, _decoding, live) = match frame.image {
-            ImagePayload::Decoded(img, k) => (img, k, None, None),
+        let (image, frame_camera, recorded_depth, _decoding, live) = match frame.image {
+            ImagePayload::Decoded(img, k, depth) => (img, k, depth, None, None),
             ImagePayload::Live(msg) => {
                 match decode_live_image(&msg, self.config.max_image_pixels, Some(&self.budget)) {
-                    Ok((img, charge)) => (img, None, charge, Some(msg)),
+                    Ok((img, charge)) => (img, None, None, charge, Some(msg)),
                     Err(e) => {
                         self.refuse(s, "image", format!("image refused: {e}"), stamp);
                         return;
                     }
                 }
             }
+        };
+        let (depth, _depth_decoding) = match (recorded_depth, live.as_ref()) {
+            (Some(d), _) => (Some(d), None),
+            (None, Some(msg)) => self.live_depth(s, msg, &image, stamp),
+            (None, None) => (None, None),
         };
         if Self::take_injected(&self.injected_frame_panics) {
             panic!("injected scoring panic");
@@ -244,6 +323,7 @@ impl Hub {
                 image: &image,
                 joints,
                 intrinsics: intrinsics.as_ref(),
+                depth: depth.as_ref(),
             })
         });
         match result {

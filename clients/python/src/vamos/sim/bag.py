@@ -10,6 +10,8 @@ from mcap_ros2.writer import Writer
 
 IMAGE_TOPIC = "/camera/image_raw"
 CAMERA_INFO_TOPIC = "/camera/camera_info"
+#: Depth images registered to the images (``vamos-sim generate --depth``): 16UC1, millimetres.
+DEPTH_TOPIC = "/camera/depth/image_raw"
 JOINT_STATES_TOPIC = "/joint_states"
 ROBOT_DESCRIPTION_TOPIC = "/robot_description"
 
@@ -66,6 +68,13 @@ class BagWriter:
         self._write(IMAGE_TOPIC, self._image, {
             "header": {"stamp": _stamp(t_ns), "frame_id": frame_id}, "height": height, "width": width,
             "encoding": "rgb8", "is_bigendian": 0, "step": 3 * width, "data": rgb}, t_ns)
+
+    def depth(self, t_ns: int, frame_id: str, millimetres: bytes, width: int, height: int) -> None:
+        """A 16UC1 depth image (millimetres along the optical axis, 0 = none; REP 118),
+        registered to the image of the same stamp."""
+        self._write(DEPTH_TOPIC, self._image, {
+            "header": {"stamp": _stamp(t_ns), "frame_id": frame_id}, "height": height, "width": width,
+            "encoding": "16UC1", "is_bigendian": 0, "step": 2 * width, "data": millimetres}, t_ns)
 
     def camera_info(self, t_ns: int, frame_id: str, width: int, height: int,
                     fx: float, fy: float, cx: float, cy: float) -> None:

@@ -4,6 +4,7 @@
 
     vamos-sim generate --out DIR --seed S --train N --val N --test-nominal N --test-anomalous N
                        [--types a,b,...] [--workers W] [--width W --height H] [--fps F] [--smoke]
+                       [--robot primitive|panda] [--camera head|fixed|wrist] [--depth]
 
 writes ``DIR/{train,val,test}/<episode>.mcap`` with ``<episode>.labels.json`` beside each,
 ``DIR/robot/vamos_arm.urdf`` (the robot package), ``DIR/camera.json`` (vamos's camera
@@ -23,6 +24,7 @@ from typing import Any
 
 from vamos._cli import add_version
 from vamos.sim import robot as rb
+from vamos.sim.bag import DEPTH_TOPIC
 from vamos.sim.episode import (
     ANOMALY_TYPES,
     PHYSICS_HZ,
@@ -56,21 +58,22 @@ def _count(text: str) -> int:
 
 def plan_episodes(seed: int, train: int, val: int, test_nominal: int, test_anomalous: int, types: Sequence[str],
                   width: int, height: int, fps: int, short: bool, robot: str = "primitive",
-                  camera: str = "head") -> list[EpisodeSpec]:
+                  camera: str = "head", depth: bool = False) -> list[EpisodeSpec]:
     """The episodes of a dataset: nominal train/val/test, then anomalous test episodes
     cycling through `types`."""
     specs: list[EpisodeSpec] = []
     for split, n in (("train", train), ("val", val)):
         specs += [EpisodeSpec(f"{split}_{i:04d}", split, i, None, seed, width, height, fps, short, robot,
-                              camera)
+                              camera, depth)
                   for i in range(n)]
-    specs += [EpisodeSpec(f"test_{i:04d}", "test", i, None, seed, width, height, fps, short, robot, camera)
+    specs += [EpisodeSpec(f"test_{i:04d}", "test", i, None, seed, width, height, fps, short, robot, camera,
+                          depth)
               for i in range(test_nominal)]
     for k in range(test_anomalous):
         i = test_nominal + k
         kind = types[k % len(types)]
         specs.append(EpisodeSpec(f"test_{i:04d}_{kind}", "test", i, kind, seed, width, height, fps, short, robot,
-                                 camera))
+                                 camera, depth))
     return specs
 
 
@@ -121,6 +124,7 @@ def generate(out: Path, specs: list[EpisodeSpec], seed: int, workers: int,
         "robot": f"robot/{model.name}.urdf",
         "camera": "camera.json",
         "camera_mount": camera,
+        "depth_topic": DEPTH_TOPIC if first and first.depth else None,
         "counts": {split: sum(1 for s in specs if s.split == split) for split in ("train", "val", "test")},
         "anomalous": sum(1 for s in specs if s.anomaly),
         "episodes": [{"name": r.name, "split": r.split, "path": f"{r.split}/{r.name}.mcap",
@@ -160,7 +164,11 @@ def build_parser() -> argparse.ArgumentParser:
                         "(7 DoF, meshes copied into DIR/robot/meshes), same head and camera")
     g.add_argument("--camera", choices=rb.CAMERAS, default="head",
                    help="head: on the robot's pan-tilt head, moving with it (default); fixed: fixed to the "
-                        "world on a bracket above and left of the robot, looking at the shelf's front")
+                        "world on a bracket above and left of the robot, looking at the shelf's front; wrist: on "
+                        "the arm behind the fingers, looking along them (moves and turns with the tool)")
+    g.add_argument("--depth", action="store_true",
+                   help="also record a depth image registered to every image (/camera/depth/image_raw, 16UC1 "
+                        "millimetres): set [episode.topics] depth to use it")
     g.add_argument("--fps", type=int, default=10, help="image rate, Hz; must divide 200 (default 10)")
     g.add_argument("--smoke", action="store_true",
                    help="a handful of short (~3 s), small (160x120) episodes: 2 train, 1 nominal and 2 anomalous test")
@@ -186,7 +194,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print("error: --workers must be at least 1", file=sys.stderr)
         return 2
     specs = plan_episodes(args.seed, counts["train"], counts["val"], counts["test_nominal"], counts["test_anomalous"],
-                          args.types, width, height, args.fps, args.smoke, args.robot, args.camera)
+                          args.types, width, height, args.fps, args.smoke, args.robot, args.camera,
+                          args.depth)
     try:
         dataset = generate(args.out, specs, args.seed, args.workers, progress=not args.no_progress)
     except SimError as err:

@@ -80,8 +80,11 @@ class EpisodeSpec:
     short: bool = False
     #: Robot: "primitive" (the URDF-primitive arm) or "panda" (pybullet_data's franka_panda).
     robot: str = "primitive"
-    #: Camera: "head" (on the pan-tilt head) or "fixed" (fixed to the world; robot.CAMERAS).
+    #: Camera: "head" (on the pan-tilt head), "fixed" (fixed to the world) or "wrist" (on
+    #: the arm; robot.CAMERAS).
     camera: str = "head"
+    #: Also record a depth image registered to every image (``bag.DEPTH_TOPIC``).
+    depth: bool = False
     #: Draw number: a draw whose poses the arm cannot reach is replaced by the next one.
     attempt: int = 0
 
@@ -562,17 +565,26 @@ class Episode:
         centre = pos + rot @ np.array([x, 0.02 * math.sin(3 * t), depth])
         self.p.resetBasePositionAndOrientation(self.occluder, centre.tolist(), _quat_from_matrix(rot))
 
-    def _render(self, t: float) -> bytes:
+    def _render(self, t: float) -> tuple[bytes, bytes | None]:
+        """The rgb8 image at `t` and, for a spec with depth, its 16UC1 depth image
+        (millimetres along the optical axis; 0 where the ray meets nothing before the far
+        plane)."""
         w, h = self.spec.width, self.spec.height
         pos, rot = self._camera_pose(t)
         if self.spec.anomaly == "camera_occluded":
             self._place_occluder(t, pos, rot)
         view = self.p.computeViewMatrix(pos.tolist(), (pos + rot[:, 2]).tolist(), (-rot[:, 1]).tolist())
         proj = self.p.computeProjectionMatrixFOV(VFOV_DEG, w / h, NEAR_M, FAR_M)
-        img = self.p.getCameraImage(w, h, view, proj, renderer=pb.ER_TINY_RENDERER, shadow=0,
-                                    flags=pb.ER_NO_SEGMENTATION_MASK, **self.light)[2]
-        rgba = np.asarray(img, dtype=np.uint8).reshape(h, w, 4)
-        return rgba[:, :, :3].tobytes()
+        out = self.p.getCameraImage(w, h, view, proj, renderer=pb.ER_TINY_RENDERER, shadow=0,
+                                    flags=pb.ER_NO_SEGMENTATION_MASK, **self.light)
+        rgba = np.asarray(out[2], dtype=np.uint8).reshape(h, w, 4)
+        if not self.spec.depth:
+            return rgba[:, :, :3].tobytes(), None
+        # OpenGL's depth buffer (0..1, non-linear) to metres along the optical axis.
+        d = np.asarray(out[3], dtype=np.float64).reshape(h, w)
+        z = FAR_M * NEAR_M / (FAR_M - (FAR_M - NEAR_M) * d)
+        mm = np.where(d < 1.0 - 1e-6, np.clip(np.round(z * 1000.0), 1, 65535), 0).astype("<u2")
+        return rgba[:, :, :3].tobytes(), mm.tobytes()
 
     def _head_target(self, tool: np.ndarray, t: float) -> tuple[float, float]:
         centre = np.array([0.55, 0.1, self.board_z - 0.1])
@@ -667,7 +679,10 @@ class Episode:
                 n_js += 1
             if step % img_every == 0:
                 stamp = EPOCH_NS + step * _DT_NS
-                bag.image(stamp, self.camera_frame, self._render(t), spec.width, spec.height)
+                rgb, depth = self._render(t)
+                bag.image(stamp, self.camera_frame, rgb, spec.width, spec.height)
+                if depth is not None:
+                    bag.depth(stamp, self.camera_frame, depth, spec.width, spec.height)
                 bag.camera_info(stamp, self.camera_frame, spec.width, spec.height, fx, fy, cx, cy)
                 n_images += 1
                 last_image_t = t

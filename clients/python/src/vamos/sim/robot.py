@@ -35,9 +35,16 @@ FIXED_CAMERA_FRAME = "scene_camera_optical_frame"
 #: ``base_link``) and the point it looks at (the shelf's front edge, between table and slot).
 FIXED_CAMERA_XYZ = (-0.4, 0.6, 1.45)
 FIXED_CAMERA_TARGET = (0.5, 0.0, 0.62)
-#: The cameras an episode can be seen from: the head's (moves with pan and tilt) or the
-#: world-fixed one.
-CAMERAS = ("head", "fixed")
+#: The optical frame of the camera on the arm (``--camera wrist``).
+WRIST_CAMERA_FRAME = "wrist_camera_optical_frame"
+#: Where the camera on the arm is, metres in the tool link (z along the fingers, fingers
+#: closing along y): 6 cm behind the fingers and 12 cm above the grasp point, looking
+#: along the fingers, so the fingertips are in the top of the image and the scene below
+#: the gripper fills the rest.
+WRIST_CAMERA_XYZ = (-0.06, 0.0, -0.12)
+#: The cameras an episode can be seen from: the head's (moves with pan and tilt), the
+#: world-fixed one, or one on the arm's wrist (moves and turns with the tool).
+CAMERAS = ("head", "fixed", "wrist")
 #: Position of the head pan joint in ``base_link`` (top of the mast), metres.
 HEAD_PAN_XYZ = (-0.6, -0.3, 1.55)
 #: Height of the tilt axis above the pan joint, metres.
@@ -160,7 +167,25 @@ def _head() -> str:
 
 def camera_frame(camera: str) -> str:
     """The optical frame images are rendered from, for a camera of :data:`CAMERAS`."""
-    return FIXED_CAMERA_FRAME if camera == "fixed" else CAMERA_FRAME
+    return {"fixed": FIXED_CAMERA_FRAME, "wrist": WRIST_CAMERA_FRAME}.get(camera, CAMERA_FRAME)
+
+
+def _wrist_camera(tool_link: str) -> str:
+    """A camera fixed to the tool link at :data:`WRIST_CAMERA_XYZ`, its optical frame
+    looking along the fingers (optical z = tool z, optical x = tool y)."""
+    parts = [_joint("wrist_camera_joint", "fixed", tool_link, WRIST_CAMERA_FRAME, WRIST_CAMERA_XYZ,
+                    rpy=(0.0, 0.0, math.pi / 2))]
+    parts.append(_link(WRIST_CAMERA_FRAME, 0.0, []))
+    return "".join(parts)
+
+
+def _extra_camera(camera: str, tool_link: str) -> str:
+    """The links of a camera that is not the head's: world-fixed or on the wrist."""
+    if camera == "fixed":
+        return _fixed_camera()
+    if camera == "wrist":
+        return _wrist_camera(tool_link)
+    return ""
 
 
 def _fixed_camera() -> str:
@@ -180,8 +205,8 @@ def _fixed_camera() -> str:
 
 
 def urdf_text(camera: str = "head") -> str:
-    """The robot's URDF (deterministic text); with ``camera="fixed"`` it also describes the
-    world-fixed camera (the head stays: it moves as in every episode)."""
+    """The robot's URDF (deterministic text); with ``camera="fixed"`` or ``"wrist"`` it also
+    describes that camera (the head stays: it moves as in every episode)."""
     b, c = "box", "cylinder"
     parts = _header(ROBOT_NAME)
     parts.append(_base())
@@ -217,8 +242,7 @@ def urdf_text(camera: str = "head") -> str:
     parts.append(_joint("tool_joint", "fixed", "gripper_base", TOOL_LINK, (0.0, 0.0, 0.085)))
     parts.append(_link(TOOL_LINK, 0.0, []))
     parts.append(_head())
-    if camera == "fixed":
-        parts.append(_fixed_camera())
+    parts.append(_extra_camera(camera, TOOL_LINK))
     parts.append("</robot>\n")
     return "".join(parts)
 
@@ -240,8 +264,7 @@ def panda_urdf_text(camera: str = "head") -> str:
     parts.append(_joint("panda_mount_joint", "fixed", "base_link", "panda_link0", (0.0, 0.0, 0.6)))
     parts.append(body)
     parts.append(_head())
-    if camera == "fixed":
-        parts.append(_fixed_camera())
+    parts.append(_extra_camera(camera, "panda_grasptarget"))
     parts.append("</robot>\n")
     return "".join(parts)
 
@@ -271,7 +294,8 @@ class RobotModel:
         return self.arm_joints + self.finger_joints + HEAD_JOINTS
 
     def urdf_text(self, camera: str = "head") -> str:
-        """The URDF text (with the world-fixed camera's links for ``camera="fixed"``)."""
+        """The URDF text (with the world-fixed or wrist camera's links for ``camera="fixed"``
+        or ``"wrist"``)."""
         return panda_urdf_text(camera) if self.name == PANDA_NAME else urdf_text(camera)
 
     def write_package(self, folder: Path, camera: str = "head") -> Path:

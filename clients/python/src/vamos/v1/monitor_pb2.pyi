@@ -67,7 +67,7 @@ class CameraInfo(_message.Message):
     def __init__(self, width: _Optional[int] = ..., height: _Optional[int] = ..., fx: _Optional[float] = ..., fy: _Optional[float] = ..., cx: _Optional[float] = ..., cy: _Optional[float] = ...) -> None: ...
 
 class Image(_message.Message):
-    __slots__ = ("stamp_ns", "encoding", "width", "height", "step", "big_endian", "data")
+    __slots__ = ("stamp_ns", "encoding", "width", "height", "step", "big_endian", "data", "depth")
     STAMP_NS_FIELD_NUMBER: _ClassVar[int]
     ENCODING_FIELD_NUMBER: _ClassVar[int]
     WIDTH_FIELD_NUMBER: _ClassVar[int]
@@ -75,6 +75,7 @@ class Image(_message.Message):
     STEP_FIELD_NUMBER: _ClassVar[int]
     BIG_ENDIAN_FIELD_NUMBER: _ClassVar[int]
     DATA_FIELD_NUMBER: _ClassVar[int]
+    DEPTH_FIELD_NUMBER: _ClassVar[int]
     stamp_ns: int
     encoding: str
     width: int
@@ -82,7 +83,24 @@ class Image(_message.Message):
     step: int
     big_endian: bool
     data: bytes
-    def __init__(self, stamp_ns: _Optional[int] = ..., encoding: _Optional[str] = ..., width: _Optional[int] = ..., height: _Optional[int] = ..., step: _Optional[int] = ..., big_endian: _Optional[bool] = ..., data: _Optional[bytes] = ...) -> None: ...
+    depth: DepthImage
+    def __init__(self, stamp_ns: _Optional[int] = ..., encoding: _Optional[str] = ..., width: _Optional[int] = ..., height: _Optional[int] = ..., step: _Optional[int] = ..., big_endian: _Optional[bool] = ..., data: _Optional[bytes] = ..., depth: _Optional[_Union[DepthImage, _Mapping]] = ...) -> None: ...
+
+class DepthImage(_message.Message):
+    __slots__ = ("encoding", "width", "height", "step", "big_endian", "data")
+    ENCODING_FIELD_NUMBER: _ClassVar[int]
+    WIDTH_FIELD_NUMBER: _ClassVar[int]
+    HEIGHT_FIELD_NUMBER: _ClassVar[int]
+    STEP_FIELD_NUMBER: _ClassVar[int]
+    BIG_ENDIAN_FIELD_NUMBER: _ClassVar[int]
+    DATA_FIELD_NUMBER: _ClassVar[int]
+    encoding: str
+    width: int
+    height: int
+    step: int
+    big_endian: bool
+    data: bytes
+    def __init__(self, encoding: _Optional[str] = ..., width: _Optional[int] = ..., height: _Optional[int] = ..., step: _Optional[int] = ..., big_endian: _Optional[bool] = ..., data: _Optional[bytes] = ...) -> None: ...
 
 class JointState(_message.Message):
     __slots__ = ("stamp_ns", "names", "positions", "velocities", "efforts")

@@ -60,7 +60,18 @@ pub(super) struct Assembler {
     pub(super) joint_vel: Vec<f64>,
     pub(super) joint_has_vel: Vec<bool>,
     pub(super) latest_joint_ns: Option<i64>,
+    // Depth images: the topic, the decoded ones not yet past (stamp, message index,
+    // image or why not), the latest stamp read.
+    pub(super) depth_topic: Option<String>,
+    pub(super) max_depth_gap_ns: f64,
+    pub(super) depths: VecDeque<(i64, usize, Result<DepthImage, String>)>,
+    pub(super) depth_msgs_seen: usize,
+    pub(super) latest_depth_ns: Option<i64>,
 }
+
+/// Depth images held for the images still waiting: enough for a depth camera a few times
+/// faster than the colour camera.
+const MAX_HELD_DEPTHS: usize = 4 * MAX_PENDING_IMAGES;
 
 pub(super) fn stamp_or_log_time(stamp_ns: i64, log_time: u64) -> i64 {
     if stamp_ns == 0 {
@@ -71,7 +82,11 @@ pub(super) fn stamp_or_log_time(stamp_ns: i64, log_time: u64) -> i64 {
 }
 
 impl Assembler {
-    pub(super) fn new(ep: &McapEpisode, joints_expected: bool) -> Self {
+    pub(super) fn new(
+        ep: &McapEpisode,
+        joints_expected: bool,
+        depth_topic: Option<String>,
+    ) -> Self {
         Self {
             image_topic: ep.info.chosen.image.clone(),
             max_image_bytes: ep.cfg.max_image_bytes,
@@ -93,6 +108,11 @@ impl Assembler {
             joint_vel: Vec::new(),
             joint_has_vel: Vec::new(),
             latest_joint_ns: None,
+            depth_topic,
+            max_depth_gap_ns: ep.cfg.max_depth_gap_ms * 1e6,
+            depths: VecDeque::new(),
+            depth_msgs_seen: 0,
+            latest_depth_ns: None,
         }
     }
 
@@ -108,6 +128,12 @@ impl Assembler {
                     } else {
                         0
                     };
+                    if self.depth_topic.as_deref() == Some(m.topic) {
+                        // A depth image lost: its frame gets the assumed depth, not an error.
+                        self.depth(m, Err(reason));
+                        self.release(false);
+                        return;
+                    }
                     self.pending.push_back(Err(EpisodeError::BadMessage {
                         topic: m.topic.into(),
                         index,
@@ -129,6 +155,18 @@ impl Assembler {
             if let Some(item) = item {
                 self.pending.push_back(item);
             }
+        } else if self.depth_topic.as_deref() == Some(m.topic) {
+            let decoded = ImageMsg::decode(m.data)
+                .map_err(|e| e.to_string())
+                .and_then(|msg| {
+                    let stamp = msg.header.stamp_ns();
+                    let pixels = self.max_image_bytes;
+                    msg.encoded()
+                        .to_depth(pixels)
+                        .map(|d| (stamp, d))
+                        .map_err(|e| e.to_string())
+                });
+            self.depth(m, decoded);
         } else if m.schema == schema::CAMERA_INFO {
             let index = self.camera_msgs_seen;
             self.camera_msgs_seen += 1;
@@ -224,6 +262,77 @@ impl Assembler {
         }))
     }
 
+    /// Holds a depth message (decoded, or why it is not) for the frames near its stamp.
+    fn depth(&mut self, m: RawMsg<'_>, decoded: Result<(i64, DepthImage), String>) {
+        let index = self.depth_msgs_seen;
+        self.depth_msgs_seen += 1;
+        let (stamp_ns, item) = match decoded {
+            Ok((stamp, d)) => (stamp_or_log_time(stamp, m.log_time), Ok(d)),
+            // Undecodable: placed at its log time, so the frame it was for says why.
+            Err(reason) => (stamp_or_log_time(0, m.log_time), Err(reason)),
+        };
+        let at = self.depths.partition_point(|(t, _, _)| *t <= stamp_ns);
+        self.depths.insert(at, (stamp_ns, index, item));
+        if self.depths.len() > MAX_HELD_DEPTHS {
+            self.depths.pop_front();
+        }
+        self.latest_depth_ns = Some(self.latest_depth_ns.map_or(stamp_ns, |l| l.max(stamp_ns)));
+    }
+
+    /// The depth image for a frame at `stamp_ns`: the nearest held one within the gap,
+    /// with a warning when there is none or it cannot be used. Depth images older than
+    /// the gap before this stamp are dropped (later frames have later stamps).
+    fn depth_for(
+        &mut self,
+        stamp_ns: i64,
+        size: (usize, usize),
+        warnings: &mut Vec<String>,
+    ) -> Option<DepthImage> {
+        let topic = self.depth_topic.as_deref()?;
+        let gap = |t: i64| (t.saturating_sub(stamp_ns)).unsigned_abs() as f64;
+        let nearest = (0..self.depths.len())
+            .min_by(|&a, &b| gap(self.depths[a].0).total_cmp(&gap(self.depths[b].0)));
+        let found = match nearest {
+            Some(i) if gap(self.depths[i].0) <= self.max_depth_gap_ns => {
+                let (_, index, item) = &self.depths[i];
+                match item {
+                    Ok(d) if d.fits(size.0, size.1) => Some(d.clone()),
+                    Ok(d) => {
+                        let (w, h) = d.size();
+                        warnings.push(format!(
+                            "{topic} message {index}: depth image {w}x{h} does not fit the \
+                             {}x{} image (another aspect ratio); assumed depth used",
+                            size.0, size.1
+                        ));
+                        None
+                    }
+                    Err(reason) => {
+                        warnings.push(format!(
+                            "{topic} message {index}: {reason}; assumed depth used"
+                        ));
+                        None
+                    }
+                }
+            }
+            _ => {
+                warnings.push(format!(
+                    "no {topic} image within {:.0} ms; assumed depth used",
+                    self.max_depth_gap_ns * 1e-6
+                ));
+                None
+            }
+        };
+        let horizon = stamp_ns as f64 - self.max_depth_gap_ns;
+        while self
+            .depths
+            .front()
+            .is_some_and(|(t, _, _)| (*t as f64) < horizon)
+        {
+            self.depths.pop_front();
+        }
+        found
+    }
+
     pub(super) fn joint(&mut self, data: &[u8], log_time: u64) -> Result<(), String> {
         let msg = JointStateMsg::decode(data).map_err(|e| e.to_string())?;
         let stamp = stamp_or_log_time(msg.header.stamp_ns(), log_time);
@@ -267,9 +376,12 @@ impl Assembler {
             let go = match front {
                 Err(_) => true,
                 Ok(p) => {
+                    let joints_known = !self.joints_expected
+                        || self.latest_joint_ns.is_some_and(|l| l >= p.stamp_ns);
+                    let depth_known = self.depth_topic.is_none()
+                        || self.latest_depth_ns.is_some_and(|l| l >= p.stamp_ns);
                     at_end
-                        || !self.joints_expected
-                        || self.latest_joint_ns.is_some_and(|l| l >= p.stamp_ns)
+                        || (joints_known && depth_known)
                         || self.pending.len() > MAX_PENDING_IMAGES
                 }
             };
@@ -289,6 +401,7 @@ impl Assembler {
 
     pub(super) fn finish_frame(&mut self, p: PendingFrame) -> EpisodeFrame {
         let mut warnings = p.warnings;
+        let depth = self.depth_for(p.stamp_ns, p.image.size(), &mut warnings);
         let joints = match &self.joint_names {
             Some(names) if !self.joint_stamps.is_empty() => {
                 let n = names.len();
@@ -337,6 +450,7 @@ impl Assembler {
             image: p.image,
             camera_info: p.camera_info,
             joints,
+            depth,
             warnings,
             source: p.source,
         }

@@ -59,7 +59,7 @@ use std::fs::File;
 use std::io::{Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
-use vamos_vision::GrayImage;
+use vamos_vision::{DepthImage, GrayImage};
 
 use assemble::*;
 use files::*;
@@ -100,6 +100,11 @@ pub struct EpisodeTopics {
     pub robot_description: Option<String>,
     /// `std_msgs/msg/String` with label JSON (auto: only `/vamos/labels`).
     pub labels: Option<String>,
+    /// `sensor_msgs/msg/Image` with a depth image registered to the image topic (the same
+    /// field of view; `16UC1` millimetres or `32FC1` metres), e.g. a depth camera's
+    /// `aligned_depth_to_color` topic. Never chosen automatically: a depth topic that is
+    /// not registered to the image would place the scene wrongly.
+    pub depth: Option<String>,
 }
 
 /// The `[episode]` settings section: reading recorded episodes.
@@ -117,6 +122,10 @@ pub struct EpisodeConfig {
     /// Largest decompressed size of a zstd-compressed bag file (rosbag2's `.mcap.zstd`),
     /// bytes; it is decompressed into a temporary file. Default 16 GiB.
     pub max_decompressed_bytes: u64,
+    /// A frame takes the depth image nearest its stamp if it is at most this far
+    /// (milliseconds); else it has none (with a warning) and the assumed depth is used.
+    /// Default 20.
+    pub max_depth_gap_ms: f64,
 }
 
 impl Default for EpisodeConfig {
@@ -126,6 +135,7 @@ impl Default for EpisodeConfig {
             max_joint_gap_ms: 100.0,
             max_image_bytes: 64 << 20,
             max_decompressed_bytes: 16 << 30,
+            max_depth_gap_ms: 20.0,
         }
     }
 }
@@ -158,6 +168,8 @@ pub struct ChosenTopics {
     pub robot_description: Option<String>,
     /// Label topic, if any.
     pub labels: Option<String>,
+    /// Depth images registered to the images, if configured.
+    pub depth: Option<String>,
 }
 
 /// What an episode holds.
@@ -185,6 +197,8 @@ pub struct EpisodeInfo {
     pub camera_info_messages: u64,
     /// Messages on the joint-state topic (0: frames come without joints).
     pub joint_messages: u64,
+    /// Messages on the depth topic.
+    pub depth_messages: u64,
     /// Images skipped so far by [`McapEpisode::frames`] because their stamp did not
     /// increase (updated as frames are read).
     pub skipped_backwards: usize,
@@ -239,6 +253,9 @@ pub struct EpisodeFrame {
     pub camera_info: Option<CameraInfoMsg>,
     /// Joint states at `stamp_ns`; `None` without joint states.
     pub joints: Option<JointStateAt>,
+    /// The depth image nearest `stamp_ns` (within `[episode] max_depth_gap_ms`), when the
+    /// episode has a depth topic.
+    pub depth: Option<DepthImage>,
     /// Notes: skipped images before this one, large joint gaps.
     pub warnings: Vec<String>,
     /// The image message as read.
@@ -307,6 +324,7 @@ impl McapEpisode {
             image_messages: count(&Some(chosen.image.clone())),
             camera_info_messages: count(&chosen.camera_info),
             joint_messages: count(&chosen.joint_states),
+            depth_messages: count(&chosen.depth),
             topics,
             chosen,
             start_ns,
@@ -494,11 +512,13 @@ impl McapEpisode {
             .clone()
             .filter(|_| self.info.joint_messages > 0);
         topics.extend(joints_topic.iter().cloned());
+        let depth_topic = c.depth.clone().filter(|_| self.info.depth_messages > 0);
+        topics.extend(depth_topic.iter().cloned());
         let (source, error) = match self.source(&topics) {
             Ok(s) => (Some(s), None),
             Err(e) => (None, Some(e)),
         };
-        let mut asm = Assembler::new(self, joints_topic.is_some());
+        let mut asm = Assembler::new(self, joints_topic.is_some(), depth_topic);
         if let Some(e) = error {
             asm.ready.push_back(Err(e));
         }

@@ -138,6 +138,16 @@ pub(super) fn resolve_topics(
             &|_: &str| false,
             warnings,
         )?,
+        depth: match wanted.depth.as_deref() {
+            Some(name) if name == image => {
+                return Err(err(format!(
+                    "depth topic {name} is the image topic: set [episode.topics] depth to \
+                     the depth images registered to it"
+                )));
+            }
+            Some(name) => Some(configured(name, &[schema::IMAGE])?),
+            None => None,
+        },
         image,
         image_schema,
     })

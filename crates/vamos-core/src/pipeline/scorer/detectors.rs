@@ -16,12 +16,14 @@ pub(super) type SceneResidual = (Option<f64>, Option<Vec<f32>>, (usize, usize));
 
 impl Scorer {
     /// `e_c`: the camera motion expected from the previous and current camera poses
-    /// against the registered one. A registration that failed numerically gives `+inf`.
+    /// against the registered one (the grid points at the previous frame's `depth`). A
+    /// registration that failed numerically gives `+inf`.
     pub(super) fn camera_error(
         &self,
         pose: Option<&Pose>,
         previous_pose: Option<&Pose>,
         intrinsics: Option<&Intrinsics>,
+        depth: Depth<'_>,
         processed: &ProcessedFrame,
     ) -> Result<Option<f64>, ScorerError> {
         let (Some((_, current)), Some((_, previous)), Some(k)) = (pose, previous_pose, intrinsics)
@@ -31,13 +33,8 @@ impl Scorer {
         if !self.config.detectors.camera {
             return Ok(None);
         }
-        let expected = expected_camera_motion(
-            previous,
-            current,
-            k,
-            Depth::Assumed,
-            &self.config.camera_motion,
-        )?;
+        let expected =
+            expected_camera_motion(previous, current, k, depth, &self.config.camera_motion)?;
         let e = camera_motion_error(
             &expected.transform,
             &processed.registration.transform,
@@ -83,12 +80,15 @@ impl Scorer {
     /// `e_r`: the observed flow against the static scene's expected flow (from the camera
     /// poses when both frames have one, else the registered similarity), outside both
     /// frames' body masks grown by a margin, per cell, pooled against the nominal cell
-    /// statistics at the frame's `phase_s`.
+    /// statistics at the frame's `phase_s`. The expected flow moves each pixel at the
+    /// previous frame's `depth`.
+    #[allow(clippy::too_many_arguments)]
     pub(super) fn scene_residual(
         &mut self,
         pose: Option<&Pose>,
         previous_pose: Option<&Pose>,
         intrinsics: Option<&Intrinsics>,
+        depth: Depth<'_>,
         previous_mask: &[bool],
         processed: &ProcessedFrame,
         phase_s: f64,
@@ -102,6 +102,7 @@ impl Scorer {
                 previous,
                 current,
                 k,
+                depth,
                 self.config.camera_motion.assumed_depth_m,
                 &mut self.expected_flow,
             )?,

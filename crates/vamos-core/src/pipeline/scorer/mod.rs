@@ -40,6 +40,7 @@ use std::time::Instant;
 use vamos_model::FlowModel;
 use vamos_model::predictor::{Prediction, Predictor, PredictorParams};
 use vamos_robot::JointMapper;
+use vamos_robot::camera_motion::Depth;
 use vamos_robot::render::{BodyRenderer, RenderConfig, RenderFrame, RenderOutput, RobotView};
 use vamos_vision::FlowField;
 use vamos_vision::flow::FlowParams;
@@ -90,6 +91,10 @@ pub struct Scorer {
     warned_no_joints: bool,
     /// The expected image flow of the current frame (reused buffer).
     expected_flow: FlowField,
+    /// The last processed frame's depth image at the processing resolution (NaN where it
+    /// has none); empty when it came without one.
+    previous_depth: Vec<f32>,
+    warned_depth: bool,
     /// The last `temporal_window` fused scores.
     window: Window,
 }
@@ -218,6 +223,8 @@ impl Scorer {
             first_stamp_ns: None,
             warned_no_joints: false,
             expected_flow: FlowField::zeros(0, 0),
+            previous_depth: Vec::new(),
+            warned_depth: false,
             window,
         })
     }
@@ -275,6 +282,7 @@ impl Scorer {
         self.frames = 0;
         self.last_stamp_ns = None;
         self.first_stamp_ns = None;
+        self.previous_depth.clear();
         self.window.clear();
     }
 
@@ -414,6 +422,9 @@ impl Scorer {
             }
             None => (None, Vec::new(), None),
         };
+        // The flow runs from the previous frame: its depth places the static scene.
+        let previous_depth = std::mem::take(&mut self.previous_depth);
+        self.keep_depth(input, index);
         // The robot's state for e_k (positions and their change since the previous frame).
         let t0 = Instant::now();
         let kinematic_state = kinematic_positions.as_deref().and_then(|now| {
@@ -462,10 +473,16 @@ impl Scorer {
         timings.front_end = processed.timings;
 
         let t0 = Instant::now();
+        let depth = if previous_depth.is_empty() {
+            Depth::Assumed
+        } else {
+            Depth::Image(&previous_depth)
+        };
         let e_c = self.camera_error(
             pose.as_ref(),
             previous_pose.as_ref(),
             intrinsics.as_ref(),
+            depth,
             &processed,
         )?;
         timings.camera_us = micros(t0);
@@ -478,6 +495,7 @@ impl Scorer {
             pose.as_ref(),
             previous_pose.as_ref(),
             intrinsics.as_ref(),
+            depth,
             &previous_mask,
             &processed,
             phase_s(first_ns, input.stamp_ns),
@@ -533,6 +551,28 @@ impl Scorer {
             phase_s: phase_s(first_ns, input.stamp_ns),
             kinematic_state,
         }))
+    }
+
+    /// Keeps the frame's depth image at the processing resolution for the next frame; a
+    /// depth image of another aspect ratio than the frame's image is not registered to it
+    /// and is left out (warned once per stream): the next frame uses the assumed depth.
+    fn keep_depth(&mut self, input: &FrameInput<'_>, index: u64) {
+        let Some(depth) = input.depth else {
+            return;
+        };
+        let (width, height) = input.image.size();
+        if depth.fits(width, height) {
+            let (w, h) = (self.config.frames.width, self.config.frames.height);
+            depth.resample_into(w, h, &mut self.previous_depth);
+        } else if !self.warned_depth {
+            let (dw, dh) = depth.size();
+            tracing::warn!(
+                index,
+                "depth image {dw}x{dh} does not fit the {width}x{height} image (another \
+                 aspect ratio: not registered to it); the assumed depth is used"
+            );
+            self.warned_depth = true;
+        }
     }
 
     /// Runs the predictor on a processed frame at `phase_s` into its stream.

@@ -8,8 +8,8 @@ use vamos_robot::camera_motion::{Depth, expected_image_flow};
 use vamos_robot::render::RenderBackend;
 use vamos_robot::{CameraConvention, RobotConfig};
 use vamos_robot::{Intrinsics, Robot};
-use vamos_vision::GrayImage;
 use vamos_vision::synthetic::Texture;
+use vamos_vision::{DepthImage, GrayImage};
 
 const W: usize = 160;
 const H: usize = 120;
@@ -150,6 +150,7 @@ fn run(
                     positions: &q,
                 }),
                 intrinsics: None,
+                depth: None,
             })
             .unwrap();
         out.extend(score);
@@ -254,6 +255,7 @@ fn stride_stamps_and_missing_joints() {
         image: &image,
         joints: None,
         intrinsics: None,
+        depth: None,
     };
     let first = s.push(&input(0)).unwrap().unwrap();
     assert_eq!((first.index, first.frame), (0, 0));
@@ -318,6 +320,7 @@ fn masked_variant_needs_a_robot_and_bad_joints_are_errors() {
                 positions: &[f64::NAN],
             }),
             intrinsics: None,
+            depth: None,
         })
         .unwrap_err();
     assert!(matches!(e, ScorerError::Robot(_)), "{e}");
@@ -355,6 +358,7 @@ fn a_small_object_falling_in_the_static_scene_shows_in_e_r() {
                     positions: &q,
                 }),
                 intrinsics: None,
+                depth: None,
             })
             .unwrap()
             .unwrap();
@@ -411,11 +415,11 @@ fn the_expected_image_flow_of_a_pan_is_the_rotation_homography() {
     };
     let k = setup.intrinsics.unwrap();
     let mut flow = FlowField::zeros(0, 0);
-    expected_image_flow(&pose(0.0), &pose(0.02), &k, 1.0, &mut flow).unwrap();
+    expected_image_flow(&pose(0.0), &pose(0.02), &k, Depth::Assumed, 1.0, &mut flow).unwrap();
     assert_eq!(flow.size(), (W, H));
     // A pure rotation: the depth does not matter.
     let mut far = FlowField::zeros(0, 0);
-    expected_image_flow(&pose(0.0), &pose(0.02), &k, 50.0, &mut far).unwrap();
+    expected_image_flow(&pose(0.0), &pose(0.02), &k, Depth::Assumed, 50.0, &mut far).unwrap();
     for (a, b) in flow.u.iter().zip(&far.u) {
         assert!((a - b).abs() < 1e-4);
     }
@@ -427,7 +431,7 @@ fn the_expected_image_flow_of_a_pan_is_the_rotation_homography() {
     let edge = flow.get(0, H / 2).0 as f64;
     assert!(edge.abs() > centre.abs() * 1.1, "{edge} vs {centre}");
     assert!(
-        expected_image_flow(&pose(0.0), &pose(0.02), &k, 0.0, &mut flow).is_err(),
+        expected_image_flow(&pose(0.0), &pose(0.02), &k, Depth::Assumed, 0.0, &mut flow).is_err(),
         "depth 0"
     );
 }
@@ -478,4 +482,100 @@ fn a_gated_attachment_is_masked_only_while_its_joint_condition_holds() {
             "frame {k}: {gated:?} {always:?} {bare:?}"
         );
     }
+}
+
+/// A camera on a slide (prismatic, sideways) looking at a wall.
+const SLIDE_URDF: &str = r#"<robot name="slide_camera">
+  <link name="base"/>
+  <link name="carriage"/>
+  <link name="camera_optical"/>
+  <joint name="slide" type="prismatic">
+    <parent link="base"/><child link="carriage"/><axis xyz="0 1 0"/>
+    <limit lower="-1" upper="1" effort="1" velocity="1"/>
+  </joint>
+  <joint name="optical" type="fixed">
+    <parent link="carriage"/><child link="camera_optical"/>
+    <origin rpy="-1.5707963267948966 0 -1.5707963267948966"/>
+  </joint>
+</robot>"#;
+
+#[test]
+fn a_depth_image_places_the_static_scene_of_a_translating_camera() {
+    let robot = Robot::from_urdf_str(SLIDE_URDF, None, &RobotConfig::default()).unwrap();
+    let mount = robot
+        .camera("camera_optical", CameraConvention::Optical)
+        .unwrap();
+    let setup = RobotSetup {
+        robot: Arc::new(robot),
+        mount,
+        intrinsics: Some(Intrinsics::from_fov(W as u32, H as u32, 60.0).unwrap()),
+    };
+    // The wall is 0.5 m away; the profile assumes 1 m. The camera slides 1 cm per frame.
+    let (wall_m, step_m) = (0.5, 0.01);
+    let names = vec!["slide".to_string()];
+    let pose = |q: f64| {
+        let q = setup
+            .robot
+            .joint_mapper()
+            .map(&names, &[q])
+            .unwrap()
+            .positions;
+        setup
+            .mount
+            .camera_from_base(&setup.robot.forward(&q).unwrap())
+            .unwrap()
+    };
+    let mut flow = FlowField::zeros(0, 0);
+    let k = setup.intrinsics.unwrap();
+    expected_image_flow(
+        &pose(0.0),
+        &pose(step_m),
+        &k,
+        Depth::Assumed,
+        wall_m,
+        &mut flow,
+    )
+    .unwrap();
+    let (shift, _) = flow.get(W / 2, H / 2);
+    assert!(shift.abs() > 2.0, "{shift} px per frame");
+    let texture = Texture::random(5);
+    let wall = DepthImage::new(W / 2, H / 2, vec![wall_m as f32; W * H / 4]).unwrap();
+    let squashed = DepthImage::new(W, H / 4, vec![wall_m as f32; W * H / 4]).unwrap();
+    // Mean raw e_r (pixels) over the frames after the first two, with the given depth.
+    let run = |depth: Option<&DepthImage>| {
+        let mut s = scorer(Some(setup.clone()), Thresholds::default(), 1);
+        let mut e_r = Vec::new();
+        for i in 0..6 {
+            let image = frame(&texture, f64::from(shift) * i as f64, 0.0);
+            let q = [step_m * i as f64];
+            let score = s
+                .push(&FrameInput {
+                    stamp_ns: i as i64 * 100_000_000,
+                    image: &image,
+                    joints: Some(JointInput {
+                        names: &names,
+                        positions: &q,
+                    }),
+                    intrinsics: None,
+                    depth,
+                })
+                .unwrap()
+                .unwrap();
+            if i >= 2 {
+                e_r.push(score.e_r.expect("e_r"));
+            }
+        }
+        e_r.iter().sum::<f64>() / e_r.len() as f64
+    };
+    let with_depth = run(Some(&wall));
+    let assumed = run(None);
+    // A depth image of another aspect ratio is not registered to the image: left out.
+    let misfit = run(Some(&squashed));
+    assert!(with_depth < 0.3, "with the depth image: {with_depth} px");
+    assert!(
+        assumed > 0.2 * f64::from(shift.abs()),
+        "assumed 1 m: {assumed} px (the true shift is {shift} px per frame)"
+    );
+    assert!(with_depth < 0.4 * assumed, "{with_depth} vs {assumed}");
+    assert_eq!(misfit, assumed);
 }

@@ -9,7 +9,7 @@ use vamos_model::ModelError;
 use vamos_robot::camera_motion::CameraMotionError;
 use vamos_robot::render::RenderError;
 use vamos_robot::{BodyMotionError, CameraMount, Intrinsics, IntrinsicsError, Robot, RobotError};
-use vamos_vision::GrayImage;
+use vamos_vision::{DepthImage, GrayImage};
 
 /// Errors of one pushed frame (the scorer stays usable) or of building a scorer.
 #[derive(Debug, thiserror::Error)]
@@ -100,6 +100,10 @@ pub struct FrameInput<'a> {
     pub joints: Option<JointInput<'a>>,
     /// Intrinsics from the stream's camera info, at the image's resolution.
     pub intrinsics: Option<&'a Intrinsics>,
+    /// A depth image registered to `image` (same field of view, any resolution of the
+    /// same aspect ratio), if the robot streams one: the next frame's expected static
+    /// scene motion places each pixel at its depth instead of the assumed depth.
+    pub depth: Option<&'a DepthImage>,
 }
 
 /// Wall time per stage of one frame, microseconds.

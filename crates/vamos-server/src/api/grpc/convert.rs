@@ -15,24 +15,41 @@ pub fn intrinsics_of(c: &proto::CameraInfo) -> Result<Intrinsics, SessionError> 
         .map_err(|source| SessionError::BadCamera { source })
 }
 
-/// A streamed image; a zero `step` means packed rows.
+/// A streamed image and its depth image, if any; a zero `step` means packed rows.
 pub fn live_image(image: proto::Image) -> LiveImage {
-    let step = if image.step == 0 {
-        let bpp = Encoding::from_name(&image.encoding)
-            .and_then(Encoding::bytes_per_pixel)
-            .unwrap_or(0);
-        image.width.saturating_mul(bpp as u32)
-    } else {
-        image.step
-    };
+    let depth = image.depth.map(|d| {
+        Box::new(LiveImage {
+            stamp_ns: image.stamp_ns,
+            step: packed_step(d.step, &d.encoding, d.width),
+            encoding: d.encoding,
+            width: d.width,
+            height: d.height,
+            big_endian: d.big_endian,
+            data: d.data,
+            depth: None,
+        })
+    });
     LiveImage {
         stamp_ns: image.stamp_ns,
+        step: packed_step(image.step, &image.encoding, image.width),
         encoding: image.encoding,
         width: image.width,
         height: image.height,
-        step,
         big_endian: image.big_endian,
         data: image.data,
+        depth,
+    }
+}
+
+/// `step`, or the packed row of `width` pixels of `encoding` when it is 0.
+fn packed_step(step: u32, encoding: &str, width: u32) -> u32 {
+    if step == 0 {
+        let bpp = Encoding::from_name(encoding)
+            .and_then(Encoding::bytes_per_pixel)
+            .unwrap_or(0);
+        width.saturating_mul(bpp as u32)
+    } else {
+        step
     }
 }
 
