@@ -18,7 +18,9 @@
 # gripper is closed on the book), attach_while_w3 (and temporal_window = 3). Each row leaves
 # OUT_DIR/ROW/{profile.toml, profile.calibration.json, eval.json} and prints one line.
 # MODEL=PATH (a model bundle trained on SIM_DIR's training episodes, e.g. by
-# scripts/benchmark.sh) gives every row the flow predictor.
+# scripts/benchmark.sh) gives every row the flow predictor. DEPTH_TOPIC=TOPIC (a dataset made
+# with `vamos-sim generate --depth`: /camera/depth/image_raw) gives every row the recorded
+# depth images for the expected motion of the static scene.
 # Needs the release binary (cargo build --release); about 90 s per row on 2 cores without
 # a model.
 set -eu
@@ -40,6 +42,11 @@ book="[[pipeline.attach]]
 link = \"$tool\"
 box = [0.15, 0.035, 0.215]
 xyz = [0.0, 0.0, 0.07]"
+depth_lines=
+if [ -n "${DEPTH_TOPIC:-}" ]; then
+    depth_lines="[topics]
+depth = \"$DEPTH_TOPIC\""
+fi
 model_line=
 if [ -n "${MODEL:-}" ]; then
     model_line="model = \"$(cd "$(dirname "$MODEL")" && pwd)/$(basename "$MODEL")\""
@@ -149,6 +156,7 @@ $extra
 width = 320
 height = 240
 variant = "masked"
+$depth_lines
 TOML
     "$vamos" calibrate --profile "$d/profile.toml" "$sim/train" --holdout "$sim/val" \
         --alpha 0.2 --no-progress > "$d/calibration.out" 2> "$d/calibrate.log"

@@ -10,7 +10,7 @@ np = pytest.importorskip("numpy")
 pytest.importorskip("grpc")
 
 from vamos.client import CameraInfo, FrameScore, SessionEvent  # noqa: E402
-from vamos.client._convert import image_message, joint_message  # noqa: E402
+from vamos.client._convert import depth_message, image_message, joint_message  # noqa: E402
 from vamos.client.monitor import channel_target  # noqa: E402
 from vamos.v1 import monitor_pb2 as pb  # noqa: E402
 
@@ -45,6 +45,24 @@ def test_arrays_become_raw_images_with_their_encoding() -> None:
     m = image_message(view, 1)
     assert m.step == 3 and m.data == np.ascontiguousarray(view).tobytes()
     assert image_message(np.zeros((2, 2, 4), np.uint8), 1).encoding == "rgba8"
+
+
+def test_depth_arrays_ride_with_their_image() -> None:
+    rgb = np.zeros((4, 6, 3), dtype=np.uint8)
+    metres = np.full((2, 3), 1.25, dtype=np.float32)
+    m = image_message(rgb, 9, depth=metres)
+    assert m.HasField("depth") and (m.depth.encoding, m.depth.width, m.depth.height) == ("32FC1", 3, 2)
+    assert (m.depth.step, m.depth.big_endian, m.depth.data) == (12, False, metres.tobytes())
+    mm = np.array([[1000, 0], [2500, 65535]], dtype=">u2")
+    d = depth_message(mm)
+    assert (d.encoding, d.step, d.big_endian, d.data) == ("16UC1", 4, True, mm.tobytes())
+    assert not image_message(rgb, 9).HasField("depth")
+    with pytest.raises(ValueError, match="float32 metres or uint16 millimetres"):
+        depth_message(np.zeros((2, 2), np.float64))
+    with pytest.raises(ValueError, match="float32 metres or uint16 millimetres"):
+        depth_message(np.zeros((2, 2, 3), np.float32))
+    with pytest.raises(ValueError, match="empty"):
+        depth_message(np.zeros((0, 2), np.uint16))
 
 
 def test_encoded_bytes_are_detected_and_bad_images_refused() -> None:

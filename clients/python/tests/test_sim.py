@@ -127,6 +127,49 @@ def test_fixed_camera_episode(tmp_path: Path) -> None:
     assert np.abs(first - middle).mean() > 1.5
 
 
+def test_wrist_camera_episode_with_depth(tmp_path: Path) -> None:
+    from vamos.sim.bag import DEPTH_TOPIC
+    from vamos.sim.episode import FAR_M, NEAR_M
+
+    assert main(["generate", "--out", str(tmp_path), "--smoke", "--seed", "5", "--train", "1", "--test-nominal",
+                 "0", "--test-anomalous", "0", "--camera", "wrist", "--depth", "--workers", "1",
+                 "--no-progress"]) == 0
+    ds = json.loads((tmp_path / "dataset.json").read_text())
+    assert (ds["camera_mount"], ds["depth_topic"]) == ("wrist", DEPTH_TOPIC)
+    assert json.loads((tmp_path / "camera.json").read_text())["frame"] == rb.WRIST_CAMERA_FRAME
+    urdf = (tmp_path / "robot" / "vamos_arm.urdf").read_text()
+    assert urdf == rb.urdf_text("wrist") and f'<child link="{rb.WRIST_CAMERA_FRAME}"/>' in urdf
+    msgs = _read(tmp_path / "train" / "train_0000.mcap")
+    images, depths = msgs["/camera/image_raw"], msgs[DEPTH_TOPIC]
+    # One depth image per image, same stamp and frame, 16UC1 millimetres.
+    assert [_stamp_ns(m) for m in depths] == [_stamp_ns(m) for m in images]
+    d = depths[0].ros_msg
+    assert (d.encoding, d.width, d.height, d.step, d.header.frame_id) == ("16UC1", 160, 120, 320,
+                                                                         rb.WRIST_CAMERA_FRAME)
+    mm = np.frombuffer(d.data, "<u2").reshape(120, 160).astype(float)
+    seen = mm[mm > 0] / 1000.0
+    assert seen.size > 0.9 * mm.size and seen.min() >= NEAR_M and seen.max() <= FAR_M
+    # The fingertips sit in the top corners, about a finger's length away; the scene below
+    # the gripper is farther.
+    for corner in (mm[:10, :20], mm[:10, -20:]):
+        assert 0.05 < corner[corner > 0].min() / 1000.0 < 0.2
+    assert np.median(mm[60:, 40:120]) / 1000.0 > 0.25
+    # The camera moves with the tool: the image changes from the first frame to the middle.
+    first, middle = (np.frombuffer(m.ros_msg.data, np.uint8).reshape(120, 160, 3).astype(int)
+                     for m in (images[0], images[len(images) // 2]))
+    assert np.abs(first - middle).mean() > 5.0
+    # The client's reader takes the colour topic as the image, and the depth when asked.
+    from vamos.client import read_episode
+
+    bag = tmp_path / "train" / "train_0000.mcap"
+    plain = [m.image for _, m in read_episode(bag).messages if m.WhichOneof("message") == "image"]
+    assert len(plain) == len(images) and not any(i.HasField("depth") for i in plain)
+    with_depth = [m.image for _, m in read_episode(bag, depth_topic=DEPTH_TOPIC).messages
+                  if m.WhichOneof("message") == "image"]
+    assert [(i.encoding, i.depth.encoding, i.depth.data) for i in with_depth] == [
+        ("rgb8", "16UC1", bytes(m.ros_msg.data)) for m in depths]
+
+
 def test_smoke_dataset_layout(smoke: Path) -> None:
     ds = json.loads((smoke / "dataset.json").read_text())
     assert ds["seed"] == 5 and ds["counts"] == {"train": 2, "val": 0, "test": 3}

@@ -21,14 +21,22 @@ def encoded_format(data: bytes) -> Optional[str]:
     return None
 
 
-def image_message(image: Any, stamp_ns: int, encoding: Optional[str] = None) -> Any:
-    """A ``vamos.v1.Image`` from a numpy array or encoded bytes.
+def image_message(image: Any, stamp_ns: int, encoding: Optional[str] = None, depth: Any = None) -> Any:
+    """A ``vamos.v1.Image`` from a numpy array or encoded bytes, with ``depth`` (see
+    :func:`depth_message`) when given.
 
     Arrays: ``HxW`` uint8 (``mono8``), ``HxW`` uint16 (``mono16``), ``HxW`` float32
     (``32FC1``), ``HxWx3`` uint8 (``rgb8``, or ``bgr8`` when ``encoding`` says so),
     ``HxWx4`` uint8 (``rgba8``/``bgra8``). Bytes: JPEG or PNG (the format is detected;
     ``encoding`` may name it). A ``vamos.v1.Image`` is passed through with its stamp set.
     """
+    out = _image_message(image, stamp_ns, encoding)
+    if depth is not None:
+        out.depth.CopyFrom(depth_message(depth))
+    return out
+
+
+def _image_message(image: Any, stamp_ns: int, encoding: Optional[str] = None) -> Any:
     stamp_ns = int(stamp_ns)
     if isinstance(image, pb.Image):
         out = pb.Image()
@@ -73,6 +81,31 @@ def image_message(image: Any, stamp_ns: int, encoding: Optional[str] = None) -> 
                     step=a.strides[0], big_endian=not little and a.itemsize > 1, data=a.tobytes())
 
 
+def depth_message(depth: Any) -> Any:
+    """A ``vamos.v1.DepthImage`` from an ``HxW`` numpy array registered to its image (the
+    same field of view, any resolution of the same aspect ratio): float32 metres
+    (``32FC1``) or uint16 millimetres (``16UC1``); 0 and NaN mean no depth. A
+    ``vamos.v1.DepthImage`` is passed through."""
+    if isinstance(depth, pb.DepthImage):
+        return depth
+    import numpy as np
+
+    a = np.asarray(depth)
+    if a.ndim == 3 and a.shape[2] == 1:
+        a = a[:, :, 0]
+    by_dtype = {np.dtype(np.float32): "32FC1", np.dtype(np.uint16): "16UC1"}
+    if a.ndim != 2 or a.dtype.newbyteorder("=") not in by_dtype:
+        raise ValueError(f"a depth image must be HxW float32 metres or uint16 millimetres, got "
+                         f"{a.dtype} of shape {a.shape}")
+    h, w = a.shape
+    if h == 0 or w == 0:
+        raise ValueError("empty depth image")
+    big = a.dtype.byteorder == ">"
+    a = np.ascontiguousarray(a)
+    return pb.DepthImage(encoding=by_dtype[a.dtype.newbyteorder("=")], width=w, height=h,
+                         step=a.strides[0], big_endian=big, data=a.tobytes())
+
+
 def joint_message(names: Sequence[str], positions: Sequence[float], stamp_ns: int,
                   velocities: Sequence[float] = (), efforts: Sequence[float] = ()) -> Any:
     """A ``vamos.v1.JointState``; refuses mismatched lengths and non-finite positions
@@ -100,6 +133,13 @@ def ros_image(msg: Any) -> Any:
     return pb.Image(stamp_ns=ros_stamp_ns(msg), encoding=str(msg.encoding), width=int(msg.width),
                     height=int(msg.height), step=int(msg.step), big_endian=bool(msg.is_bigendian),
                     data=bytes(msg.data))
+
+
+def ros_depth(msg: Any) -> Any:
+    """A ``vamos.v1.DepthImage`` from a decoded ``sensor_msgs/msg/Image`` (16UC1 or 32FC1;
+    the server says when it cannot use another)."""
+    return pb.DepthImage(encoding=str(msg.encoding), width=int(msg.width), height=int(msg.height),
+                         step=int(msg.step), big_endian=bool(msg.is_bigendian), data=bytes(msg.data))
 
 
 def ros_compressed_image(msg: Any) -> Any:

@@ -37,8 +37,9 @@ class AsyncSession:
             raise SessionError("FAILED_PRECONDITION", "the session was finished")
         await self._queue.put(request)
 
-    async def send_image(self, image: Any, stamp_ns: int, encoding: Optional[str] = None) -> None:
-        await self.send(pb.StreamRequest(image=_convert.image_message(image, stamp_ns, encoding)))
+    async def send_image(self, image: Any, stamp_ns: int, encoding: Optional[str] = None,
+                         depth: Any = None) -> None:
+        await self.send(pb.StreamRequest(image=_convert.image_message(image, stamp_ns, encoding, depth)))
 
     async def send_joints(self, names: Sequence[str], positions: Sequence[float], stamp_ns: int,
                           velocities: Sequence[float] = (), efforts: Sequence[float] = ()) -> None:

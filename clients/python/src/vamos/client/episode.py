@@ -36,12 +36,22 @@ class Recording:
         return sum(1 for _, m in self.messages if m.WhichOneof("message") == "image")
 
 
+#: A depth image is attached to the image nearest its stamp within this (as vamos's
+#: ``[episode] max_depth_gap_ms`` default).
+MAX_DEPTH_GAP_NS = 20_000_000
+
+
 def _pick(kind: str, topics: dict[str, str], wanted: Optional[str], schemas: tuple[str, ...]) -> Optional[str]:
     found = sorted(t for t, s in topics.items() if s in schemas)
     if wanted is not None:
         if wanted not in topics:
             raise VamosError(f"no {kind} topic {wanted!r} in the bag; it has {sorted(topics)}")
         return wanted
+    if kind == "image" and len(found) > 1:
+        # As vamos reads bags: a depth camera's topic is not the image.
+        colour = [t for t in found if "depth" not in t]
+        if len(colour) == 1:
+            return colour[0]
     if len(found) > 1:
         raise VamosError(f"several {kind} topics {found}: choose one")
     return found[0] if found else None
@@ -49,9 +59,13 @@ def _pick(kind: str, topics: dict[str, str], wanted: Optional[str], schemas: tup
 
 def read_episode(path: "str | Path", image_topic: Optional[str] = None,
                  joint_topics: Optional[list[str]] = None,
-                 camera_info_topic: Optional[str] = None) -> Recording:
+                 camera_info_topic: Optional[str] = None,
+                 depth_topic: Optional[str] = None) -> Recording:
     """Reads an MCAP episode into a :class:`Recording`. Topics are found by message type
-    when there is one of a kind (joint states: every JointState topic), else name them."""
+    when there is one of a kind (joint states: every JointState topic; images: the one
+    not named ``*depth*`` when there are several), else name them. ``depth_topic``: depth
+    images registered to the images (16UC1 or 32FC1 ``sensor_msgs/msg/Image``), each
+    attached to the image nearest its stamp within 20 ms."""
     try:
         from mcap.reader import make_reader
         from mcap_ros2.decoder import DecoderFactory
@@ -74,7 +88,11 @@ def read_episode(path: "str | Path", image_topic: Optional[str] = None,
             joints = joint_topics if joint_topics is not None else sorted(
                 t for t, s in topics.items() if s == JOINTS)
             info = _pick("camera info", topics, camera_info_topic, (CAMERA_INFO,))
-            wanted = {image, *joints} | ({info} if info else set())
+            depth = _pick("depth", topics, depth_topic, (IMAGE,)) if depth_topic else None
+            if depth == image:
+                raise VamosError(f"{path}: the depth topic {depth!r} is the image topic")
+            depths: list[tuple[int, Any]] = []
+            wanted = {image, *joints} | ({info} if info else set()) | ({depth} if depth else set())
             rec = Recording(image_topic=image, joint_topics=list(joints))
             first: Optional[int] = None
             for schema, channel, message, decoded in reader.iter_decoded_messages(
@@ -86,7 +104,9 @@ def read_episode(path: "str | Path", image_topic: Optional[str] = None,
                     if rec.camera is None:
                         rec.camera = CameraInfo.from_k(decoded.width, decoded.height, decoded.k)
                     continue
-                if channel.topic == image:
+                if channel.topic == depth:
+                    depths.append((_convert.ros_stamp_ns(decoded), _convert.ros_depth(decoded)))
+                elif channel.topic == image:
                     img = (_convert.ros_compressed_image(decoded) if schema.name == COMPRESSED
                            else _convert.ros_image(decoded))
                     rec.messages.append((offset, pb.StreamRequest(image=img)))
@@ -96,4 +116,28 @@ def read_episode(path: "str | Path", image_topic: Optional[str] = None,
         raise
     except Exception as e:  # the mcap reader's errors have no common base
         raise VamosError(f"{path}: not a readable MCAP episode: {e}") from e
+    _attach_depths(rec, depths)
     return rec
+
+
+def _attach_depths(rec: Recording, depths: list[tuple[int, Any]]) -> None:
+    """Gives each image the unused depth image nearest its stamp within
+    :data:`MAX_DEPTH_GAP_NS`."""
+    if not depths:
+        return
+    import bisect
+
+    depths.sort(key=lambda d: d[0])
+    stamps = [t for t, _ in depths]
+    used = [False] * len(depths)
+    for _, m in rec.messages:
+        if m.WhichOneof("message") != "image":
+            continue
+        t = m.image.stamp_ns
+        at = bisect.bisect_left(stamps, t)
+        near = [i for i in (at - 1, at) if 0 <= i < len(stamps) and not used[i]
+                and abs(stamps[i] - t) <= MAX_DEPTH_GAP_NS]
+        if near:
+            i = min(near, key=lambda i: abs(stamps[i] - t))
+            used[i] = True
+            m.image.depth.CopyFrom(depths[i][1])

@@ -138,10 +138,13 @@ class Session:
             raise SessionError("FAILED_PRECONDITION", "the session was finished")
         self._queue.put(request)
 
-    def send_image(self, image: Any, stamp_ns: int, encoding: Optional[str] = None) -> None:
+    def send_image(self, image: Any, stamp_ns: int, encoding: Optional[str] = None,
+                   depth: Any = None) -> None:
         """Sends an image: a numpy array (raw pixels) or JPEG/PNG bytes; see
-        :func:`vamos.client._convert.image_message`."""
-        self.send(pb.StreamRequest(image=_convert.image_message(image, stamp_ns, encoding)))
+        :func:`vamos.client._convert.image_message`. ``depth``: a depth image registered to
+        it (``HxW`` float32 metres or uint16 millimetres; see
+        :func:`vamos.client._convert.depth_message`)."""
+        self.send(pb.StreamRequest(image=_convert.image_message(image, stamp_ns, encoding, depth)))
 
     def send_joints(self, names: Sequence[str], positions: Sequence[float], stamp_ns: int,
                     velocities: Sequence[float] = (), efforts: Sequence[float] = ()) -> None:
@@ -275,7 +278,9 @@ class MonitorClient:
         as the server scores, with at most ``window`` images unanswered (below the
         server's ``queue_depth``, nothing is dropped). ``session_id`` defaults to the
         episode's file stem, which also makes the scores equal to ``vamos score``'s. When
-        the stream breaks, the session is resumed up to ``reconnects`` times."""
+        the stream breaks, the session is resumed up to ``reconnects`` times. A bag's depth
+        images go along when ``episode`` is read with them (``read_episode(path,
+        depth_topic=...)``)."""
         if rate is not None and not (rate > 0 and rate != float("inf")):
             raise ValueError(f"rate must be positive, got {rate}")
         if window < 1:
