@@ -145,7 +145,25 @@ pub(super) fn resolve_topics(
                      the depth images registered to it"
                 )));
             }
-            Some(name) => Some(configured(name, &[schema::IMAGE])?),
+            // A bag without usable depth is still scored, at the assumed depth.
+            Some(name) => match find(name) {
+                Some(t) if t.schema == schema::IMAGE => Some(t.name.clone()),
+                Some(t) => {
+                    warnings.push(format!(
+                        "depth topic {name} has schema {}, expected {}: the assumed depth is \
+                         used",
+                        t.schema,
+                        schema::IMAGE
+                    ));
+                    None
+                }
+                None => {
+                    warnings.push(format!(
+                        "depth topic {name} is not in the file: the assumed depth is used"
+                    ));
+                    None
+                }
+            },
             None => None,
         },
         image,

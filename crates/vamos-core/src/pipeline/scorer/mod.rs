@@ -99,6 +99,43 @@ pub struct Scorer {
     window: Window,
 }
 
+/// Keeps the frame's depth image in `kept` at the processing resolution `size` for the
+/// next frame, without the pixels of the robot and what it carries (`mask`, this frame's
+/// body mask if it has one): they move with the robot, not with the static scene, so the
+/// next frame takes the assumed depth there (what `e_c`'s grid fit used before depth
+/// images; `e_r` leaves them out anyway). A depth image of another aspect ratio than the
+/// frame's image is not registered to it and is left out (warned once per stream): the
+/// next frame uses the assumed depth.
+fn keep_depth(
+    kept: &mut Vec<f32>,
+    warned: &mut bool,
+    (w, h): (usize, usize),
+    input: &FrameInput<'_>,
+    mask: Option<&[bool]>,
+    index: u64,
+) {
+    let Some(depth) = input.depth else {
+        return;
+    };
+    let (width, height) = input.image.size();
+    if depth.fits(width, height) {
+        depth.resample_into(w, h, kept);
+        if let Some(mask) = mask.filter(|m| m.len() == kept.len()) {
+            for (d, _) in kept.iter_mut().zip(mask).filter(|(_, m)| **m) {
+                *d = f32::NAN;
+            }
+        }
+    } else if !*warned {
+        let (dw, dh) = depth.size();
+        tracing::warn!(
+            index,
+            "depth image {dw}x{dh} does not fit the {width}x{height} image (another aspect \
+             ratio: not registered to it); the assumed depth is used"
+        );
+        *warned = true;
+    }
+}
+
 /// Seconds from `first_ns` to `stamp_ns` (a frame's phase in its episode).
 pub fn phase_s(first_ns: i64, stamp_ns: i64) -> f64 {
     (stamp_ns.saturating_sub(first_ns)) as f64 * 1e-9
@@ -424,7 +461,17 @@ impl Scorer {
         };
         // The flow runs from the previous frame: its depth places the static scene.
         let previous_depth = std::mem::take(&mut self.previous_depth);
-        self.keep_depth(input, index);
+        keep_depth(
+            &mut self.previous_depth,
+            &mut self.warned_depth,
+            (w, h),
+            input,
+            self.body
+                .as_ref()
+                .filter(|_| intrinsics.is_some())
+                .map(|b| b.out.mask.as_slice()),
+            index,
+        );
         // The robot's state for e_k (positions and their change since the previous frame).
         let t0 = Instant::now();
         let kinematic_state = kinematic_positions.as_deref().and_then(|now| {
@@ -551,28 +598,6 @@ impl Scorer {
             phase_s: phase_s(first_ns, input.stamp_ns),
             kinematic_state,
         }))
-    }
-
-    /// Keeps the frame's depth image at the processing resolution for the next frame; a
-    /// depth image of another aspect ratio than the frame's image is not registered to it
-    /// and is left out (warned once per stream): the next frame uses the assumed depth.
-    fn keep_depth(&mut self, input: &FrameInput<'_>, index: u64) {
-        let Some(depth) = input.depth else {
-            return;
-        };
-        let (width, height) = input.image.size();
-        if depth.fits(width, height) {
-            let (w, h) = (self.config.frames.width, self.config.frames.height);
-            depth.resample_into(w, h, &mut self.previous_depth);
-        } else if !self.warned_depth {
-            let (dw, dh) = depth.size();
-            tracing::warn!(
-                index,
-                "depth image {dw}x{dh} does not fit the {width}x{height} image (another \
-                 aspect ratio: not registered to it); the assumed depth is used"
-            );
-            self.warned_depth = true;
-        }
     }
 
     /// Runs the predictor on a processed frame at `phase_s` into its stream.

@@ -579,3 +579,38 @@ fn a_depth_image_places_the_static_scene_of_a_translating_camera() {
     assert!(with_depth < 0.4 * assumed, "{with_depth} vs {assumed}");
     assert_eq!(misfit, assumed);
 }
+
+#[test]
+fn the_kept_depth_leaves_out_the_robot_and_refuses_another_aspect_ratio() {
+    let image = GrayImage::zeros(8, 4);
+    let input = |depth| FrameInput {
+        stamp_ns: 0,
+        image: &image,
+        joints: None,
+        intrinsics: None,
+        depth: Some(depth),
+    };
+    // Half resolution, resampled to 8x4; the robot covers the two left columns.
+    let depth = DepthImage::new(4, 2, vec![2.0; 8]).unwrap();
+    let mask: Vec<bool> = (0..32).map(|i| i % 8 < 2).collect();
+    let (mut kept, mut warned) = (Vec::new(), false);
+    keep_depth(
+        &mut kept,
+        &mut warned,
+        (8, 4),
+        &input(&depth),
+        Some(&mask),
+        0,
+    );
+    assert_eq!(kept.len(), 32);
+    for (i, d) in kept.iter().enumerate() {
+        assert_eq!(d.is_nan(), mask[i], "pixel {i}: {d}");
+        assert!(d.is_nan() || *d == 2.0);
+    }
+    assert!(!warned);
+    // A depth image of another aspect ratio is not kept.
+    let tall = DepthImage::new(2, 4, vec![2.0; 8]).unwrap();
+    kept.clear();
+    keep_depth(&mut kept, &mut warned, (8, 4), &input(&tall), None, 1);
+    assert!(kept.is_empty() && warned);
+}
