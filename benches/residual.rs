@@ -17,7 +17,7 @@ use vamos::pipeline::residual::{body_residual, cell_grid, grow_union, scene_cell
 use vamos::robot::Intrinsics;
 use vamos::robot::camera_motion::{Depth, expected_image_flow};
 use vamos::vision::synthetic::Texture;
-use vamos::vision::{FlowField, GrayImage};
+use vamos::vision::{DepthImage, FlowField, GrayImage};
 
 const W: usize = 320;
 const H: usize = 240;
@@ -86,6 +86,41 @@ fn bench_residual(c: &mut Criterion) {
             })
         });
     }
+    // With a 640x480 depth image (metres, a slanted floor with a box on it), resampled to
+    // the processing size as the scorer keeps it, then used for the expected flow.
+    let depth = DepthImage::new(
+        2 * W,
+        2 * H,
+        (0..4 * W * H)
+            .map(|i| {
+                let (x, y) = (i % (2 * W), i / (2 * W));
+                if (300..400).contains(&x) && (200..300).contains(&y) {
+                    0.6
+                } else {
+                    2.0 - y as f32 / (2 * H) as f32
+                }
+            })
+            .collect(),
+    )
+    .expect("a 640x480 depth image");
+    let mut kept = Vec::new();
+    c.bench_function("residual/scene_e_r_depth_320x240", |b| {
+        b.iter(|| {
+            depth.resample_into(W, H, &mut kept);
+            expected_image_flow(&previous, &current, &k, Depth::Image(&kept), 1.0, &mut flow)
+                .expect("finite poses");
+            let exclude = grow_union(&mask, &previous_mask, W, H, 3);
+            let cells = scene_cells(&observed, &flow, &exclude, 8, Some(&image), Some(&target));
+            black_box(pool_cells(
+                &cells,
+                columns,
+                rows,
+                Some(stats.at(None)),
+                pooling,
+                None,
+            ))
+        })
+    });
     let rendered = FlowField::from_fn(W, H, |x, y| {
         if mask[y * W + x] {
             (1.5, -0.5)

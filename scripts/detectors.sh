@@ -38,10 +38,12 @@ case $(basename "$urdf" .urdf) in
     vamos_panda) tool=panda_grasptarget finger=panda_finger_joint1 closed_below=0.03 ;;
     *) tool=tool_link finger=finger_left_joint closed_below=0.0375 ;;
 esac
+# ATTACH_BOX / ATTACH_XYZ replace the box's size and place (e.g. one that covers the
+# simulator's largest book: [0.18, 0.05, 0.26] at [0.0, 0.0, 0.085]).
 book="[[pipeline.attach]]
 link = \"$tool\"
-box = [0.15, 0.035, 0.215]
-xyz = [0.0, 0.0, 0.07]"
+box = ${ATTACH_BOX:-[0.15, 0.035, 0.215]}
+xyz = ${ATTACH_XYZ:-[0.0, 0.0, 0.07]}"
 depth_lines=
 if [ -n "${DEPTH_TOPIC:-}" ]; then
     depth_lines="[topics]
