@@ -286,3 +286,76 @@ async fn idle_and_overlong_sessions_end_with_deadline_exceeded_and_others_go_on(
     assert_eq!(server.shared.hub.session_count(), 0);
     server.shutdown().await.unwrap();
 }
+
+/// A bag with a depth topic replays as a robot with a depth camera would stream it: the
+/// colour images, each with the depth image nearest its stamp when the topic is configured.
+#[test]
+fn a_replayed_bag_sends_its_configured_depth_images_with_their_colour_images() {
+    use vamos::episode::{EpisodeConfig, EpisodeTopics, ImageData, ScoreBagWriter};
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("depth.mcap");
+    let mut w = ScoreBagWriter::create(&path, None).unwrap();
+    let rgb = [5u8; 4 * 2 * 3];
+    for i in 0..4i64 {
+        let stamp = (i + 1) * 100_000_000;
+        let raw = ImageData::Raw {
+            width: 4,
+            height: 2,
+            encoding: "rgb8",
+            data: &rgb,
+        };
+        w.write_image("/camera/image_raw", stamp, raw).unwrap();
+        // The last depth image is 50 ms late: beyond the default 20 ms, not attached.
+        let late = if i == 3 { 50_000_000 } else { 2_000_000 };
+        let mm: Vec<u8> = (0..8u16)
+            .flat_map(|_| (1000 + i as u16).to_le_bytes())
+            .collect();
+        let raw = ImageData::Raw {
+            width: 4,
+            height: 2,
+            encoding: "16UC1",
+            data: &mm,
+        };
+        w.write_image("/camera/depth/image_raw", stamp + late, raw)
+            .unwrap();
+    }
+    w.finish().unwrap();
+    let images = |config: &EpisodeConfig| -> Vec<proto::Image> {
+        record(&path, config)
+            .unwrap()
+            .messages
+            .into_iter()
+            .filter_map(|(_, m)| match m {
+                proto::stream_request::Message::Image(img) => Some(img),
+                _ => None,
+            })
+            .collect()
+    };
+    // Unconfigured: the colour images only, none carrying depth.
+    let plain = images(&EpisodeConfig::default());
+    assert_eq!(plain.len(), 4);
+    assert!(
+        plain
+            .iter()
+            .all(|i| i.encoding == "rgb8" && i.depth.is_none())
+    );
+    let config = EpisodeConfig {
+        topics: EpisodeTopics {
+            depth: Some("/camera/depth/image_raw".into()),
+            ..Default::default()
+        },
+        ..EpisodeConfig::default()
+    };
+    let with_depth = images(&config);
+    assert_eq!(with_depth.len(), 4);
+    for (i, img) in with_depth.iter().enumerate() {
+        match (&img.depth, i) {
+            (None, 3) => {}
+            (Some(d), 0..=2) => {
+                assert_eq!((d.encoding.as_str(), d.width, d.height), ("16UC1", 4, 2));
+                assert_eq!(d.data[..2], (1000 + i as u16).to_le_bytes());
+            }
+            (d, _) => panic!("image {i}: {d:?}"),
+        }
+    }
+}
