@@ -64,30 +64,8 @@ fn bench_residual(c: &mut Criterion) {
         let (u, v) = expected.get(x, y);
         texture.eval(x as f64 - f64::from(u), y as f64 - f64::from(v)) as f32
     });
-    let mut flow = FlowField::zeros(0, 0);
-    for (name, target) in [
-        ("residual/scene_e_r_320x240", Some(&target)),
-        ("residual/scene_e_r_no_photometric_320x240", None),
-    ] {
-        c.bench_function(name, |b| {
-            b.iter(|| {
-                expected_image_flow(&previous, &current, &k, Depth::Assumed, 1.0, &mut flow)
-                    .expect("finite poses");
-                let exclude = grow_union(&mask, &previous_mask, W, H, 3);
-                let cells = scene_cells(&observed, &flow, &exclude, 8, Some(&image), target);
-                black_box(pool_cells(
-                    &cells,
-                    columns,
-                    rows,
-                    Some(stats.at(None)),
-                    pooling,
-                    None,
-                ))
-            })
-        });
-    }
-    // With a 640x480 depth image (metres, a slanted floor with a box on it), resampled to
-    // the processing size as the scorer keeps it, then used for the expected flow.
+    // A 640x480 depth image (metres, a slanted floor with a box on it), resampled to the
+    // processing size as the scorer keeps it, then used for the expected flow.
     let depth = DepthImage::new(
         2 * W,
         2 * H,
@@ -103,24 +81,41 @@ fn bench_residual(c: &mut Criterion) {
             .collect(),
     )
     .expect("a 640x480 depth image");
+    let mut flow = FlowField::zeros(0, 0);
     let mut kept = Vec::new();
-    c.bench_function("residual/scene_e_r_depth_320x240", |b| {
-        b.iter(|| {
-            depth.resample_into(W, H, &mut kept);
-            expected_image_flow(&previous, &current, &k, Depth::Image(&kept), 1.0, &mut flow)
-                .expect("finite poses");
-            let exclude = grow_union(&mask, &previous_mask, W, H, 3);
-            let cells = scene_cells(&observed, &flow, &exclude, 8, Some(&image), Some(&target));
-            black_box(pool_cells(
-                &cells,
-                columns,
-                rows,
-                Some(stats.at(None)),
-                pooling,
-                None,
-            ))
-        })
-    });
+    for (name, target, depth) in [
+        ("residual/scene_e_r_320x240", Some(&target), None),
+        ("residual/scene_e_r_no_photometric_320x240", None, None),
+        (
+            "residual/scene_e_r_depth_320x240",
+            Some(&target),
+            Some(&depth),
+        ),
+    ] {
+        c.bench_function(name, |b| {
+            b.iter(|| {
+                let depth = match depth {
+                    Some(d) => {
+                        d.resample_into(W, H, &mut kept);
+                        Depth::Image(&kept)
+                    }
+                    None => Depth::Assumed,
+                };
+                expected_image_flow(&previous, &current, &k, depth, 1.0, &mut flow)
+                    .expect("finite poses");
+                let exclude = grow_union(&mask, &previous_mask, W, H, 3);
+                let cells = scene_cells(&observed, &flow, &exclude, 8, Some(&image), target);
+                black_box(pool_cells(
+                    &cells,
+                    columns,
+                    rows,
+                    Some(stats.at(None)),
+                    pooling,
+                    None,
+                ))
+            })
+        });
+    }
     let rendered = FlowField::from_fn(W, H, |x, y| {
         if mask[y * W + x] {
             (1.5, -0.5)
