@@ -275,6 +275,13 @@ def test_each_anomaly_type_is_labelled_inside_its_episode(kind: str, tmp_path: P
     assert stamps[0] <= start < end <= stamps[-1]
     if kind == "books_knocked_over":
         assert result.task["shelf_books_fallen"] >= 1, result.task
+        # The anomalous motion is the whole detour: the arm leaves from above the slot, goes
+        # far from there and is back (the same joint positions) when it ends, inside the label.
+        back = EPOCH_NS + round(result.details["motion_end"] * 1e9)
+        assert back <= end
+        arm = [m.ros_msg.position[:6] for m in msgs["/joint_states"] if start <= _stamp_ns(m) <= back]
+        gap = [max(abs(x - y) for x, y in zip(arm[0], q, strict=True)) for q in arm]
+        assert max(gap) > 0.1 and gap[-1] < 0.02, gap
     else:
         assert result.task["shelf_books_fallen"] == 0, result.task
     if kind in ("camera_occluded", "external_push", "sensor_fault", "books_knocked_over"):

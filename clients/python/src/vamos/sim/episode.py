@@ -475,10 +475,12 @@ class Episode:
             q_c = self._ik(c, place_yaw, q_b)
             q_up = self._ik(c + [-0.03, -0.08, 0.14], place_yaw, q_c)
             down = plan.add("detour_down", self._duration(0.7), q_b, closed)
-            sweep = plan.add("sweep", self._duration(0.7), q_c, closed)
+            plan.add("sweep", self._duration(0.7), q_c, closed)
             plan.add("detour_up", self._duration(0.7), q_up, closed)
-            plan.add("detour_back", self._duration(1.0), q_pre_place, closed)
-            self.anomaly_info = {"onset": down.t0, "motion_end": sweep.t1, "watch": list(self.row_books)}
+            back = plan.add("detour_back", self._duration(1.0), q_pre_place, closed)
+            # The anomalous motion is the whole detour: the arm is off its task until it is
+            # back above the slot (and the books until they rest).
+            self.anomaly_info = {"onset": down.t0, "motion_end": back.t1, "watch": list(self.row_books)}
         plan.add("lower", durations["lower"], q_place, closed)
         opening = plan.add("open", durations["open"], q_place, op)
         plan.add("retract", durations["retract"], q_retract, op)
