@@ -47,6 +47,15 @@ pub struct Args {
     /// The image topic carries sensor_msgs/CompressedImage (JPEG or PNG) instead.
     #[arg(long)]
     pub compressed: bool,
+    /// Depth images registered to the camera images, sensor_msgs/Image 16UC1 (mm) or
+    /// 32FC1 (m), e.g. camera/aligned_depth_to_color/image_raw (default: none). Each camera
+    /// image is sent with the depth image nearest its stamp within --max-depth-gap-ms,
+    /// waiting for it at most twice that long, else without one.
+    #[arg(long)]
+    pub depth_topic: Option<String>,
+    /// Largest gap between a camera image's stamp and its depth image's, milliseconds.
+    #[arg(long, default_value_t = 20.0, value_parser = depth_gap_ms)]
+    pub max_depth_gap_ms: f64,
     /// sensor_msgs/CameraInfo of the camera (its first calibrated message is sent when
     /// the session opens; without one the profile's camera applies).
     #[arg(long, default_value = "camera/camera_info")]
@@ -72,6 +81,16 @@ fn positive_seconds(s: &str) -> Result<f64, String> {
     match s.parse::<f64>() {
         Ok(v) if v.is_finite() && v > 0.0 && v < 1e6 => Ok(v),
         _ => Err(format!("{s:?} is not a period in seconds (> 0)")),
+    }
+}
+
+fn depth_gap_ms(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(v) if v > 0.0 && v <= BridgeOptions::MAX_DEPTH_GAP_MS => Ok(v),
+        _ => Err(format!(
+            "{s:?} is not a gap in milliseconds (> 0, at most {})",
+            BridgeOptions::MAX_DEPTH_GAP_MS
+        )),
     }
 }
 
@@ -116,6 +135,8 @@ pub fn run(args: Args) -> Result<()> {
         task: args.task,
         image_topic: args.image_topic,
         compressed: args.compressed,
+        depth_topic: args.depth_topic.filter(|t| !t.is_empty()),
+        max_depth_gap_ms: args.max_depth_gap_ms,
         camera_info_topic: args.camera_info_topic,
         joint_states_topics: args.joint_states_topics,
         frame_score_topic: args.frame_score_topic,
@@ -140,7 +161,16 @@ pub fn run(args: Args) -> Result<()> {
 
 #[cfg(test)]
 mod tests {
-    use super::quieter_dds;
+    use super::{depth_gap_ms, quieter_dds};
+
+    #[test]
+    fn the_depth_gap_is_positive_and_at_most_a_second() {
+        assert_eq!(depth_gap_ms("20"), Ok(20.0));
+        assert_eq!(depth_gap_ms("1000"), Ok(1000.0));
+        for bad in ["0", "-5", "NaN", "inf", "1000.5", "x"] {
+            assert!(depth_gap_ms(bad).is_err(), "{bad}");
+        }
+    }
 
     #[test]
     fn dds_logs_are_quieter_unless_named() {

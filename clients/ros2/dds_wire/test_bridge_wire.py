@@ -95,11 +95,12 @@ def stamp_ns(h: ros.Header) -> int:
 
 class Robot:
     """A robot on Cyclone DDS in its own domain (parallel runs on one host do not meet):
-    writers of robot1's camera, camera info and joint states (and robot2's camera), readers
-    of the bridge's outputs, and ``vamos bridge`` itself, started on ``server_url``."""
+    writers of robot1's camera, camera info and joint states (and robot2's camera; with
+    ``depth``, robot1's depth camera, which the bridge is told to read), readers of the
+    bridge's outputs, and ``vamos bridge`` itself, started on ``server_url``."""
 
     def __init__(self, bin: Path, tmp: Path, server_url: str, env: dict[str, str], compressed: bool = False,
-                 extra: tuple[str, ...] = ()) -> None:
+                 extra: tuple[str, ...] = (), depth: bool = False) -> None:
         self.compressed = compressed
         domain = random.randint(100, 200)
         self.log = tmp / "bridge.log"
@@ -107,7 +108,8 @@ class Robot:
             self.bridge = subprocess.Popen(
                 [str(bin), "bridge", "--server", server_url, "--profile", "sim-arm", "--namespace", "robot1",
                  "--domain-id", str(domain), "--diagnostics-period", "0.2",
-                 *(["--compressed"] if compressed else []), *extra],
+                 *(["--compressed"] if compressed else []),
+                 *(["--depth-topic", "camera/depth/image_raw"] if depth else []), *extra],
                 stdout=subprocess.DEVNULL, stderr=err,
                 env=dict(env, VAMOS_ROBOT_TOKEN=ROBOT, VAMOS_LOG__LEVEL="info"))
         dp = DomainParticipant(domain)
@@ -116,6 +118,8 @@ class Robot:
         self.image_w = DataWriter(dp, topic("rt/robot1/camera/image_raw", image_type), qos=RELIABLE)
         self.info_w = DataWriter(dp, topic("rt/robot1/camera/camera_info", ros.CameraInfo), qos=RELIABLE)
         self.joints_w = DataWriter(dp, topic("rt/robot1/joint_states", ros.JointState), qos=RELIABLE)
+        self.depth_w = DataWriter(dp, topic("rt/robot1/camera/depth/image_raw", ros.Image), qos=RELIABLE) \
+            if depth else None
         # Another robot's camera in the same domain: the namespace keeps it out.
         self.other_w = DataWriter(dp, topic("rt/robot2/camera/image_raw", image_type), qos=RELIABLE)
         self.scores_r = DataReader(dp, topic("rt/robot1/vamos/frame_score", ros.FrameScore), qos=RELIABLE)
@@ -129,8 +133,8 @@ class Robot:
         self.offset_ns = 0
         # Discovery both ways before the first sample (the bridge's best-effort readers
         # would miss samples written before they matched).
-        self.wait_for(lambda: all(w.get_matched_subscriptions() for w in (self.image_w, self.info_w, self.joints_w)),
-                      30, "the bridge's subscriptions")
+        writers = [self.image_w, self.info_w, self.joints_w, *([self.depth_w] if self.depth_w else [])]
+        self.wait_for(lambda: all(w.get_matched_subscriptions() for w in writers), 30, "the bridge's subscriptions")
         self.wait_for(lambda: self.scores_r.get_matched_publications() and self.diag_r.get_matched_publications(),
                       30, "the bridge's publishers")
 
@@ -167,6 +171,9 @@ class Robot:
                 self.other_w.write(image)
         elif kind == "camera_info":
             self.info_w.write(m)
+        elif kind == "depth":
+            assert self.depth_w is not None
+            self.depth_w.write(m)
         else:
             self.joints_w.write(m)
 
@@ -315,3 +322,57 @@ def test_bridge_waits_for_a_late_server_and_reconnects_after_a_restart(tmp_path:
     values = dict((kv.key, kv.value) for kv in robot.statuses[-1].values)
     assert int(values["reconnects"]) >= 1, values
     assert "cannot open the session" in text, text
+
+
+def with_depth(messages: list[tuple[str, Any]]) -> tuple[list[tuple[str, Any]], int, int]:
+    """The messages with a 16UC1 depth image (1.5 m) written before each camera image, by
+    turns: 4 ms after the image's stamp at 80x60 (the camera's 4:3), 3 ms before it at
+    50x50 (another aspect ratio: the server refuses it), and 45 ms after it at 50x50
+    (images are 100 ms apart: within 20 ms of none, so never sent). Also the number
+    paired, and of those the number the server refuses."""
+    out: list[tuple[str, Any]] = []
+    paired = refused = images = 0
+    for kind, m in messages:
+        if kind == "image":
+            ns = stamp_ns(m.header)
+            offset_ms, w, h = [(4, 80, 60), (-3, 50, 50), (45, 50, 50)][images % 3]
+            at = ns + offset_ms * 1_000_000
+            out.append(("depth", ros.Image(ros.Header(ros.Time(at // 1_000_000_000, at % 1_000_000_000), "depth"),
+                                           h, w, "16UC1", 0, 2 * w, list(struct.pack("<H", 1500) * (w * h)))))
+            paired += images % 3 != 2
+            refused += images % 3 == 1
+            images += 1
+        out.append((kind, m))
+    return out, paired, refused
+
+
+def test_depth_images_reach_vamos_with_their_images(tmp_path: Path) -> None:
+    """``--depth-topic``: each camera image goes with the depth image nearest its stamp
+    within 20 ms. Seen at the server: each paired depth image of another aspect ratio is
+    refused there with a message (one per such image, none for the depth image too far
+    from any image, none for the good ones), and every image is scored all the same."""
+    bin = vamos_bin()
+    server = Server(bin, tmp_path / "server")
+    try:
+        reference = {int(r["stamp_ns"]) for r in server.offline(EPISODE)}
+        robot = Robot(bin, tmp_path, f"http://{server.grpc}", server.env, depth=True)
+        try:
+            messages, paired, refused = with_depth(read_episode(EPISODE))
+            robot.play(messages)
+            text = robot.stop()
+        finally:
+            robot.kill()
+    finally:
+        server.stop()
+
+    assert "with depth from /robot1/camera/depth/image_raw (within 20 ms)" in text, text
+    images = [m for kind, m in messages if kind == "image"]
+    got = [stamp_ns(s.header) for s in robot.scores]
+    assert len(got) == len(set(got)) == len(images) and set(got) == reference, text
+    values = dict((kv.key, kv.value) for kv in robot.statuses[-1].values)
+    assert values["depth_topic"] == "/robot1/camera/depth/image_raw"
+    assert int(values["images_sent"]) == len(images), values
+    assert int(values["images_with_depth"]) == paired, (values, paired)
+    assert int(values["refused"]) == refused >= 5, (values, refused, text)
+    refusals = [line for line in text.splitlines() if "vamos refused a message: depth image refused" in line]
+    assert len(refusals) == refused and all("50x50" in line and "aspect ratio" in line for line in refusals), text

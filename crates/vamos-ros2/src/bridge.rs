@@ -8,7 +8,12 @@
 //! last): they match reliable publishers too, and a bridge that falls behind drops the
 //! oldest images, never the newest. Scores and diagnostics are published reliable, keep
 //! last 10 (the ROS 2 default).
+//!
+//! With a depth topic, each colour image goes to the server with the depth image nearest
+//! its stamp within `max_depth_gap_ms`, after waiting for it at most twice that gap
+//! ([`crate::depth`] has the rules and bounds); without one, images go at once.
 
+use crate::depth::DepthPairer;
 use crate::msg::{self, types};
 use crate::names::{self, NameError};
 use crate::status::BridgeState;
@@ -51,6 +56,15 @@ pub struct BridgeOptions {
     pub image_topic: String,
     /// `image_topic` carries `sensor_msgs/CompressedImage`.
     pub compressed: bool,
+    /// `sensor_msgs/Image` depth images registered to the camera images (`16UC1` mm or
+    /// `32FC1` m, e.g. a depth camera's `aligned_depth_to_color/image_raw`); `None` or
+    /// empty: none (the default; never chosen automatically, as an unregistered depth
+    /// image would misplace the scene).
+    pub depth_topic: Option<String>,
+    /// A camera image takes the depth image nearest its stamp if at most this far,
+    /// milliseconds; it waits for one at most twice this long. Default 20 (the recorded
+    /// path's `[episode] max_depth_gap_ms`).
+    pub max_depth_gap_ms: f64,
     /// `sensor_msgs/CameraInfo` of the camera.
     pub camera_info_topic: String,
     /// `sensor_msgs/JointState` topics.
@@ -81,6 +95,8 @@ impl BridgeOptions {
             task: String::new(),
             image_topic: "camera/image_raw".into(),
             compressed: false,
+            depth_topic: None,
+            max_depth_gap_ms: 20.0,
             camera_info_topic: "camera/camera_info".into(),
             joint_states_topics: vec!["joint_states".into()],
             frame_score_topic: "vamos/frame_score".into(),
@@ -154,6 +170,13 @@ impl BridgeOptions {
                 "the diagnostics period must be > 0".into(),
             ));
         }
+        if !(self.max_depth_gap_ms > 0.0 && self.max_depth_gap_ms <= Self::MAX_DEPTH_GAP_MS) {
+            return Err(BridgeError::Options(format!(
+                "the depth gap must be > 0 and at most {} ms, not {} ms",
+                Self::MAX_DEPTH_GAP_MS,
+                self.max_depth_gap_ms
+            )));
+        }
         names::check_node_name(&self.node_name)?;
         let namespace = names::normalise_namespace(&self.namespace)?;
         let resolve = |t: &str| names::resolve_topic(t, &namespace, &self.node_name);
@@ -170,6 +193,9 @@ impl BridgeOptions {
             ("image_topic".to_string(), resolve(&self.image_topic)?),
             ("score_topic".to_string(), resolve(&self.score_topic)?),
         ];
+        if let Some(t) = self.depth_topic() {
+            topics.push(("depth_topic".to_string(), resolve(t)?));
+        }
         for (i, t) in self.joint_states_topics.iter().enumerate() {
             topics.push((format!("joint_states_topics[{i}]"), resolve(t)?));
         }
@@ -191,6 +217,24 @@ impl BridgeOptions {
     }
 }
 
+impl BridgeOptions {
+    /// The largest depth gap, ms: farther apart, a depth image is of another moment.
+    pub const MAX_DEPTH_GAP_MS: f64 = 1000.0;
+
+    /// The depth topic, when one is set (an empty name is none).
+    pub fn depth_topic(&self) -> Option<&str> {
+        self.depth_topic.as_deref().filter(|t| !t.is_empty())
+    }
+
+    /// The pairing of camera and depth images, when a depth topic is set: the gap, and a
+    /// hold of twice the gap.
+    fn depth_pairer(&self) -> Option<DepthPairer> {
+        self.depth_topic()?;
+        let gap = Duration::from_secs_f64(self.max_depth_gap_ms * 1e-3);
+        Some(DepthPairer::new(gap, 2 * gap))
+    }
+}
+
 fn dds<E: std::fmt::Display>(what: &str) -> impl FnOnce(E) -> BridgeError + '_ {
     move |e| BridgeError::Dds(format!("{what}: {e}"))
 }
@@ -203,6 +247,8 @@ fn ros_name(fq: &str) -> Result<Name, BridgeError> {
 /// What arrives from the graph.
 enum Incoming {
     Image(Result<proto::Image, msg::ConvertError>, String),
+    /// A depth image and its stamp.
+    Depth(i64, proto::DepthImage),
     Camera(Box<msg::CameraInfo>),
     Joints(msg::JointState),
     /// A sample the DDS reader could not deserialise (wrong type on the topic).
@@ -264,11 +310,15 @@ struct Link {
     next_open: Instant,
     answers: mpsc::UnboundedSender<Answer>,
     state: BridgeState,
+    /// Images sent in a row without depth.
+    without_depth: u64,
 }
 
 impl Link {
     const EARLY_JOINTS: usize = 200;
     const REOPEN_AFTER: Duration = Duration::from_secs(1);
+    /// Images in a row sent without depth (a depth topic set) before a warning.
+    const WITHOUT_DEPTH_WARNING: u64 = 30;
 
     /// The open session's sender, opening one when there is none (at most once per
     /// [`Self::REOPEN_AFTER`]).
@@ -346,12 +396,40 @@ impl Link {
         let Some(s) = self.session().await else {
             return;
         };
+        let with_depth = image.depth.is_some();
         if let Err(e) = s.send(In::Image(image)).await {
             self.lost(e.to_string());
             return;
         }
         self.state.images_sent += 1;
         self.state.last_image = Some(Instant::now());
+        if with_depth {
+            self.state.images_with_depth += 1;
+            self.without_depth = 0;
+        } else if self.options.depth_topic().is_some() {
+            self.without_depth += 1;
+            if self.without_depth == Self::WITHOUT_DEPTH_WARNING {
+                let topic = self
+                    .resolved
+                    .topics
+                    .iter()
+                    .find(|(k, _)| k == "depth_topic")
+                    .map_or("the depth topic", |(_, v)| v.as_str());
+                tracing::warn!(
+                    "{} images in a row sent without a depth image: none on {topic} within {} ms \
+                     of their stamps; the server uses the profile's assumed depth",
+                    Self::WITHOUT_DEPTH_WARNING,
+                    self.options.max_depth_gap_ms
+                );
+            }
+        }
+    }
+
+    /// Images that went out of the depth pairing, to the session in order.
+    async fn on_images(&mut self, images: Vec<proto::Image>) {
+        for image in images {
+            self.on_image(image).await;
+        }
     }
 
     async fn on_joints(&mut self, joints: proto::JointState) {
@@ -418,6 +496,14 @@ pub async fn run(
         },
         &sensor(5),
     )?;
+    let depth_topic = match options.depth_topic() {
+        Some(_) => Some(make_topic(
+            topic("depth_topic"),
+            types::image(),
+            &sensor(5),
+        )?),
+        None => None,
+    };
     let camera_topic = make_topic(topic("camera_info_topic"), types::camera_info(), &sensor(1))?;
     let joint_topics = (0..options.joint_states_topics.len())
         .map(|i| {
@@ -464,6 +550,13 @@ pub async fn run(
         );
         compressed_images = None;
     }
+    let depth_sub: Option<Subscription<msg::Image>> = match &depth_topic {
+        Some(t) => Some(
+            node.create_subscription(t, None)
+                .map_err(dds("subscription"))?,
+        ),
+        None => None,
+    };
     let camera_sub: Subscription<msg::CameraInfo> = node
         .create_subscription(&camera_topic, None)
         .map_err(dds("subscription"))?;
@@ -501,6 +594,19 @@ pub async fn run(
             .boxed(),
         (None, None) => stream::pending().boxed(),
     };
+    let depths: BoxStream<'_, Incoming> = match &depth_sub {
+        Some(s) => s
+            .async_stream()
+            .map(|r| match r {
+                Ok((m, _)) => {
+                    let (stamp, depth) = m.into_depth();
+                    Incoming::Depth(stamp, depth)
+                }
+                Err(e) => unreadable("depth image")(e),
+            })
+            .boxed(),
+        None => stream::pending().boxed(),
+    };
     let cameras = camera_sub.async_stream().map(|r| match r {
         Ok((m, _)) => Incoming::Camera(Box::new(m)),
         Err(e) => unreadable("camera info")(e),
@@ -513,7 +619,10 @@ pub async fn run(
             })
             .boxed()
     }));
-    let mut incoming = stream::select(stream::select(images, cameras.boxed()), joints);
+    let mut incoming = stream::select(
+        stream::select(stream::select(images, depths), cameras.boxed()),
+        joints,
+    );
 
     let (answers_tx, mut answers) = mpsc::unbounded_channel::<Answer>();
     let mut link = Link {
@@ -527,14 +636,24 @@ pub async fn run(
         next_open: Instant::now(),
         answers: answers_tx,
         state: BridgeState::default(),
+        without_depth: 0,
     };
+    let mut pairer = options.depth_pairer();
     let mut frame_ids = FrameIds::default();
     let mut scores_published = 0u64;
     let mut diagnostics = tokio::time::interval(options.diagnostics_period);
     diagnostics.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     tracing::info!(
-        "vamos bridge {fq_node}: streaming {} and {} to {} as robot {} (profile {}, session {})",
+        "vamos bridge {fq_node}: streaming {}{} and {} to {} as robot {} (profile {}, session {})",
         topic("image_topic"),
+        match options.depth_topic() {
+            Some(_) => format!(
+                " with depth from {} (within {} ms)",
+                topic("depth_topic"),
+                options.max_depth_gap_ms
+            ),
+            None => String::new(),
+        },
         resolved
             .topics
             .iter()
@@ -631,6 +750,8 @@ pub async fn run(
 
     tokio::pin!(shutdown);
     loop {
+        // The oldest image waiting for its depth image goes when its hold ends.
+        let hold_ends = pairer.as_ref().and_then(DepthPairer::deadline);
         tokio::select! {
             biased;
             () = &mut shutdown => break,
@@ -640,10 +761,25 @@ pub async fn run(
             _ = diagnostics.tick() => {
                 publish_diagnostics(&link);
             }
+            () = tokio::time::sleep_until(
+                hold_ends.map_or_else(tokio::time::Instant::now, tokio::time::Instant::from_std)
+            ), if hold_ends.is_some() => {
+                if let Some(p) = pairer.as_mut() {
+                    link.on_images(p.release_due(Instant::now())).await;
+                }
+            }
             Some(item) = incoming.next() => match item {
                 Incoming::Image(Ok(image), frame_id) => {
                     frame_ids.remember(image.stamp_ns, frame_id);
-                    link.on_image(image).await;
+                    match pairer.as_mut() {
+                        Some(p) => link.on_images(p.push_image(image, Instant::now())).await,
+                        None => link.on_image(image).await,
+                    }
+                }
+                Incoming::Depth(stamp, depth) => {
+                    if let Some(p) = pairer.as_mut() {
+                        link.on_images(p.push_depth(stamp, depth, Instant::now())).await;
+                    }
                 }
                 Incoming::Image(Err(e), _) => {
                     link.state.refused += 1;
@@ -666,6 +802,13 @@ pub async fn run(
         }
     }
 
+    // The images still waiting for depth go with what depth there is.
+    if let Some(p) = pairer.as_mut() {
+        let waiting = p.drain();
+        if !waiting.is_empty() && link.sender.is_some() {
+            link.on_images(waiting).await;
+        }
+    }
     // Finish: the server scores what it holds; its last scores are still published.
     let had_session = link.sender.take().is_some();
     if had_session {
@@ -716,6 +859,53 @@ mod tests {
         let mut o = BridgeOptions::new("http://h", "arm");
         o.image_topic = "cam//img".into();
         assert!(matches!(o.resolve("x"), Err(BridgeError::Name(_))));
+    }
+
+    #[test]
+    fn a_depth_topic_is_off_by_default_and_resolved_when_set() {
+        let mut o = BridgeOptions::new("http://h", "arm");
+        o.namespace = "/robot1".into();
+        let has_depth = |o: &BridgeOptions| {
+            o.resolve("x")
+                .unwrap()
+                .topics
+                .into_iter()
+                .find(|(k, _)| k == "depth_topic")
+        };
+        assert_eq!(has_depth(&o), None);
+        assert!(o.depth_pairer().is_none());
+        o.depth_topic = Some(String::new());
+        assert_eq!(has_depth(&o), None, "empty is off");
+        o.depth_topic = Some("camera/aligned_depth_to_color/image_raw".into());
+        assert_eq!(
+            has_depth(&o),
+            Some((
+                "depth_topic".into(),
+                "/robot1/camera/aligned_depth_to_color/image_raw".into()
+            ))
+        );
+        assert!(o.depth_pairer().is_some());
+        let keys: Vec<String> = o
+            .resolve("x")
+            .unwrap()
+            .topics
+            .into_iter()
+            .map(|t| t.0)
+            .collect();
+        assert!(keys.is_sorted(), "{keys:?}");
+        o.depth_topic = Some("depth//image".into());
+        assert!(matches!(o.resolve("x"), Err(BridgeError::Name(_))));
+        o.depth_topic = Some("/depth".into());
+        for bad in [0.0, -1.0, f64::NAN, f64::INFINITY, 1000.5] {
+            o.max_depth_gap_ms = bad;
+            assert!(
+                o.resolve("x")
+                    .unwrap_err()
+                    .to_string()
+                    .contains("depth gap"),
+                "{bad}"
+            );
+        }
     }
 
     #[test]

@@ -2,7 +2,8 @@
 //! order of their `.msg` definitions (CDR has no field names: order and types are the
 //! format), and their conversions to and from `vamos.v1`.
 //!
-//! Read: `sensor_msgs/{Image, CompressedImage, CameraInfo, JointState}`. Written:
+//! Read: `sensor_msgs/{Image, CompressedImage, CameraInfo, JointState}` (an `Image` also
+//! as a depth image, [`Image::into_depth`]). Written:
 //! `vamos_msgs/FrameScore` (`clients/ros2/vamos_msgs/msg/FrameScore.msg`),
 //! `std_msgs/{Float64, Bool}` and `diagnostic_msgs/DiagnosticArray`.
 
@@ -294,6 +295,25 @@ impl From<Image> for proto::Image {
     }
 }
 
+impl Image {
+    /// The depth image this message carries, to ride with a colour image: its stamp, and
+    /// its rows as they came (the server checks the encoding, `16UC1` or `32FC1`, and
+    /// refuses another for that frame with a message).
+    pub fn into_depth(self) -> (i64, proto::DepthImage) {
+        (
+            self.header.stamp.to_ns(),
+            proto::DepthImage {
+                encoding: self.encoding,
+                width: self.width,
+                height: self.height,
+                step: self.step,
+                big_endian: self.is_bigendian != 0,
+                data: self.data.into_vec(),
+            },
+        )
+    }
+}
+
 impl TryFrom<CompressedImage> for proto::Image {
     type Error = ConvertError;
 
@@ -425,6 +445,38 @@ mod tests {
             })
         );
         assert_eq!(Time::from_ns(i64::MAX), None);
+    }
+
+    #[test]
+    fn a_depth_image_keeps_its_stamp_encoding_and_rows_as_they_came() {
+        let m = Image {
+            header: Header {
+                stamp: Time {
+                    sec: 3,
+                    nanosec: 500,
+                },
+                frame_id: "depth".into(),
+            },
+            height: 2,
+            width: 3,
+            encoding: "16UC1".into(),
+            is_bigendian: 1,
+            step: 8,
+            data: ByteBuf::from((0..16).collect::<Vec<u8>>()),
+        };
+        let (stamp, d) = m.into_depth();
+        assert_eq!(stamp, 3_000_000_500);
+        assert_eq!(
+            (d.encoding.as_str(), d.width, d.height, d.step, d.big_endian),
+            ("16UC1", 3, 2, 8, true)
+        );
+        assert_eq!(d.data, (0..16).collect::<Vec<u8>>());
+        // Not a depth encoding: passed on all the same (the server says why not).
+        let rgb = Image {
+            encoding: "rgb8".into(),
+            ..Default::default()
+        };
+        assert_eq!(rgb.into_depth().1.encoding, "rgb8");
     }
 
     #[test]

@@ -28,6 +28,8 @@ pub struct BridgeState {
     pub connected: bool,
     /// Images passed to the server.
     pub images_sent: u64,
+    /// Of those, the images sent with a depth image.
+    pub images_with_depth: u64,
     /// Scores received.
     pub frames_scored: u64,
     /// Images the server dropped under backpressure (its running count).
@@ -80,6 +82,7 @@ impl BridgeState {
         let mut values: Vec<(String, String)> = [
             ("session_id", self.session_id.clone()),
             ("images_sent", self.images_sent.to_string()),
+            ("images_with_depth", self.images_with_depth.to_string()),
             ("frames_scored", self.frames_scored.to_string()),
             ("dropped", self.dropped.to_string()),
             ("refused", self.refused.to_string()),

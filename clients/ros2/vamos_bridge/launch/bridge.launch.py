@@ -3,8 +3,9 @@ profile:=my-profile``.
 
 The node runs in ``namespace``, so its relative topics (camera/image_raw, joint_states,
 vamos/frame_score...) resolve under it and several robots share one graph. Parameters
-come from ``params_file`` (default: the package's config/vamos_bridge.yaml); ``profile``
-and ``server``, when given, override the file's.
+come from ``params_file`` (default: the package's config/vamos_bridge.yaml); ``profile``,
+``server`` and ``depth_topic``, when given, override the file's (``depth_topic:=
+camera/aligned_depth_to_color/image_raw`` sends each image with its depth image).
 """
 
 from launch import LaunchDescription
@@ -13,7 +14,7 @@ from launch.substitutions import LaunchConfiguration, PathJoinSubstitution
 from launch_ros.actions import Node
 from launch_ros.substitutions import FindPackageShare
 
-OVERRIDES = ("profile", "server")
+OVERRIDES = ("profile", "server", "depth_topic")
 
 
 def _bridge(context, *args, **kwargs):
@@ -40,5 +41,7 @@ def generate_launch_description():
                               description="the vamos profile to score with (default: the file's)"),
         DeclareLaunchArgument("server", default_value="",
                               description="vamos serve's gRPC address (default: the file's)"),
+        DeclareLaunchArgument("depth_topic", default_value="",
+                              description="depth images registered to the camera's (default: the file's, none)"),
         OpaqueFunction(function=_bridge),
     ])

@@ -232,3 +232,137 @@ def test_a_recorded_robot_through_the_bridge_to_the_real_server(tmp_path: Path) 
     finally:
         stderr = server.stop()
     assert server.proc.returncode == 0, stderr
+
+
+def depth(ns: int, width: int = 2, height: int = 1) -> Any:
+    """A 16UC1 depth image (1.5 m everywhere) whose width says which it is."""
+    from types import SimpleNamespace as NS
+
+    return NS(header=header(ns, "depth"), height=height, width=width, encoding="16UC1", is_bigendian=0,
+              step=2 * width, data=(1500).to_bytes(2, "little") * (width * height))
+
+
+def test_images_go_with_the_depth_image_nearest_their_stamp() -> None:
+    ms = 1_000_000
+    params = Params.from_values({"profile": "p", "depth_topic": "camera/depth/image_raw"}, "/robot1", "vamos_bridge",
+                                suffix="d")
+    assert params.resolved["depth_topic"] == "/robot1/camera/depth/image_raw"
+    client, out = FakeClient(), Recorder()
+    bridge = Bridge(params, client, CallbackOutputs(out.score, out.log))
+    bridge.WITHOUT_DEPTH_WARNING = 3
+    # A depth image at or after the image's stamp first, then the image: out at once,
+    # with it.
+    bridge.on_depth(depth(1006 * ms, width=4))
+    bridge.on_image(image(1000 * ms + 4 * ms, "cam"))
+    (s,) = client.sessions
+
+    def sent() -> list[tuple[int, int]]:
+        """(stamp, depth width or 0) of the images the session got."""
+        return [(m.image.stamp_ns, m.image.depth.width if m.image.HasField("depth") else 0)
+                for m in s.sent if m.WhichOneof("message") == "image"]
+
+    assert sent() == [(1004 * ms, 4)]
+    # The image first: it waits for a depth image at or after its stamp, and takes the
+    # nearest within 20 ms.
+    bridge.on_image(image(1100 * ms))
+    assert sent() == [(1004 * ms, 4)] and bridge._pairer is not None and bridge._pairer.held()[0] == 1
+    bridge.on_depth(depth(1090 * ms, width=6))
+    bridge.on_depth(depth(1115 * ms, width=8))
+    assert sent()[1:] == [(1100 * ms, 6)]
+    # No depth image near: the image waits for its hold (40 ms), then goes without one.
+    bridge.on_image(image(1300 * ms))
+    bridge.release_due(now=time.monotonic() + 0.041)
+    assert sent()[2:] == [(1300 * ms, 0)]
+    bridge.on_image(image(1400 * ms))
+    bridge.on_image(image(1500 * ms))
+    bridge.release_due(now=time.monotonic() + 0.041)
+    assert sent()[3:] == [(1400 * ms, 0), (1500 * ms, 0)]
+    assert [t for level, t in out.logs if "in a row sent without a depth image" in t] == [
+        "3 images in a row sent without a depth image: none on /robot1/camera/depth/image_raw within 20 ms of "
+        "their stamps; the server uses the profile's assumed depth"]
+    # Still waiting when the bridge closes: sent before the session finishes.
+    bridge.on_depth(depth(1595 * ms, width=10))
+    bridge.on_image(image(1600 * ms))
+    bridge.close()
+    assert sent()[5:] == [(1600 * ms, 10)] and s.finished
+    assert (bridge.state.images_sent, bridge.state.images_with_depth) == (6, 3)
+    assert dict(bridge.diagnostic()[2])["images_with_depth"] == "3"
+    wait_for(lambda: len(out.scores) == 6)
+    assert [f["header"][0] for f in out.scores][:2] == [Stamp(1, 4 * ms), Stamp(1, 100 * ms)]
+
+
+def test_without_a_depth_topic_images_go_at_once_and_depth_images_are_ignored() -> None:
+    params = Params.from_values({"profile": "p"}, "/robot1", "vamos_bridge", suffix="n")
+    client, out = FakeClient(), Recorder()
+    bridge = Bridge(params, client, CallbackOutputs(out.score, out.log))
+    bridge.on_depth(depth(1))
+    bridge.on_image(image(1))
+    bridge.release_due()
+    (s,) = client.sessions
+    assert [m.image.HasField("depth") for m in s.sent] == [False]
+    bridge.close()
+    assert bridge.state.images_with_depth == 0 and "depth_topic" not in dict(bridge.diagnostic()[2])
+
+
+def test_a_recorded_robot_with_depth_images_through_the_bridge_to_the_real_server(tmp_path: Path) -> None:
+    """Each depth image reaches the server with its image: a depth image of another aspect
+    ratio paired with an image is refused by the server (one message each), one too far
+    from every image is never sent, and every image is scored."""
+    sys.path.insert(0, str(ROOT / "clients" / "python" / "tests"))
+    try:
+        from _server import ROBOT, SIM, Server, vamos_bin
+    finally:
+        sys.path.pop(0)
+    pytest.importorskip("mcap_ros2.decoder")
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    from vamos.client import MonitorClient
+
+    episode = SIM / "test" / "test_0000.mcap"
+    ms = 1_000_000
+    server = Server(vamos_bin(), tmp_path / "server")
+    try:
+        offline = server.offline(episode)
+        params = Params.from_values({"profile": "sim-arm", "depth_topic": "camera/depth/image_raw"}, "/arm_1",
+                                    "vamos_bridge", suffix="depth")
+        out = Recorder()
+        paired = refused = 0
+        with MonitorClient(server.grpc, token=ROBOT) as client, open(episode, "rb") as fh:
+            bridge = Bridge(params, client, out)
+            reader = make_reader(fh, decoder_factories=[DecoderFactory()])
+            images = 0
+            for schema, _channel, _message, ros_msg in reader.iter_decoded_messages(log_time_order=True):
+                if schema.name == "sensor_msgs/msg/Image":
+                    wait_for(lambda: bridge.state.images_sent - len(out.scores) < 4, timeout=120)
+                    ns = ros_msg.header.stamp.sec * 10**9 + ros_msg.header.stamp.nanosec
+                    # The depth camera's image comes first; by turns: a good one 4 ms after
+                    # (80x60, the camera's 4:3), one of another aspect ratio 3 ms before,
+                    # and one 45 ms after (images are 100 ms apart: within 20 ms of none).
+                    kind = images % 3
+                    if kind == 0:
+                        bridge.on_depth(depth(ns + 4 * ms, width=80, height=60))
+                        paired += 1
+                    elif kind == 1:
+                        bridge.on_depth(depth(ns - 3 * ms, width=50, height=50))
+                        paired += 1
+                        refused += 1
+                    else:
+                        bridge.on_depth(depth(ns + 45 * ms, width=50, height=50))
+                    images += 1
+                    bridge.on_image(ros_msg)
+                elif schema.name == "sensor_msgs/msg/JointState":
+                    bridge.on_joint_state(ros_msg)
+                elif schema.name == "sensor_msgs/msg/CameraInfo":
+                    bridge.on_camera_info(ros_msg)
+            bridge.close(timeout_s=120)
+        assert bridge.state.dropped == 0, out.logs
+        assert (bridge.state.images_sent, bridge.state.images_with_depth) == (images, paired)
+        # One refusal per paired depth image of another aspect ratio, naming why; no other.
+        assert bridge.state.refused == refused > 5, bridge.state
+        assert "depth image refused" in bridge.state.last_error and "aspect ratio" in bridge.state.last_error
+        # Every image scored, in order.
+        assert [f["header"][0] for f in out.scores] == [Stamp(*divmod(o["stamp_ns"], 10**9)) for o in offline]
+    finally:
+        stderr = server.stop()
+    assert server.proc.returncode == 0, stderr

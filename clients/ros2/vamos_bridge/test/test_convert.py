@@ -15,11 +15,13 @@ from vamos_bridge.convert import (
     FrameIds,
     Stamp,
     camera_info,
+    depth_image,
     frame_score_fields,
     image_request,
     joints_request,
     stamp_from_ns,
     stamp_ns,
+    with_depth,
 )
 
 MSG = Path(__file__).resolve().parents[2] / "vamos_msgs" / "msg" / "FrameScore.msg"
@@ -56,6 +58,31 @@ def test_ros_messages_become_stream_requests() -> None:
         camera_info(NS(width=0, height=0, k=[500.0, 0, 320, 0, 505, 240, 0, 0, 1]))
     with pytest.raises(ValueError, match="expected 9"):
         camera_info(NS(width=640, height=480, k=[1.0] * 4))
+
+
+def test_a_depth_image_rides_with_its_image_as_it_came() -> None:
+    import numpy as np
+
+    mm = np.array([[500, 0, 1200], [65535, 7, 800]], dtype=">u2")  # big-endian rows
+    depth = NS(header=header(3, 400, "depth_optical"), height=2, width=3, encoding="16UC1", is_bigendian=1,
+               step=6, data=mm.tobytes())
+    d = depth_image(depth)
+    assert (d.encoding, d.width, d.height, d.step, d.big_endian, d.data) == ("16UC1", 3, 2, 6, True, mm.tobytes())
+    assert stamp_ns(depth) == 3_000_000_400
+    metres = np.full((2, 3), 1.5, dtype=np.float32)
+    f = depth_image(NS(header=header(3, 0), height=2, width=3, encoding="32FC1", is_bigendian=0, step=12,
+                       data=metres.tobytes()))
+    assert (f.encoding, f.step, f.big_endian) == ("32FC1", 12, False)
+    assert np.array_equal(np.frombuffer(f.data, np.float32).reshape(2, 3), metres)
+    # Another encoding is not refused here: the server says why it cannot use it.
+    assert depth_image(NS(header=header(1, 0), height=1, width=1, encoding="rgb8", is_bigendian=0, step=3,
+                          data=b"abc")).encoding == "rgb8"
+    # The image's request carries it, or nothing.
+    raw = NS(header=header(3, 500), height=2, width=3, encoding="rgb8", is_bigendian=0, step=9,
+             data=bytes(range(18)))
+    r = with_depth(image_request(raw), d)
+    assert r.image.depth == d and r.image.stamp_ns == 3_000_000_500
+    assert not with_depth(image_request(raw), None).image.HasField("depth")
 
 
 @pytest.mark.parametrize("ns,sec,nanosec", [

@@ -157,6 +157,6 @@ def test_the_launch_file_runs_this_package_node_in_the_namespace() -> None:
     assert ast.literal_eval(kw["package"]) == "vamos_bridge" and ast.literal_eval(kw["executable"]) == "bridge"
     assert ast.unparse(kw["namespace"]) == "LaunchConfiguration('namespace')"
     declared = {ast.literal_eval(c.args[0]) for c in calls["DeclareLaunchArgument"]}
-    assert declared == {"namespace", "params_file", "profile", "server"}
+    assert declared == {"namespace", "params_file", "profile", "server", "depth_topic"}
     share = [ast.literal_eval(e) for c in calls["PathJoinSubstitution"] for e in c.args[0].elts[1:]]
     assert (BRIDGE.joinpath(*share)).is_file()  # config/vamos_bridge.yaml, installed by setup.py

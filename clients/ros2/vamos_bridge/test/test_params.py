@@ -64,6 +64,23 @@ def test_parameter_values_are_checked() -> None:
         Params.from_values({"profile": "p", "image_topic": "camera//image"}, "/r", "n")
 
 
+def test_a_depth_topic_is_off_by_default_and_resolved_when_set() -> None:
+    p = Params.from_values({"profile": "p"}, "/robot1", "vamos_bridge")
+    assert (p.depth_topic, p.max_depth_gap_ms) == ("", 20.0)
+    assert "depth_topic" not in p.resolved
+    p = Params.from_values({"profile": "p", "depth_topic": "camera/aligned_depth_to_color/image_raw",
+                            "max_depth_gap_ms": 15}, "/robot1", "vamos_bridge")
+    assert p.resolved["depth_topic"] == "/robot1/camera/aligned_depth_to_color/image_raw"
+    assert p.max_depth_gap_ms == 15.0
+    with pytest.raises(ParameterError, match="not a valid ROS 2 topic name"):
+        Params.from_values({"profile": "p", "depth_topic": "depth//image"}, "/r", "n")
+    for bad in (0.0, -1.0, float("nan"), float("inf"), 1000.5):
+        with pytest.raises(ParameterError, match="max_depth_gap_ms"):
+            Params.from_values({"profile": "p", "max_depth_gap_ms": bad}, "/r", "n")
+    with pytest.raises(ParameterError, match="depth_topic must be a str"):
+        Params.from_values({"profile": "p", "depth_topic": 3}, "/r", "n")
+
+
 def test_the_parameters_yaml_sets_every_parameter_with_its_type() -> None:
     doc = yaml.safe_load((PACKAGE / "config" / "vamos_bridge.yaml").read_text())
     assert list(doc) == ["/**"] and list(doc["/**"]) == ["ros__parameters"]

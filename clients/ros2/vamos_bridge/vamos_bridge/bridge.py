@@ -5,8 +5,11 @@ keeps the session (opened at the first image, so the camera info has arrived; jo
 states that came before are sent right after; reopened under the same ``session_id``,
 which the server resumes, at the next image after the stream broke), and hands every
 score to :class:`Outputs` as the fields of a stamped ``vamos_msgs/FrameScore``.
-:class:`BridgeState` is its bookkeeping and the diagnostics it implies. The node
-(:mod:`vamos_bridge.node`) only wires these to rclpy.
+:class:`BridgeState` is its bookkeeping and the diagnostics it implies. With a
+``depth_topic``, each image goes with the depth image nearest its stamp within
+``max_depth_gap_ms``, waiting for it at most twice that (:mod:`vamos_bridge.depth` has the
+rules and bounds; the node calls :meth:`Bridge.release_due` on a timer); without one,
+images go at once. The node (:mod:`vamos_bridge.node`) only wires these to rclpy.
 """
 
 from __future__ import annotations
@@ -19,7 +22,9 @@ from typing import Any, Callable, Optional, Protocol
 
 from vamos.client import CameraInfo, FrameScore, SessionError, SessionEvent
 
-from .convert import FrameIds, camera_info, frame_score_fields, image_request, joints_request
+from .convert import (FrameIds, camera_info, depth_image, frame_score_fields, image_request, joints_request,
+                      stamp_ns, with_depth)
+from .depth import DepthPairer
 from .params import Params
 
 # diagnostic_msgs/DiagnosticStatus levels.
@@ -33,6 +38,7 @@ class BridgeState:
     session_id: str = ""
     connected: bool = False
     images_sent: int = 0
+    images_with_depth: int = 0
     frames_scored: int = 0
     dropped: int = 0
     refused: int = 0
@@ -44,8 +50,9 @@ class BridgeState:
     last_score_wall: Optional[float] = None
     events: list[str] = field(default_factory=list)
 
-    def on_sent_image(self, now: Optional[float] = None) -> None:
+    def on_sent_image(self, now: Optional[float] = None, with_depth: bool = False) -> None:
         self.images_sent += 1
+        self.images_with_depth += int(with_depth)
         self.last_image_wall = time.monotonic() if now is None else now
 
     def on_update(self, u: Any, now: Optional[float] = None) -> Optional[tuple[float, bool]]:
@@ -75,6 +82,7 @@ class BridgeState:
         values = [
             ("session_id", self.session_id),
             ("images_sent", str(self.images_sent)),
+            ("images_with_depth", str(self.images_with_depth)),
             ("frames_scored", str(self.frames_scored)),
             ("dropped", str(self.dropped)),
             ("refused", str(self.refused)),
@@ -124,6 +132,9 @@ class Bridge:
     """One robot's session. ``client`` is a :class:`vamos.client.MonitorClient` (or
     anything with its ``open_session``)."""
 
+    #: Images in a row sent without depth (a depth topic set) before a warning.
+    WITHOUT_DEPTH_WARNING = 30
+
     def __init__(self, params: Params, client: Any, outputs: Outputs, early_joints: int = 200,
                  reopen_after_s: float = 1.0) -> None:
         self.params = params
@@ -140,6 +151,13 @@ class Bridge:
         # (a camera at 30 Hz would otherwise try, and log, 30 times a second).
         self._reopen_after_s = reopen_after_s
         self._next_open = 0.0
+        # Images waiting for their depth image (None: no depth topic, images go at once).
+        # The lock keeps the pairing and the sending in one order whichever thread calls.
+        gap_ms = params.max_depth_gap_ms
+        self._pairer: Optional[DepthPairer[tuple[Any, str], Any]] = (
+            DepthPairer(round(gap_ms * 1e6), 2 * gap_ms / 1000) if params.depth_topic else None)
+        self._pair_lock = threading.Lock()
+        self._without_depth = 0
 
     def _ensure_session(self) -> Any:
         with self._lock:
@@ -196,12 +214,48 @@ class Bridge:
             self.state.refused += 1
             self.out.log("warning", f"image ignored: {e}")
             return
+        frame_id = str(getattr(msg.header, "frame_id", ""))
+        if self._pairer is None:
+            self._send_image(request, frame_id)
+            return
+        with self._pair_lock:
+            self._send_paired(self._pairer.push_image(request.image.stamp_ns, (request, frame_id), time.monotonic()))
+
+    def on_depth(self, msg: Any) -> None:
+        """A ``sensor_msgs/Image`` of the depth topic (ignored without one)."""
+        if self._pairer is None:
+            return
+        depth = depth_image(msg)
+        with self._pair_lock:
+            self._send_paired(self._pairer.push_depth(stamp_ns(msg), depth, time.monotonic()))
+
+    def release_due(self, now: Optional[float] = None) -> None:
+        """Sends the images whose wait for a depth image has ended (the node's timer)."""
+        if self._pairer is None:
+            return
+        with self._pair_lock:
+            self._send_paired(self._pairer.release_due(time.monotonic() if now is None else now))
+
+    def _send_paired(self, paired: "list[tuple[tuple[Any, str], Any]]") -> None:
+        for (request, frame_id), depth in paired:
+            self._send_image(with_depth(request, depth), frame_id)
+
+    def _send_image(self, request: Any, frame_id: str) -> None:
         s = self._ensure_session()
         if s is None:
             return
-        self.frame_ids.remember(request.image.stamp_ns, str(getattr(msg.header, "frame_id", "")))
+        self.frame_ids.remember(request.image.stamp_ns, frame_id)
         s.send(request)
-        self.state.on_sent_image()
+        has_depth = request.image.HasField("depth")
+        self.state.on_sent_image(with_depth=has_depth)
+        if self._pairer is None:
+            return
+        self._without_depth = 0 if has_depth else self._without_depth + 1
+        if self._without_depth == self.WITHOUT_DEPTH_WARNING:
+            self.out.log("warning", f"{self._without_depth} images in a row sent without a depth image: none on "
+                                    f"{self.params.resolved.get('depth_topic', self.params.depth_topic)} within "
+                                    f"{self.params.max_depth_gap_ms:g} ms of their stamps; the server uses the "
+                                    "profile's assumed depth")
 
     def on_joint_state(self, msg: Any) -> None:
         request = joints_request(msg)
@@ -220,8 +274,14 @@ class Bridge:
         return level, message, values
 
     def close(self, timeout_s: float = 10.0) -> None:
-        """Finishes the session (the server scores what it holds) and waits up to
-        ``timeout_s`` for the last scores."""
+        """Sends the images still waiting for depth (with what depth there is), finishes
+        the session (the server scores what it holds) and waits up to ``timeout_s`` for
+        the last scores."""
+        if self._pairer is not None:
+            with self._pair_lock:
+                waiting = self._pairer.drain()
+                if waiting and self._session is not None:
+                    self._send_paired(waiting)
         with self._lock:
             s, self._session = self._session, None
         if s is not None:

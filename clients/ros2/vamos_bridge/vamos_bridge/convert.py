@@ -31,6 +31,20 @@ def image_request(msg: Any) -> Any:
     return pb.StreamRequest(image=_convert.ros_image(msg))
 
 
+def depth_image(msg: Any) -> Any:
+    """A ``vamos.v1.DepthImage`` of a ``sensor_msgs/Image``, its rows as they came: the
+    server checks the encoding (16UC1 millimetres or 32FC1 metres) and refuses another
+    for that frame with a message."""
+    return _convert.ros_depth(msg)
+
+
+def with_depth(request: Any, depth: Any) -> Any:
+    """``request`` (an image's ``StreamRequest``) carrying ``depth``, when not None."""
+    if depth is not None:
+        request.image.depth.CopyFrom(depth)
+    return request
+
+
 def joints_request(msg: Any) -> Any:
     """A ``StreamRequest`` for a ``sensor_msgs/JointState``."""
     return pb.StreamRequest(joints=_convert.ros_joint_state(msg))

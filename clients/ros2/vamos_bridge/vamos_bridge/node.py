@@ -10,6 +10,10 @@ compatible with reliable publishers too), and publishes:
   name): session, counts, latest score and latency, the resolved topics; ERROR when not
   connected, STALE without images, WARN with drops.
 
+With ``depth_topic`` set it also subscribes to that ``sensor_msgs/Image`` topic (same
+QoS) and runs a timer at half ``max_depth_gap_ms`` that sends the images whose wait for a
+depth image has ended (:mod:`vamos_bridge.depth`).
+
 Everything but the rclpy wiring is in :mod:`vamos_bridge.bridge` (tested without ROS).
 """
 
@@ -60,12 +64,17 @@ def main(args: Optional[list[str]] = None) -> int:
             self.bridge = Bridge(p, self.client, CallbackOutputs(self.publish_score, self.log_from_bridge))
             self.create_subscription(CompressedImage if p.compressed else Image, p.image_topic,
                                      self.bridge.on_image, qos_profile_sensor_data)
+            if p.depth_topic:
+                self.create_subscription(Image, p.depth_topic, self.bridge.on_depth, qos_profile_sensor_data)
+                self.create_timer(p.max_depth_gap_ms / 2000.0, self.bridge.release_due)
             self.create_subscription(CameraInfo, p.camera_info_topic, self.bridge.on_camera_info,
                                      qos_profile_sensor_data)
             for topic in p.joint_states_topics:
                 self.create_subscription(JointState, topic, self.bridge.on_joint_state, qos_profile_sensor_data)
             self.create_timer(p.diagnostics_period_s, self.publish_diagnostics)
-            self.get_logger().info(f"streaming {p.resolved['image_topic']} and "
+            depth = (f" with depth from {p.resolved['depth_topic']} (within {p.max_depth_gap_ms:g} ms)"
+                     if p.depth_topic else "")
+            self.get_logger().info(f"streaming {p.resolved['image_topic']}{depth} and "
                                    f"{', '.join(p.joint_states_topics)} to {p.server} as robot {p.robot_id} "
                                    f"(profile {p.profile}, session {p.session_id})")
 

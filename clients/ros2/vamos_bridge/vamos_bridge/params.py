@@ -25,6 +25,8 @@ PARAMETERS: dict[str, tuple[Any, str]] = {
     "task": ("", "task label recorded with the session"),
     "image_topic": ("camera/image_raw", "camera images (relative: under the node's namespace)"),
     "compressed": (False, "true: image_topic carries sensor_msgs/CompressedImage (JPEG/PNG)"),
+    "depth_topic": ("", "sensor_msgs/Image depth registered to the images, 16UC1 mm or 32FC1 m (empty: none)"),
+    "max_depth_gap_ms": (20.0, "an image takes the depth image nearest its stamp within this, ms; waits 2x this"),
     "camera_info_topic": ("camera/camera_info", "sensor_msgs/CameraInfo of the camera"),
     "joint_states_topics": (["joint_states"], "sensor_msgs/JointState topics"),
     "frame_score_topic": ("vamos/frame_score", "vamos_msgs/FrameScore, stamped with the image's header"),
@@ -32,6 +34,10 @@ PARAMETERS: dict[str, tuple[Any, str]] = {
     "anomaly_topic": ("vamos/anomaly", "std_msgs/Bool anomaly flag (unstamped)"),
     "diagnostics_period_s": (1.0, "period of the diagnostic_msgs/DiagnosticArray on /diagnostics, s"),
 }
+
+
+#: The largest ``max_depth_gap_ms``: farther apart, a depth image is of another moment.
+MAX_DEPTH_GAP_MS = 1000.0
 
 
 class ParameterError(ValueError):
@@ -92,6 +98,8 @@ class Params:
     task: str
     image_topic: str
     compressed: bool
+    depth_topic: str
+    max_depth_gap_ms: float
     camera_info_topic: str
     joint_states_topics: tuple[str, ...]
     frame_score_topic: str
@@ -119,15 +127,20 @@ class Params:
             raise ParameterError("parameter `joint_states_topics` needs at least one topic")
         if not float(v["diagnostics_period_s"]) > 0:
             raise ParameterError("parameter `diagnostics_period_s` must be > 0")
+        if not 0 < float(v["max_depth_gap_ms"]) <= MAX_DEPTH_GAP_MS:
+            raise ParameterError(f"parameter `max_depth_gap_ms` must be > 0 and at most {MAX_DEPTH_GAP_MS:g}")
         topics = {k: v[k] for k in ("image_topic", "camera_info_topic", "frame_score_topic", "score_topic",
                                     "anomaly_topic")}
+        if v["depth_topic"]:
+            topics["depth_topic"] = v["depth_topic"]
         topics.update({f"joint_states_topics[{i}]": t for i, t in enumerate(v["joint_states_topics"])})
         resolved = {k: resolve_topic(t, namespace, node_name) for k, t in topics.items()}
         robot_id = v["robot_id"] or default_robot_id(namespace, node_name)
         session_id = v["session_id"] or (f"{robot_id}-{suffix}" if suffix else robot_id)
         return cls(server=v["server"], token=v["token"] or env_token or None, ca_file=v["ca_file"],
                    profile=v["profile"], robot_id=robot_id, session_id=session_id, task=v["task"],
-                   image_topic=v["image_topic"], compressed=v["compressed"],
+                   image_topic=v["image_topic"], compressed=v["compressed"], depth_topic=v["depth_topic"],
+                   max_depth_gap_ms=float(v["max_depth_gap_ms"]),
                    camera_info_topic=v["camera_info_topic"], joint_states_topics=tuple(v["joint_states_topics"]),
                    frame_score_topic=v["frame_score_topic"], score_topic=v["score_topic"],
                    anomaly_topic=v["anomaly_topic"], diagnostics_period_s=float(v["diagnostics_period_s"]),
