@@ -12,8 +12,10 @@
 # no_photometric (the default without the scene residual's photometric check), default (a
 # profile that sets nothing: what a user gets; default: all), and with a flow predictor:
 # calibrated (every detector, calibrated fusion), cells (the same with the localised e_o:
-# flow_pooling = "cells"), cells_w3 (and temporal_window = 3); attach (the default with the
-# carried book attached to the tool as a box of the simulator's mean book size), attach_while
+# flow_pooling = "cells"), cells_w3 (and temporal_window = 3), flow (e_o alone, calibrated),
+# flow_m1 (the same with one prior sample per past offset instead of the bundle's M: what
+# sampling buys); attach (the default with the carried book attached to the tool as a box of
+# the simulator's mean book size), attach_while
 # (the same, there only while the first finger joint reads below 3/4 of its opening: while the
 # gripper is closed on the book), attach_while_w3 (and temporal_window = 3). Each row leaves
 # OUT_DIR/ROW/{profile.toml, profile.calibration.json, eval.json} and prints one line.
@@ -140,6 +142,19 @@ flow_pooling = "cells"' ;;
 temporal_window = 3
 [pipeline.residual]
 flow_pooling = "cells"' ;;
+        flow) extra='fusion = "calibrated"
+[pipeline.detectors]
+camera = false
+body = false
+scene = false
+kinematics = false' ;;
+        flow_m1) extra='fusion = "calibrated"
+samples = 1
+[pipeline.detectors]
+camera = false
+body = false
+scene = false
+kinematics = false' ;;
         *) echo "unknown row $row" >&2; exit 2 ;;
     esac
     d="$out/$row"
