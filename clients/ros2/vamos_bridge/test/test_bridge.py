@@ -186,7 +186,11 @@ def test_the_session_opens_at_the_first_image_and_reconnects_under_its_id() -> N
     assert values["image_topic"] == "/robot1/camera/image_raw" and values["robot_id"] == "robot1"
 
 
-def test_a_recorded_robot_through_the_bridge_to_the_real_server(tmp_path: Path) -> None:
+def real_server() -> Any:
+    """What a test against the real server needs: the Python tests' server harness, the
+    MCAP reader and the client (skipped without the MCAP decoder)."""
+    from types import SimpleNamespace as NS
+
     sys.path.insert(0, str(ROOT / "clients" / "python" / "tests"))
     try:
         from _server import ROBOT, SIM, Server, vamos_bin
@@ -197,6 +201,14 @@ def test_a_recorded_robot_through_the_bridge_to_the_real_server(tmp_path: Path) 
     from mcap_ros2.decoder import DecoderFactory
 
     from vamos.client import MonitorClient
+    return NS(ROBOT=ROBOT, SIM=SIM, Server=Server, vamos_bin=vamos_bin, make_reader=make_reader,
+              DecoderFactory=DecoderFactory, MonitorClient=MonitorClient)
+
+
+def test_a_recorded_robot_through_the_bridge_to_the_real_server(tmp_path: Path) -> None:
+    r = real_server()
+    ROBOT, SIM, Server, vamos_bin = r.ROBOT, r.SIM, r.Server, r.vamos_bin
+    make_reader, DecoderFactory, MonitorClient = r.make_reader, r.DecoderFactory, r.MonitorClient
 
     episode = SIM / "test" / "test_0001_external_push.mcap"
     server = Server(vamos_bin(), tmp_path / "server")
@@ -308,16 +320,9 @@ def test_a_recorded_robot_with_depth_images_through_the_bridge_to_the_real_serve
     """Each depth image reaches the server with its image: a depth image of another aspect
     ratio paired with an image is refused by the server (one message each), one too far
     from every image is never sent, and every image is scored."""
-    sys.path.insert(0, str(ROOT / "clients" / "python" / "tests"))
-    try:
-        from _server import ROBOT, SIM, Server, vamos_bin
-    finally:
-        sys.path.pop(0)
-    pytest.importorskip("mcap_ros2.decoder")
-    from mcap.reader import make_reader
-    from mcap_ros2.decoder import DecoderFactory
-
-    from vamos.client import MonitorClient
+    r = real_server()
+    ROBOT, SIM, Server, vamos_bin = r.ROBOT, r.SIM, r.Server, r.vamos_bin
+    make_reader, DecoderFactory, MonitorClient = r.make_reader, r.DecoderFactory, r.MonitorClient
 
     episode = SIM / "test" / "test_0000.mcap"
     ms = 1_000_000
