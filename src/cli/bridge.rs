@@ -135,7 +135,7 @@ pub fn run(args: Args) -> Result<()> {
         task: args.task,
         image_topic: args.image_topic,
         compressed: args.compressed,
-        depth_topic: args.depth_topic.filter(|t| !t.is_empty()),
+        depth_topic: args.depth_topic,
         max_depth_gap_ms: args.max_depth_gap_ms,
         camera_info_topic: args.camera_info_topic,
         joint_states_topics: args.joint_states_topics,
