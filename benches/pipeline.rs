@@ -164,6 +164,7 @@ fn bench_pipeline(c: &mut Criterion) {
                     joints: Some(JointInput {
                         names: &names,
                         positions: &joints[i],
+                        efforts: &[],
                     }),
                     intrinsics: None,
                     depth: None,

@@ -17,7 +17,9 @@
 # sampling buys); attach (the default with the carried book attached to the tool as a box of
 # the simulator's mean book size), attach_while
 # (the same, there only while the first finger joint reads below 3/4 of its opening: while the
-# gripper is closed on the book), attach_while_w3 (and temporal_window = 3). Each row leaves
+# gripper is closed on the book), attach_while_w3 (and temporal_window = 3); effort (the
+# default with the joints' efforts in e_k's state: [pipeline.kinematics] effort = true),
+# attach_while_w3_effort (attach_while_w3 with them). Each row leaves
 # OUT_DIR/ROW/{profile.toml, profile.calibration.json, eval.json} and prints one line.
 # MODEL=PATH (a model bundle trained on SIM_DIR's training episodes, e.g. by
 # scripts/benchmark.sh) gives every row the flow predictor. DEPTH_TOPIC=TOPIC (a dataset made
@@ -135,6 +137,13 @@ while = { joint = \"$finger\", below = $closed_below }" ;;
         attach_while_w3) extra="temporal_window = 3
 $book
 while = { joint = \"$finger\", below = $closed_below }" ;;
+        effort) extra='[pipeline.kinematics]
+effort = true' ;;
+        attach_while_w3_effort) extra="temporal_window = 3
+$book
+while = { joint = \"$finger\", below = $closed_below }
+[pipeline.kinematics]
+effort = true" ;;
         cells) extra='fusion = "calibrated"
 [pipeline.residual]
 flow_pooling = "cells"' ;;

@@ -316,17 +316,21 @@ pub fn stream_requests(data: &[u8]) {
                 if let Ok((g, _)) = decode_streamed(&img) {
                     assert_finite(&g, "streamed image");
                 }
-                if let Some((names, positions)) = joints.at(stamp) {
-                    assert_eq!(names.len(), positions.len(), "one position per name");
+                if let Some(j) = joints.at(stamp) {
+                    assert_eq!(j.names.len(), j.positions.len(), "one position per name");
                     assert!(
-                        positions.iter().all(|p| p.is_finite()),
-                        "interpolated joint position not finite"
+                        j.efforts.is_empty() || j.efforts.len() == j.names.len(),
+                        "one effort per name or none"
+                    );
+                    assert!(
+                        j.positions.iter().chain(&j.efforts).all(|p| p.is_finite()),
+                        "interpolated joint position or effort not finite"
                     );
                 }
                 joints.trim_before(stamp);
             }
             Some(In::Joints(j)) => {
-                let _ = joints.push(j.stamp_ns, j.names, j.positions);
+                let _ = joints.push(j.stamp_ns, j.names, j.positions, j.efforts);
             }
             Some(In::Phase(_)) | None => {}
         }
@@ -402,9 +406,10 @@ pub fn stream_session(data: &[u8]) {
                 let input = FrameInput {
                     stamp_ns: stamp,
                     image: &image,
-                    joints: at.as_ref().map(|(n, p)| JointInput {
-                        names: n,
-                        positions: p,
+                    joints: at.as_ref().map(|j| JointInput {
+                        names: &j.names,
+                        positions: &j.positions,
+                        efforts: &j.efforts,
                     }),
                     intrinsics: intrinsics.as_ref(),
                     depth: None,
@@ -418,7 +423,7 @@ pub fn stream_session(data: &[u8]) {
                 }
             }
             Some(In::Joints(j)) => {
-                let _ = joints.push(j.stamp_ns, j.names, j.positions);
+                let _ = joints.push(j.stamp_ns, j.names, j.positions, j.efforts);
             }
             Some(In::Phase(_)) | None => {}
         }

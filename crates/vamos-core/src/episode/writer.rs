@@ -264,20 +264,22 @@ impl ScoreBagWriter {
         self.write(id, stamp_u64(stamp_ns), cdr)
     }
 
-    /// Writes a `sensor_msgs/msg/JointState` of positions only, stamped `stamp_ns`.
+    /// Writes a `sensor_msgs/msg/JointState` of positions and efforts (empty: none),
+    /// stamped `stamp_ns`.
     pub fn write_joint_state(
         &mut self,
         topic: &str,
         stamp_ns: i64,
         names: &[String],
         positions: &[f64],
+        efforts: &[f64],
     ) -> Result<(), EpisodeError> {
         let msg = ros::JointStateMsg {
             header: Header::from_stamp_ns(stamp_ns, ""),
             name: names.to_vec(),
             position: positions.to_vec(),
             velocity: Vec::new(),
-            effort: Vec::new(),
+            effort: efforts.to_vec(),
         };
         let id = self.ros_channel(topic, schema::JOINT_STATE)?;
         self.write(id, stamp_u64(stamp_ns), &msg.encode())

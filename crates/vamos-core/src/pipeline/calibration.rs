@@ -539,6 +539,13 @@ fn fit_kinematics(
         .flat_map(|e| &e.frames)
         .find_map(|f| f.kinematic_state.as_ref().map(Vec::len))
     else {
+        if params.effort {
+            notes.push(
+                "no kinematic novelty (e_k): [pipeline.kinematics] effort = true, but no \
+                 training frame's joint states carry one effort per joint"
+                    .into(),
+            );
+        }
         return (None, vec![None; frames]);
     };
     let states = robot_states(train);

@@ -35,7 +35,7 @@ pub use scorer::{
 };
 pub use vamos_model::FlowVariant;
 
-pub use novelty::{KinematicsParams, StateKind};
+pub use novelty::{EffortWindow, KinematicsParams, StateKind};
 pub use residual::{BodyError, FlowPooling, ResidualParams};
 
 use crate::eval::Fusion;

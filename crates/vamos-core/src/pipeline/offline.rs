@@ -132,6 +132,7 @@ where
         let joints = frame.joints.as_ref().map(|j| JointInput {
             names: &j.names,
             positions: &j.positions,
+            efforts: &j.efforts,
         });
         match scorer.push(&FrameInput {
             stamp_ns: frame.stamp_ns,

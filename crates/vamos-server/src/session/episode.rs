@@ -9,7 +9,7 @@ use super::error::SessionError;
 use super::event::{Output, ScoredFrame};
 use super::hub::Hub;
 use super::profiles::LoadedProfile;
-use super::state::{ImagePayload, OpenRequest, ReadyFrame, SessionSlot};
+use super::state::{FrameJoints, ImagePayload, OpenRequest, ReadyFrame, SessionSlot};
 use futures_util::Stream;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -123,7 +123,11 @@ pub async fn score_episode(
                     let ready = ReadyFrame {
                         stamp_ns: frame.stamp_ns,
                         image: ImagePayload::Decoded(frame.image, k, frame.depth),
-                        joints: frame.joints.map(|j| (j.names, j.positions)),
+                        joints: frame.joints.map(|j| FrameJoints {
+                            names: j.names,
+                            positions: j.positions,
+                            efforts: j.efforts,
+                        }),
                         arrived: Instant::now(),
                         charge: Some(charge),
                     };

@@ -54,6 +54,8 @@ pub struct LiveJoints {
     pub names: Vec<String>,
     /// Positions (rad or m), one per name.
     pub positions: Vec<f64>,
+    /// Efforts (N m or N), one per name or none.
+    pub efforts: Vec<f64>,
 }
 
 /// A scored frame as it leaves the session.

@@ -89,7 +89,7 @@ impl Hub {
             ))
         } else if let Err(e) = g.joint_charge.resize(now + cost) {
             Some(("memory", format!("joint state refused: {e}")))
-        } else if let Err(e) = g.joints.push(stamp, j.names, j.positions) {
+        } else if let Err(e) = g.joints.push(stamp, j.names, j.positions, j.efforts) {
             Some(("joints", format!("joint state refused: {e}")))
         } else {
             None

@@ -175,7 +175,7 @@ impl Recorder {
     pub fn record(
         &mut self,
         image: &LiveImage,
-        joints: Option<(&[String], &[f64])>,
+        joints: Option<(&[String], &[f64], &[f64])>,
         camera: Option<&Intrinsics>,
     ) -> Result<bool, RecordingError> {
         let stamp_ns = image.stamp_ns;
@@ -192,7 +192,9 @@ impl Recorder {
             return Err(RecordingError::MixedImages);
         }
         let cost = (image.data.len() + image.depth.as_ref().map_or(0, |d| d.data.len())) as u64
-            + joints.map_or(0, |(n, p)| (n.len() * 24 + p.len() * 8) as u64);
+            + joints.map_or(0, |(n, p, e)| {
+                (n.len() * 24 + (p.len() + e.len()) * 8) as u64
+            });
         if self.full || self.bytes.saturating_add(cost) > self.limit {
             if !self.full {
                 tracing::info!(recording = %self.part.display(), bytes = self.bytes, "recording reached max_recording_mb: the rest of the session is not recorded");
@@ -207,9 +209,9 @@ impl Recorder {
             self.writer.write_camera_info(&self.topics[1], &msg)?;
             self.camera = Some(*k);
         }
-        if let Some((names, positions)) = joints {
+        if let Some((names, positions, efforts)) = joints {
             self.writer
-                .write_joint_state(&self.topics[2], stamp_ns, names, positions)?;
+                .write_joint_state(&self.topics[2], stamp_ns, names, positions, efforts)?;
         }
         let header = Header::from_stamp_ns(stamp_ns, "camera");
         let cdr = if compressed {
@@ -352,8 +354,9 @@ mod tests {
         for i in 0..4u8 {
             let img = rgb(1_000_000_000 + i64::from(i) * 100_000_000, 8, 6, i);
             let positions = [0.1 * f64::from(i), -0.2];
+            let efforts = [f64::from(i), -3.0];
             assert!(
-                r.record(&img, Some((&names, &positions)), Some(&k))
+                r.record(&img, Some((&names, &positions, &efforts)), Some(&k))
                     .unwrap()
             );
             sent.push(img);
@@ -403,12 +406,13 @@ mod tests {
         let episode = McapEpisode::open(&path, &config).unwrap();
         let frames: Vec<_> = episode.frames().map(Result::unwrap).collect();
         assert_eq!(frames.len(), 4);
-        for (f, img) in frames.iter().zip(&sent) {
+        for (i, (f, img)) in frames.iter().zip(&sent).enumerate() {
             assert_eq!(f.stamp_ns, img.stamp_ns);
             let (live, _) = super::super::worker::decode_live_image(img, 1 << 20, None).unwrap();
             assert_eq!(f.image, live);
             let joints = f.joints.as_ref().unwrap();
             assert_eq!(joints.names, names);
+            assert_eq!(joints.efforts, vec![i as f64, -3.0], "efforts recorded");
             assert_eq!(f.camera_info.as_ref().unwrap().intrinsics().unwrap(), k);
         }
     }

@@ -27,14 +27,25 @@ pub enum ImagePayload {
     Decoded(GrayImage, Option<Intrinsics>, Option<DepthImage>),
 }
 
+/// Joint states interpolated to an image's stamp.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FrameJoints {
+    /// Joint names.
+    pub names: Vec<String>,
+    /// Positions (rad or m), one per name.
+    pub positions: Vec<f64>,
+    /// Efforts (N m or N), one per name; empty when the joint states carry none.
+    pub efforts: Vec<f64>,
+}
+
 /// A frame ready to be scored.
 pub struct ReadyFrame {
     /// Image stamp, nanoseconds.
     pub stamp_ns: i64,
     /// The image.
     pub image: ImagePayload,
-    /// Joint names and positions at the stamp.
-    pub joints: Option<(Vec<String>, Vec<f64>)>,
+    /// The joint states at the stamp.
+    pub joints: Option<FrameJoints>,
     /// When the image reached the server.
     pub arrived: Instant,
     /// What the frame holds of the server's memory budget (given back when the frame is

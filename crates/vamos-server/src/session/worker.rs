@@ -299,10 +299,13 @@ impl Hub {
             if let (Some(r), Some(msg)) = (recorder.as_mut(), live.as_ref())
                 && let Err(e) = r.record(
                     msg,
-                    frame
-                        .joints
-                        .as_ref()
-                        .map(|(n, p)| (n.as_slice(), p.as_slice())),
+                    frame.joints.as_ref().map(|j| {
+                        (
+                            j.names.as_slice(),
+                            j.positions.as_slice(),
+                            j.efforts.as_slice(),
+                        )
+                    }),
                     intrinsics.as_ref(),
                 )
             {
@@ -313,9 +316,10 @@ impl Hub {
                 }
             }
         }
-        let joints = frame.joints.as_ref().map(|(n, p)| JointInput {
-            names: n,
-            positions: p,
+        let joints = frame.joints.as_ref().map(|j| JointInput {
+            names: &j.names,
+            positions: &j.positions,
+            efforts: &j.efforts,
         });
         let result = tracing::debug_span!("score").in_scope(|| {
             lock(&s.scorer).push(&FrameInput {

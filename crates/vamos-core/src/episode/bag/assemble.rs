@@ -59,6 +59,8 @@ pub(super) struct Assembler {
     pub(super) joint_pos: Vec<f64>,
     pub(super) joint_vel: Vec<f64>,
     pub(super) joint_has_vel: Vec<bool>,
+    pub(super) joint_eff: Vec<f64>,
+    pub(super) joint_has_eff: Vec<bool>,
     pub(super) latest_joint_ns: Option<i64>,
     // Depth images: the topic, the decoded ones not yet past (stamp, message index,
     // image or why not), the latest stamp read.
@@ -107,6 +109,8 @@ impl Assembler {
             joint_pos: Vec::new(),
             joint_vel: Vec::new(),
             joint_has_vel: Vec::new(),
+            joint_eff: Vec::new(),
+            joint_has_eff: Vec::new(),
             latest_joint_ns: None,
             depth_topic,
             max_depth_gap_ns: ep.cfg.max_depth_gap_ms * 1e6,
@@ -357,15 +361,25 @@ impl Assembler {
         }
         let n = order.len();
         let has_vel = !msg.velocity.is_empty();
+        // Efforts are optional and not checked by the decoder: one per name, all finite,
+        // or none at this sample.
+        let has_eff =
+            msg.effort.len() == msg.name.len() && msg.effort.iter().all(|e| e.is_finite());
         self.joint_stamps.insert(at, stamp);
         self.joint_has_vel.insert(at, has_vel);
+        self.joint_has_eff.insert(at, has_eff);
         let pos: Vec<f64> = order.iter().map(|&i| msg.position[i]).collect();
-        let vel: Vec<f64> = order
-            .iter()
-            .map(|&i| msg.velocity.get(i).copied().unwrap_or(0.0))
-            .collect();
+        let column = |values: &[f64], has: bool| -> Vec<f64> {
+            order
+                .iter()
+                .map(|&i| if has { values[i] } else { 0.0 })
+                .collect()
+        };
+        let vel = column(&msg.velocity, has_vel);
+        let eff = column(&msg.effort, has_eff);
         self.joint_pos.splice(at * n..at * n, pos);
         self.joint_vel.splice(at * n..at * n, vel);
+        self.joint_eff.splice(at * n..at * n, eff);
         self.latest_joint_ns = Some(self.latest_joint_ns.map_or(stamp, |l| l.max(stamp)));
         Ok(())
     }
@@ -406,17 +420,21 @@ impl Assembler {
             Some(names) if !self.joint_stamps.is_empty() => {
                 let n = names.len();
                 let s = interpolate_rows(&self.joint_stamps, &self.joint_pos, n, p.stamp_ns);
-                // Velocities only when both samples used carry them.
+                // Velocities and efforts only when both samples used carry them.
                 let after = self.joint_stamps.partition_point(|&t| t < p.stamp_ns);
                 let used = [
                     after.saturating_sub(1),
                     after.min(self.joint_stamps.len() - 1),
                 ];
-                let velocities = if used.iter().all(|&i| self.joint_has_vel[i]) {
-                    interpolate_rows(&self.joint_stamps, &self.joint_vel, n, p.stamp_ns).positions
-                } else {
-                    Vec::new()
+                let optional = |has: &[bool], values: &[f64]| {
+                    if used.iter().all(|&i| has[i]) {
+                        interpolate_rows(&self.joint_stamps, values, n, p.stamp_ns).positions
+                    } else {
+                        Vec::new()
+                    }
                 };
+                let velocities = optional(&self.joint_has_vel, &self.joint_vel);
+                let efforts = optional(&self.joint_has_eff, &self.joint_eff);
                 let beyond_max_gap = s.gap_ns as f64 > self.max_gap_ns;
                 if beyond_max_gap {
                     warnings.push(format!(
@@ -430,13 +448,16 @@ impl Assembler {
                 if keep_from > 0 {
                     self.joint_stamps.drain(..keep_from);
                     self.joint_has_vel.drain(..keep_from);
+                    self.joint_has_eff.drain(..keep_from);
                     self.joint_pos.drain(..keep_from * n);
                     self.joint_vel.drain(..keep_from * n);
+                    self.joint_eff.drain(..keep_from * n);
                 }
                 Some(JointStateAt {
                     names: names.clone(),
                     positions: s.positions,
                     velocities,
+                    efforts,
                     gap_ns: s.gap_ns,
                     extrapolated: s.extrapolated,
                     beyond_max_gap,

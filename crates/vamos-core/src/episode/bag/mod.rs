@@ -217,6 +217,9 @@ pub struct JointStateAt {
     pub positions: Vec<f64>,
     /// Velocities, in `names` order; empty unless both samples used carry them.
     pub velocities: Vec<f64>,
+    /// Efforts (N m or N), in `names` order; empty unless both samples used carry one
+    /// finite effort per name.
+    pub efforts: Vec<f64>,
     /// Distance to the nearest joint sample, ns.
     pub gap_ns: i64,
     /// Whether the stamp lies outside the joint samples (nearest taken).

@@ -31,10 +31,11 @@
 use super::attach::AttachedShapes;
 use super::frames::{FrameProcessor, ProcessedFrame};
 use super::residual::{self, FlowPooling};
-use super::{DetectorSwitches, PipelineConfig};
+use super::{DetectorSwitches, EffortWindow, PipelineConfig};
 use crate::eval::{Components, Pooling, Thresholds, Window, fuse_frame, pool_cells};
 use nalgebra::Isometry3;
 
+use std::collections::HashMap;
 use std::sync::Arc;
 use std::time::Instant;
 use vamos_model::FlowModel;
@@ -66,6 +67,11 @@ struct BodyState {
     /// The previous processed frame's stamp and the positions part of its robot state
     /// (`e_k`).
     previous_positions: Option<(i64, Vec<f64>)>,
+    /// The joints that move of their own (not fixed, not mimic) by name: their place in
+    /// the positions part of a state, for the efforts that follow it.
+    own_joints: HashMap<String, usize>,
+    /// The recent efforts (`[pipeline.kinematics] effort`), smoothed.
+    efforts: EffortWindow,
     /// The previous processed frame's body mask (empty when it had none).
     previous_mask: Vec<bool>,
     /// The profile's attached shapes, and the link poses with theirs the renderer is given
@@ -230,9 +236,19 @@ impl Scorer {
                 } else {
                     &with_attachments
                 })?;
+                let own_joints = setup
+                    .robot
+                    .joints()
+                    .iter()
+                    .filter(|j| j.kind.is_moving() && j.mimic.is_none())
+                    .enumerate()
+                    .map(|(i, j)| (j.name.clone(), i))
+                    .collect();
                 Some(BodyState {
                     mapper: setup.robot.joint_mapper(),
                     setup,
+                    own_joints,
+                    efforts: EffortWindow::default(),
                     renderer,
                     out: RenderOutput::default(),
                     previous: None,
@@ -310,6 +326,7 @@ impl Scorer {
         if let Some(b) = &mut self.body {
             b.previous = None;
             b.previous_positions = None;
+            b.efforts = EffortWindow::default();
             b.previous_mask.clear();
         }
         if let Some(p) = &mut self.predictor {
@@ -359,9 +376,16 @@ impl Scorer {
         // Robot pose and render at t.
         let t0 = Instant::now();
         let mut joint_positions = None;
+        let mut joint_efforts = None;
         let pose = match (&mut self.body, input.joints) {
             (Some(body), Some(joints)) => {
                 let (links, camera_from_base, q) = body.pose(joints)?;
+                if self.config.kinematics.effort && self.config.detectors.kinematics {
+                    let efforts = body.own_efforts(joints);
+                    joint_efforts = body
+                        .efforts
+                        .push(efforts, self.config.kinematics.effort_window);
+                }
                 joint_positions = Some(q);
                 Some((links, camera_from_base))
             }
@@ -480,6 +504,7 @@ impl Scorer {
                 previous_positions
                     .as_ref()
                     .map(|(then, before)| (before.as_slice(), phase_s(*then, input.stamp_ns))),
+                joint_efforts.as_deref(),
             )
         });
         let e_k = kinematic_state.as_deref().and_then(|s| {
@@ -708,6 +733,21 @@ impl BodyState {
             .map(|(_, &v)| v)
             .collect();
         Ok((links, camera_from_base, own))
+    }
+
+    /// The efforts of the joints that move of their own, in their order (0 for one the
+    /// message lacks); `None` when the message carries no efforts (or not one per name).
+    fn own_efforts(&self, joints: JointInput<'_>) -> Option<Vec<f64>> {
+        if joints.efforts.is_empty() || joints.efforts.len() != joints.names.len() {
+            return None;
+        }
+        let mut out = vec![0.0; self.own_joints.len()];
+        for (name, &e) in joints.names.iter().zip(joints.efforts) {
+            if let Some(&i) = self.own_joints.get(name.as_str()) {
+                out[i] = e;
+            }
+        }
+        Some(out)
     }
 }
 

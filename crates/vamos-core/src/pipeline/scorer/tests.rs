@@ -49,23 +49,23 @@ fn setup() -> RobotSetup {
 }
 
 fn scorer(robot: Option<RobotSetup>, thresholds: Thresholds, stride: usize) -> Scorer {
-    scorer_with(robot, thresholds, stride, Vec::new())
+    scorer_with(robot, thresholds, stride, |_| {})
 }
 
-/// [`scorer`] with shapes attached to the robot.
+/// [`scorer`] with the pipeline's settings changed by `adjust`.
 fn scorer_with(
     robot: Option<RobotSetup>,
     thresholds: Thresholds,
     stride: usize,
-    attach: Vec<crate::pipeline::attach::Attachment>,
+    adjust: impl FnOnce(&mut PipelineConfig),
 ) -> Scorer {
     let mut config = PipelineConfig {
         stride,
         // The paper's bands (the tests below read `triggered` as the paper's trigger).
         fusion: crate::eval::Fusion::Paper,
-        attach,
         ..PipelineConfig::default()
     };
+    adjust(&mut config);
     config.frames.width = W;
     config.frames.height = H;
     Scorer::new(ScorerParts {
@@ -134,6 +134,18 @@ fn run(
     step_rad: f64,
     reported: impl Fn(usize) -> f64,
 ) -> Vec<FrameScore> {
+    run_with_effort(s, setup, frames, step_rad, reported, |_| None)
+}
+
+/// [`run`] with the joint states' effort `effort(k)` (none for `None`).
+fn run_with_effort(
+    s: &mut Scorer,
+    setup: &RobotSetup,
+    frames: usize,
+    step_rad: f64,
+    reported: impl Fn(usize) -> f64,
+    effort: impl Fn(usize) -> Option<f64>,
+) -> Vec<FrameScore> {
     let texture = Texture::random(11);
     let names = names();
     let mut out = Vec::new();
@@ -141,6 +153,7 @@ fn run(
         let (sx, sy) = expected_shift(setup, 0.0, step_rad * k as f64);
         let image = frame(&texture, sx, sy);
         let q = [reported(k)];
+        let e: Vec<f64> = effort(k).into_iter().collect();
         let score = s
             .push(&FrameInput {
                 stamp_ns: k as i64 * 100_000_000,
@@ -148,6 +161,7 @@ fn run(
                 joints: Some(JointInput {
                     names: &names,
                     positions: &q,
+                    efforts: &e,
                 }),
                 intrinsics: None,
                 depth: None,
@@ -246,6 +260,51 @@ fn joint_states_no_nominal_run_had_show_in_e_k() {
 }
 
 #[test]
+fn a_load_the_nominal_runs_never_had_shows_in_e_k_with_efforts_on() {
+    let setup = setup();
+    let step = 0.01;
+    let effort_on = |c: &mut PipelineConfig| c.kinematics.effort = true;
+    let pan = |k: usize| step * k as f64;
+    let mut s = scorer_with(Some(setup.clone()), Thresholds::default(), 1, effort_on);
+    let nominal = run_with_effort(&mut s, &setup, 6, step, pan, |_| Some(1.0));
+    let states: Vec<Vec<f32>> = nominal
+        .iter()
+        .filter_map(|f| f.kinematic_state.clone())
+        .collect();
+    assert_eq!(states.len(), 5);
+    assert_eq!(states[0].len(), 3, "position, velocity, effort");
+    let reference = crate::eval::StateReference::fit(&[states], 3, None).unwrap();
+    let thresholds = Thresholds {
+        kinematics: Some(reference),
+        ..Thresholds::default()
+    };
+    let e_k = |effort: &dyn Fn(usize) -> Option<f64>| {
+        let mut s = scorer_with(Some(setup.clone()), thresholds.clone(), 1, effort_on);
+        run_with_effort(&mut s, &setup, 6, step, pan, effort)
+            .iter()
+            .map(|f| f.e_k)
+            .collect::<Vec<_>>()
+    };
+    // The same motion against a load of 4 (unscaled here): e_k is that load once the
+    // median of three has it.
+    let loaded = e_k(&|k| Some(if k >= 2 { 5.0 } else { 1.0 }));
+    assert!(loaded[1].unwrap() < 1e-6, "{loaded:?}");
+    assert!(
+        loaded[2].unwrap() < 1e-6,
+        "one frame of three is no load: {loaded:?}"
+    );
+    for e in &loaded[3..] {
+        assert!((e.unwrap() - 4.0).abs() < 1e-3, "{loaded:?}");
+    }
+    // One spike is smoothed away.
+    let spike = e_k(&|k| Some(if k == 3 { 50.0 } else { 1.0 }));
+    assert!(spike[1..].iter().all(|e| e.unwrap() < 1e-6), "{spike:?}");
+    // Joint states without efforts: no state, so no e_k (rather than a wrong one).
+    let none = e_k(&|_| None);
+    assert!(none.iter().all(Option::is_none), "{none:?}");
+}
+
+#[test]
 fn stride_stamps_and_missing_joints() {
     let texture = Texture::random(3);
     let mut s = scorer(None, Thresholds::default(), 2);
@@ -318,6 +377,7 @@ fn masked_variant_needs_a_robot_and_bad_joints_are_errors() {
             joints: Some(JointInput {
                 names: &names,
                 positions: &[f64::NAN],
+                efforts: &[],
             }),
             intrinsics: None,
             depth: None,
@@ -356,6 +416,7 @@ fn a_small_object_falling_in_the_static_scene_shows_in_e_r() {
                 joints: Some(JointInput {
                     names: &names,
                     positions: &q,
+                    efforts: &[],
                 }),
                 intrinsics: None,
                 depth: None,
@@ -441,12 +502,9 @@ fn a_gated_attachment_is_masked_only_while_its_joint_condition_holds() {
     let setup = setup();
     let step = 0.01;
     let body_pixels = |attach| {
-        let mut s = scorer_with(
-            Some(setup.clone()),
-            Thresholds::paper(None, None),
-            1,
-            attach,
-        );
+        let mut s = scorer_with(Some(setup.clone()), Thresholds::paper(None, None), 1, |c| {
+            c.attach = attach
+        });
         run(&mut s, &setup, 5, step, |k| step * k as f64)
             .iter()
             .map(|f| f.body_pixels)
@@ -555,6 +613,7 @@ fn a_depth_image_places_the_static_scene_of_a_translating_camera() {
                     joints: Some(JointInput {
                         names: &names,
                         positions: &q,
+                        efforts: &[],
                     }),
                     intrinsics: None,
                     depth,

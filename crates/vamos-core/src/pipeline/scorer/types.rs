@@ -87,6 +87,8 @@ pub struct JointInput<'a> {
     pub names: &'a [String],
     /// Positions, radians or metres, parallel to `names`.
     pub positions: &'a [f64],
+    /// Efforts (N m or N), parallel to `names`; empty when the joint states carry none.
+    pub efforts: &'a [f64],
 }
 
 /// One image of the stream.

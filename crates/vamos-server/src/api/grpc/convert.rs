@@ -53,12 +53,13 @@ fn packed_step(step: u32, encoding: &str, width: u32) -> u32 {
     }
 }
 
-/// A streamed joint state (velocities and efforts are not used).
+/// A streamed joint state (velocities are not used).
 pub fn live_joints(j: proto::JointState) -> LiveJoints {
     LiveJoints {
         stamp_ns: j.stamp_ns,
         names: j.names,
         positions: j.positions,
+        efforts: j.efforts,
     }
 }
 
