@@ -160,6 +160,11 @@ pub struct ServiceConfig {
     /// Most raw bytes one session records, MiB; the rest of a longer session is not
     /// recorded.
     pub max_recording_mb: u64,
+    /// Every this many seconds the allocator hands the memory it holds but no longer
+    /// uses back to the system (glibc's `malloc_trim`; Linux with glibc only), so the
+    /// server's resident memory follows what it uses after bursts (sessions closing,
+    /// model swaps). 0: never.
+    pub trim_memory_s: f64,
 }
 
 impl Default for ServiceConfig {
@@ -199,6 +204,7 @@ impl Default for ServiceConfig {
             max_upload_disk_mb: 32 << 10,
             max_connections: 0,
             header_timeout_s: 10.0,
+            trim_memory_s: 30.0,
             record_sessions: true,
             recordings_disk_mb: 2048,
             max_recording_mb: 256,

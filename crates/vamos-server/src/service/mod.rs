@@ -4,7 +4,7 @@
 //! The layers, top down (each imports only those below it):
 //! - this module: [`server`] (start and shutdown, TLS, tokens, metrics, the fleet sync),
 //!   [`conn`] (the connection loop: header timeouts, connection cap, graceful end),
-//!   [`tls`];
+//!   [`tls`], [`memory`] (handing unused heap back to the system);
 //! - [`crate::api`]: the transports, gRPC and REST, thin handlers and one error mapping
 //!   each;
 //! - [`crate::session`]: sessions, the worker pool, episode scoring, profiles, jobs, in
@@ -16,6 +16,7 @@
 //! scored (up to `shutdown_grace_s`), then every stream closes with UNAVAILABLE.
 
 pub mod conn;
+pub mod memory;
 pub mod server;
 pub mod tls;
 

@@ -250,13 +250,17 @@ impl Server {
             )?,
         }
         // Images that waited long enough for joint states; detached sessions past their
-        // window; over-age sessions.
+        // window; over-age sessions; unused heap memory back to the system.
         // gRPC health follows the scoring capacity: NOT_SERVING while no worker runs.
         let sweeper = shared.clone();
         let mut stop_rx = shared.stop.subscribe();
+        let trim_every = Duration::try_from_secs_f64(shared.hub.config().trim_memory_s)
+            .ok()
+            .filter(|d| !d.is_zero());
         tokio::spawn(async move {
             let mut tick = tokio::time::interval(Duration::from_millis(50));
             let mut serving = true;
+            let mut trimmed = tokio::time::Instant::now();
             loop {
                 tokio::select! {
                     // Stop first: the workers end at shutdown, which is no outage to report
@@ -265,6 +269,14 @@ impl Server {
                     _ = stop_rx.changed() => return,
                     _ = tick.tick() => {
                         sweeper.hub.sweep();
+                        if trim_every.is_some_and(|d| trimmed.elapsed() >= d) {
+                            trimmed = tokio::time::Instant::now();
+                            tokio::task::spawn_blocking(|| {
+                                if let Some(bytes) = super::memory::trim() {
+                                    tracing::debug!(bytes, "unused heap memory given back");
+                                }
+                            });
+                        }
                         let can_score = sweeper.hub.live_workers() > 0;
                         if !can_score && *stop_rx.borrow() {
                             return;
