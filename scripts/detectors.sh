@@ -24,7 +24,9 @@
 # MODEL=PATH (a model bundle trained on SIM_DIR's training episodes, e.g. by
 # scripts/benchmark.sh) gives every row the flow predictor. DEPTH_TOPIC=TOPIC (a dataset made
 # with `vamos-sim generate --depth`: /camera/depth/image_raw) gives every row the recorded
-# depth images for the expected motion of the static scene.
+# depth images for the expected motion of the static scene. ALPHA (default 0.2) is the
+# conformal threshold's alpha: with n held-out nominal episodes it is their maximum unless
+# n >= (2 - alpha) / alpha (9 at 0.2, 19 at 0.1).
 # Needs the release binary (cargo build --release); about 90 s per row on 2 cores without
 # a model.
 set -eu
@@ -185,7 +187,7 @@ variant = "masked"
 $depth_lines
 TOML
     "$vamos" calibrate --profile "$d/profile.toml" "$sim/train" --holdout "$sim/val" \
-        --alpha 0.2 --no-progress > "$d/calibration.out" 2> "$d/calibrate.log"
+        --alpha "${ALPHA:-0.2}" --no-progress > "$d/calibration.out" 2> "$d/calibrate.log"
     "$vamos" eval --profile "$d/profile.toml" --episodes "$sim/test" --json "$d/eval.json" \
         --no-progress > /dev/null 2> "$d/eval.log"
     python3 - "$row" "$d/eval.json" <<'PY'
