@@ -1,5 +1,6 @@
 //! Prometheus metrics of the service. Labels are bounded: profile, model, stage,
-//! detector, reason; never session or robot ids.
+//! detector, reason; never session or robot ids. Model versions come and go with every
+//! upload, so the inference histogram keeps the [`MODEL_SERIES`] most recently used ones.
 
 use prometheus::{
     Encoder, Gauge, GaugeVec, HistogramOpts, HistogramVec, IntCounter, IntCounterVec, IntGauge,
@@ -16,6 +17,10 @@ const REQUEST_BUCKETS: &[f64] = &[
     0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 5.0, 10.0, 30.0, 60.0,
     300.0, 900.0, 3600.0,
 ];
+
+/// Model versions (`name@version`) the inference histogram keeps series for; the least
+/// recently first used beyond them is removed.
+pub const MODEL_SERIES: usize = 16;
 
 /// The service's metrics, registered in their own registry.
 #[derive(Clone)]
@@ -36,8 +41,11 @@ pub struct Metrics {
     pub stage_seconds: HistogramVec,
     /// Image arrival to score sent, seconds, by profile.
     pub latency_seconds: HistogramVec,
-    /// Flow-predictor inference time per frame, seconds, by model.
-    pub inference_seconds: HistogramVec,
+    /// Flow-predictor inference time per frame, seconds, by model (see
+    /// [`Self::observe_inference`]).
+    inference_seconds: HistogramVec,
+    /// The model labels `inference_seconds` has series for, oldest first.
+    inference_models: std::sync::Arc<std::sync::Mutex<std::collections::VecDeque<String>>>,
     /// Open sessions, by profile.
     pub sessions_active: IntGaugeVec,
     /// Sessions opened, by profile and outcome of the open (`ok`, `refused`).
@@ -262,6 +270,7 @@ impl Metrics {
             stage_seconds,
             latency_seconds,
             inference_seconds,
+            inference_models: Default::default(),
             sessions_active,
             sessions_opened,
             queue_depth,
@@ -282,6 +291,28 @@ impl Metrics {
             grpc_requests,
             grpc_request_seconds,
         }
+    }
+
+    /// Records one inference of `model` (`name@version`): the series of a model label
+    /// not seen among the last [`MODEL_SERIES`] replaces the oldest one's.
+    pub fn observe_inference(&self, model: &str, seconds: f64) {
+        {
+            let mut models = self
+                .inference_models
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner);
+            if !models.iter().any(|m| m == model) {
+                models.push_back(model.to_string());
+                while models.len() > MODEL_SERIES {
+                    if let Some(old) = models.pop_front() {
+                        let _ = self.inference_seconds.remove_label_values(&[&old]);
+                    }
+                }
+            }
+        }
+        self.inference_seconds
+            .with_label_values(&[model])
+            .observe(seconds);
     }
 
     /// The text exposition format (`text/plain; version=0.0.4`).
@@ -320,5 +351,27 @@ mod tests {
         )));
         #[cfg(target_os = "linux")]
         assert!(text.contains("process_resident_memory_bytes"));
+    }
+
+    #[test]
+    fn model_versions_beyond_the_last_few_lose_their_series() {
+        let m = Metrics::new();
+        let series = |m: &Metrics| {
+            m.render()
+                .lines()
+                .filter(|l| l.starts_with("vamos_model_inference_seconds_count"))
+                .count()
+        };
+        for v in 1..=MODEL_SERIES + 4 {
+            m.observe_inference(&format!("flow@{v}"), 0.001);
+            // The newest model again: still one series.
+            m.observe_inference(&format!("flow@{v}"), 0.002);
+        }
+        assert_eq!(series(&m), MODEL_SERIES);
+        let text = m.render();
+        assert!(!text.contains("model=\"flow@4\""), "the oldest are gone");
+        assert!(text.contains("vamos_model_inference_seconds_count{model=\"flow@5\"} 2"));
+        let newest = format!("model=\"flow@{}\"", MODEL_SERIES + 4);
+        assert!(text.contains(&newest), "{text}");
     }
 }

@@ -382,9 +382,7 @@ impl Hub {
         }
         let current = s.profile();
         if current.setup.model.is_some() {
-            m.inference_seconds
-                .with_label_values(&[&current.model_label])
-                .observe(us(t.model_us));
+            m.observe_inference(&current.model_label, us(t.model_us));
         }
         let detector = super::event::detector_of(&score);
         if score.anomaly {
