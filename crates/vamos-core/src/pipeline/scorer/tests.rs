@@ -263,7 +263,10 @@ fn joint_states_no_nominal_run_had_show_in_e_k() {
 fn a_load_the_nominal_runs_never_had_shows_in_e_k_with_efforts_on() {
     let setup = setup();
     let step = 0.01;
-    let effort_on = |c: &mut PipelineConfig| c.kinematics.effort = true;
+    let effort_on = |c: &mut PipelineConfig| {
+        c.kinematics.effort = true;
+        c.kinematics.effort_window = 3;
+    };
     let pan = |k: usize| step * k as f64;
     let mut s = scorer_with(Some(setup.clone()), Thresholds::default(), 1, effort_on);
     let nominal = run_with_effort(&mut s, &setup, 6, step, pan, |_| Some(1.0));
