@@ -161,6 +161,29 @@ pub fn interpolate_rows(stamps_ns: &[i64], rows: &[f64], n: usize, stamp_ns: i64
     }
 }
 
+/// [`interpolate_rows`] of an optional field (velocities, efforts) that each sample
+/// carries or not (`has`, one flag per stamp): the interpolated values when every sample
+/// used (the two around `stamp_ns`, or the nearest outside the span) carries it, else
+/// empty.
+pub fn interpolate_optional(
+    stamps_ns: &[i64],
+    rows: &[f64],
+    has: &[bool],
+    n: usize,
+    stamp_ns: i64,
+) -> Vec<f64> {
+    if stamps_ns.is_empty() {
+        return Vec::new();
+    }
+    let after = stamps_ns.partition_point(|&t| t < stamp_ns);
+    let used = [after.saturating_sub(1), after.min(stamps_ns.len() - 1)];
+    if used.iter().all(|&i| has.get(i) == Some(&true)) {
+        interpolate_rows(stamps_ns, rows, n, stamp_ns).positions
+    } else {
+        Vec::new()
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -46,7 +46,7 @@ pub use bag::{
     McapEpisode, SourceMessage, TopicInfo, decompress_zstd_into, is_zstd_file,
 };
 pub use folder::{EpisodeError, ImageSequence, SequenceFrame};
-pub use joints::{JointSample, JointTrack, interpolate_rows};
+pub use joints::{JointSample, JointTrack, interpolate_optional, interpolate_rows};
 pub use labels::Labels;
 pub use ros::CameraInfoMsg;
 pub use writer::{ImageData, ScoreBagWriter, ScoreTopics, heatmap_rgb};

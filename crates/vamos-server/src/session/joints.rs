@@ -4,7 +4,7 @@
 //! image has efforts when every group's samples around its stamp had them.
 
 use super::state::FrameJoints;
-use vamos_core::episode::interpolate_rows;
+use vamos_core::episode::{interpolate_optional, interpolate_rows};
 
 /// Longest joint name accepted, bytes.
 const MAX_JOINT_NAME: usize = 256;
@@ -184,15 +184,10 @@ impl JointBuffer {
             let s = interpolate_rows(&g.stamps_ns, &g.rows, n, stamp_ns);
             names.extend(g.names.iter().cloned());
             positions.extend(s.positions);
-            // The samples interpolated between (or the nearest one).
-            let after = g.stamps_ns.partition_point(|&t| t < stamp_ns);
-            let used = [
-                after.saturating_sub(1),
-                after.min(g.stamps_ns.len().saturating_sub(1)),
-            ];
-            all_efforts &= used.iter().all(|&i| g.has_efforts.get(i) == Some(&true));
             if all_efforts {
-                efforts.extend(interpolate_rows(&g.stamps_ns, &g.efforts, n, stamp_ns).positions);
+                let e = interpolate_optional(&g.stamps_ns, &g.efforts, &g.has_efforts, n, stamp_ns);
+                all_efforts = !e.is_empty();
+                efforts.extend(e);
             }
         }
         if !all_efforts {

@@ -45,7 +45,7 @@ pub struct Metrics {
     /// [`Self::observe_inference`]).
     inference_seconds: HistogramVec,
     /// The model labels `inference_seconds` has series for, oldest first.
-    inference_models: std::sync::Arc<std::sync::Mutex<std::collections::VecDeque<String>>>,
+    inference_models: std::sync::Arc<std::sync::RwLock<std::collections::VecDeque<String>>>,
     /// Open sessions, by profile.
     pub sessions_active: IntGaugeVec,
     /// Sessions opened, by profile and outcome of the open (`ok`, `refused`).
@@ -296,10 +296,17 @@ impl Metrics {
     /// Records one inference of `model` (`name@version`): the series of a model label
     /// not seen among the last [`MODEL_SERIES`] replaces the oldest one's.
     pub fn observe_inference(&self, model: &str, seconds: f64) {
-        {
+        // Every frame reads; only a model label not seen before writes.
+        let known = self
+            .inference_models
+            .read()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .iter()
+            .any(|m| m == model);
+        if !known {
             let mut models = self
                 .inference_models
-                .lock()
+                .write()
                 .unwrap_or_else(std::sync::PoisonError::into_inner);
             if !models.iter().any(|m| m == model) {
                 models.push_back(model.to_string());

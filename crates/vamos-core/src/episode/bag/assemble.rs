@@ -421,17 +421,8 @@ impl Assembler {
                 let n = names.len();
                 let s = interpolate_rows(&self.joint_stamps, &self.joint_pos, n, p.stamp_ns);
                 // Velocities and efforts only when both samples used carry them.
-                let after = self.joint_stamps.partition_point(|&t| t < p.stamp_ns);
-                let used = [
-                    after.saturating_sub(1),
-                    after.min(self.joint_stamps.len() - 1),
-                ];
                 let optional = |has: &[bool], values: &[f64]| {
-                    if used.iter().all(|&i| has[i]) {
-                        interpolate_rows(&self.joint_stamps, values, n, p.stamp_ns).positions
-                    } else {
-                        Vec::new()
-                    }
+                    interpolate_optional(&self.joint_stamps, values, has, n, p.stamp_ns)
                 };
                 let velocities = optional(&self.joint_has_vel, &self.joint_vel);
                 let efforts = optional(&self.joint_has_eff, &self.joint_eff);
@@ -444,7 +435,10 @@ impl Assembler {
                 }
                 // Later images have later stamps: samples before the last one at or
                 // before this stamp are no longer needed.
-                let keep_from = after.saturating_sub(1);
+                let keep_from = self
+                    .joint_stamps
+                    .partition_point(|&t| t < p.stamp_ns)
+                    .saturating_sub(1);
                 if keep_from > 0 {
                     self.joint_stamps.drain(..keep_from);
                     self.joint_has_vel.drain(..keep_from);

@@ -40,7 +40,7 @@ mod topics;
 pub use files::{decompress_zstd_into, is_zstd_file};
 
 use super::EpisodeError;
-use super::joints::interpolate_rows;
+use super::joints::{interpolate_optional, interpolate_rows};
 use super::labels::Labels;
 use super::ros::{
     CameraInfoMsg, CompressedImageMsg, ImageMsg, JointStateMsg, MessageError, decode_string, schema,

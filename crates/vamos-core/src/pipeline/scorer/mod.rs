@@ -67,8 +67,10 @@ struct BodyState {
     /// The previous processed frame's stamp and the positions part of its robot state
     /// (`e_k`).
     previous_positions: Option<(i64, Vec<f64>)>,
-    /// The joints that move of their own (not fixed, not mimic) by name: their place in
-    /// the positions part of a state, for the efforts that follow it.
+    /// The joints that move of their own (not fixed, not mimic): their indices in the
+    /// robot's joint order (the positions part of a state), and by name their place
+    /// there (for the efforts that follow it).
+    own: Vec<usize>,
     own_joints: HashMap<String, usize>,
     /// The recent efforts (`[pipeline.kinematics] effort`), smoothed.
     efforts: EffortWindow,
@@ -236,17 +238,19 @@ impl Scorer {
                 } else {
                     &with_attachments
                 })?;
-                let own_joints = setup
-                    .robot
-                    .joints()
+                let joints = setup.robot.joints();
+                let own: Vec<usize> = (0..joints.len())
+                    .filter(|&j| joints[j].kind.is_moving() && joints[j].mimic.is_none())
+                    .collect();
+                let own_joints = own
                     .iter()
-                    .filter(|j| j.kind.is_moving() && j.mimic.is_none())
                     .enumerate()
-                    .map(|(i, j)| (j.name.clone(), i))
+                    .map(|(place, &j)| (joints[j].name.clone(), place))
                     .collect();
                 Some(BodyState {
                     mapper: setup.robot.joint_mapper(),
                     setup,
+                    own,
                     own_joints,
                     efforts: EffortWindow::default(),
                     renderer,
@@ -723,15 +727,7 @@ impl BodyState {
                     link: self.setup.mount.link,
                     poses: links.len(),
                 })?;
-        let own = self
-            .setup
-            .robot
-            .joints()
-            .iter()
-            .zip(q.as_slice())
-            .filter(|(j, _)| j.kind.is_moving() && j.mimic.is_none())
-            .map(|(_, &v)| v)
-            .collect();
+        let own = self.own.iter().map(|&j| q.as_slice()[j]).collect();
         Ok((links, camera_from_base, own))
     }
 
