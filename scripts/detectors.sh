@@ -19,7 +19,9 @@
 # (the same, there only while the first finger joint reads below 3/4 of its opening: while the
 # gripper is closed on the book), attach_while_w3 (and temporal_window = 3); effort (the
 # default with the joints' efforts in e_k's state: [pipeline.kinematics] effort = true),
-# attach_while_w3_effort (attach_while_w3 with them). Each row leaves
+# attach_while_w3_effort (attach_while_w3 with them); learn_depth (the default with the
+# static scene's depth learned at calibration: [pipeline.camera_motion] learn_depth = true),
+# attach_while_learn_depth (attach_while with it). Each row leaves
 # OUT_DIR/ROW/{profile.toml, profile.calibration.json, eval.json} and prints one line.
 # MODEL=PATH (a model bundle trained on SIM_DIR's training episodes, e.g. by
 # scripts/benchmark.sh) gives every row the flow predictor. DEPTH_TOPIC=TOPIC (a dataset made
@@ -146,6 +148,12 @@ $book
 while = { joint = \"$finger\", below = $closed_below }
 [pipeline.kinematics]
 effort = true" ;;
+        learn_depth) extra='[pipeline.camera_motion]
+learn_depth = true' ;;
+        attach_while_learn_depth) extra="$book
+while = { joint = \"$finger\", below = $closed_below }
+[pipeline.camera_motion]
+learn_depth = true" ;;
         cells) extra='fusion = "calibrated"
 [pipeline.residual]
 flow_pooling = "cells"' ;;

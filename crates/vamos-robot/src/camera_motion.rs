@@ -32,6 +32,11 @@ pub struct CameraMotionParams {
     pub grid_columns: usize,
     /// Grid points down the image.
     pub grid_rows: usize,
+    /// Calibration learns the static scene's depth per cell of a `grid_columns x
+    /// grid_rows` grid from the training frames (the flow the camera's translation gives
+    /// it), used instead of `assumed_depth_m` wherever no depth image comes: for a camera
+    /// that moves, not only turns, and has no depth image. Needs the scene detector.
+    pub learn_depth: bool,
 }
 
 impl Default for CameraMotionParams {
@@ -40,6 +45,7 @@ impl Default for CameraMotionParams {
             assumed_depth_m: 1.0,
             grid_columns: 16,
             grid_rows: 12,
+            learn_depth: false,
         }
     }
 }

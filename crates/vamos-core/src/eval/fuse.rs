@@ -27,6 +27,7 @@
 //! the top of the untriggered band. A NaN threshold never triggers; a threshold <= 0
 //! triggers with ratio 1.
 
+use super::depth::LearnedDepth;
 use super::nominal::{CellStats, NominalScales, Scale};
 use super::novelty::StateReference;
 use serde::{Deserialize, Serialize};
@@ -135,10 +136,16 @@ pub struct Thresholds {
     /// before 2026-12-06.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub fusion: Option<Fusion>,
+    /// The static scene's depth learned from the training frames
+    /// (`[pipeline.camera_motion] learn_depth`): the scorer places the static scene at it
+    /// wherever no depth image comes.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[schemars(with = "Option<WholeOrSummary<LearnedDepth>>")]
+    pub depth: Option<LearnedDepth>,
 }
 
 /// The sizes of one of a calibration's bulky statistics (per-cell maps: tens of kB;
-/// nominal robot states: up to about 1 MB), shown in their place where many calibrations
+/// nominal robot states: up to about 1 MB; a learned depth's views: up to about 150 kB), shown in their place where many calibrations
 /// are listed at once (the REST API's lists).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
@@ -158,7 +165,7 @@ pub struct StatsSummary {
     /// Values per state (nominal robot states).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub dims: Option<usize>,
-    /// Number of states (nominal robot states).
+    /// Number of states (nominal robot states) or of views (learned depth).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub count: Option<usize>,
     /// Where the values are.
@@ -175,6 +182,19 @@ impl StatsSummary {
             phase_windows: stats.phases.as_ref().map(|p| p.location.len()),
             dims: None,
             count: None,
+            detail: detail.into(),
+        }
+    }
+
+    /// The sizes of a learned depth: its grid and number of views.
+    pub fn of_depth(depth: &LearnedDepth, detail: &str) -> StatsSummary {
+        StatsSummary {
+            columns: Some(depth.columns),
+            rows: Some(depth.rows),
+            maps: None,
+            phase_windows: None,
+            dims: None,
+            count: Some(depth.views.len()),
             detail: detail.into(),
         }
     }
@@ -205,7 +225,7 @@ enum WholeOrSummary<T> {
 }
 
 impl Thresholds {
-    /// Its JSON with the bulky statistics (`scene`, `flow`, `kinematics`) replaced by
+    /// Its JSON with the bulky statistics (`scene`, `flow`, `kinematics`, `depth`) replaced by
     /// their [`StatsSummary`], `detail` saying where the values are.
     pub fn summarised_json(&self, detail: &str) -> serde_json::Result<serde_json::Value> {
         let mut v = serde_json::to_value(self)?;
@@ -217,6 +237,9 @@ impl Thresholds {
         }
         if let Some(states) = &self.kinematics {
             v["kinematics"] = serde_json::to_value(StatsSummary::of_states(states, detail))?;
+        }
+        if let Some(depth) = &self.depth {
+            v["depth"] = serde_json::to_value(StatsSummary::of_depth(depth, detail))?;
         }
         Ok(v)
     }

@@ -20,6 +20,7 @@ fn each_detector_alone_at_its_own_threshold_reaches_the_alarm() {
         kinematics: None,
         flow: None,
         fusion: None,
+        depth: None,
     };
     let none = Components::default();
     // Calibrated: location + alarm * spread, the raw value without a scale.
@@ -68,6 +69,7 @@ const T: Thresholds = Thresholds {
     kinematics: None,
     flow: None,
     fusion: None,
+    depth: None,
 };
 
 #[test]

@@ -14,6 +14,7 @@
 mod ablation;
 pub mod alarm;
 mod calibrate;
+pub mod depth;
 pub mod detector_plot;
 mod episodes;
 mod fuse;

@@ -2,7 +2,9 @@
 //! calibration jobs run this one function; they differ only in how episodes are scored).
 //!
 //! 1. The training episodes are scored without thresholds; `e_c_thres` and `e_b_thres`
-//!    are the maxima of `e_c` and `e_b` over them (the paper).
+//!    are the maxima of `e_c` and `e_b` over them (the paper). With `learn_depth`, the
+//!    static scene's depth is first learned from that pass ([`super::depth`]) and the
+//!    training episodes are scored again with it.
 //! 2. The scene residual's per-cell statistics are fitted on the training frames' cell
 //!    maps, their `e_r` pooled again with them (and so the flow predictor's error per cell
 //!    and `e_o`, with `flow_pooling = "cells"`), and each detector's nominal scale
@@ -16,6 +18,7 @@
 //!    threshold on their per-episode maximum fused score bounds the episode-level false-
 //!    alarm probability by `alpha` ([`crate::eval::conformal_threshold`]).
 
+use super::depth::LearnedDepth;
 use super::offline::EpisodeScores;
 use super::profile::Calibration;
 use super::scorer::{FrameScore, phase_s};
@@ -61,8 +64,23 @@ pub fn calibrate<E>(
     let fusion = pipeline
         .fusion
         .resolve(&Thresholds::default(), model_sha256.is_some());
-    let train = score(training, Thresholds::default())?;
+    let mut train = score(training, Thresholds::default())?;
     let mut notes = Vec::new();
+    let depth = pipeline
+        .camera_motion
+        .learn_depth
+        .then(|| learn_depth(&train, pipeline, &mut notes))
+        .flatten();
+    if let Some(depth) = &depth {
+        // The training frames again, the static scene placed at the learned depth.
+        train = score(
+            training,
+            Thresholds {
+                depth: Some(depth.clone()),
+                ..Thresholds::default()
+            },
+        )?;
+    }
     let frames: Vec<&FrameScore> = train.iter().flat_map(|e| &e.frames).collect();
     // Each frame's phase: seconds since its episode's first frame.
     let phases: Vec<f64> = train
@@ -106,6 +124,7 @@ pub fn calibrate<E>(
         kinematics,
         flow,
         fusion: Some(fusion),
+        depth,
     };
     // The training frames' fused scores as the scorer gives them (windowed per episode).
     let mut window = Window::new(pipeline.temporal_window);
@@ -179,6 +198,52 @@ pub fn calibrate<E>(
         conformal,
     };
     Ok(CalibrationOutcome { calibration, notes })
+}
+
+/// The static scene's depth learned from the training frames' evidence
+/// (`[pipeline.camera_motion] learn_depth`), said in a note; `None` (with the reason) when
+/// they show none.
+fn learn_depth(
+    train: &[EpisodeScores],
+    pipeline: &PipelineConfig,
+    notes: &mut Vec<String>,
+) -> Option<LearnedDepth> {
+    if !pipeline.detectors.scene {
+        notes.push(
+            "learn_depth needs the scene detector ([pipeline.detectors] scene = true): the \
+             assumed depth stays"
+                .into(),
+        );
+        return None;
+    }
+    let grid = (
+        pipeline.camera_motion.grid_columns,
+        pipeline.camera_motion.grid_rows,
+    );
+    let evidence = train
+        .iter()
+        .flat_map(|e| &e.frames)
+        .filter_map(|f| f.depth_evidence.as_ref());
+    match LearnedDepth::fit(evidence, grid) {
+        Ok(d) => {
+            let (median, near, far) = d.summary();
+            notes.push(format!(
+                "learned the static scene's depth from {} training frames in {} views of the \
+                 camera: over all of them median {median:.2} m, {near:.2} to {far:.2} m over \
+                 the {}x{} cells ({} with too little evidence took the median of all)",
+                d.frames,
+                d.views.len(),
+                d.columns,
+                d.rows,
+                d.filled_cells
+            ));
+            Some(d)
+        }
+        Err(e) => {
+            notes.push(format!("learn_depth: {e}; the assumed depth stays"));
+            None
+        }
+    }
 }
 
 /// What [`revise`] proposes.

@@ -34,6 +34,7 @@ fn episode(name: &str, e_c: &[f64]) -> EpisodeScores {
             flow_cells: None,
             flow_grid: (0, 0),
             kinematic_state: None,
+            depth_evidence: None,
         })
         .collect();
     EpisodeScores {
@@ -247,4 +248,70 @@ fn held_out_episodes_beyond_the_maximum() {
         }
     }
     assert_eq!(episodes_beyond_max(0.2), 9);
+}
+
+/// With `learn_depth`, the training episodes are scored, the depth learned from their
+/// evidence, and scored again with it; the calibration keeps it. Without the scene
+/// detector there is nothing to learn from, and the note says why.
+#[test]
+fn learn_depth_scores_the_training_episodes_again_with_the_learned_depth() {
+    use crate::eval::depth::DepthEvidence;
+    let calibrate_with = |pipeline: &PipelineConfig| {
+        let mut passes: Vec<bool> = Vec::new();
+        let outcome = calibrate(
+            &[PathBuf::from("train.mcap")],
+            &[],
+            0.2,
+            None,
+            pipeline,
+            |paths, t: Thresholds| -> Result<Vec<EpisodeScores>, String> {
+                passes.push(t.depth.is_some());
+                Ok(paths
+                    .iter()
+                    .map(|p| {
+                        let mut e = episode(&stem(p), &[1.0, 2.0, 1.5, 1.0]);
+                        // A camera that translates in front of a wall at 0.5 m.
+                        for (i, f) in e.frames.iter_mut().enumerate() {
+                            f.depth_evidence = Some(DepthEvidence {
+                                camera_from_base: nalgebra::Isometry3::translation(
+                                    0.01 * i as f64,
+                                    0.0,
+                                    0.0,
+                                ),
+                                cell_rad: 0.05,
+                                cells: vec![[2.0, 1.0]; 16 * 12],
+                            });
+                        }
+                        e
+                    })
+                    .collect())
+            },
+        )
+        .unwrap();
+        (outcome, passes)
+    };
+    let mut pipeline = PipelineConfig::default();
+    pipeline.camera_motion.learn_depth = true;
+    let (outcome, passes) = calibrate_with(&pipeline);
+    assert_eq!(passes, [false, true], "scored without, then with the depth");
+    let noted = |outcome: &CalibrationOutcome, text: &str| {
+        assert!(
+            outcome.notes.iter().any(|n| n.contains(text)),
+            "{text}: {:?}",
+            outcome.notes
+        );
+    };
+    noted(&outcome, "learned the static scene's depth");
+    let depth = outcome.calibration.thresholds.depth.expect("learned");
+    assert_eq!(depth.summary().0, 0.5);
+    pipeline.detectors.scene = false;
+    let (outcome, passes) = calibrate_with(&pipeline);
+    assert_eq!(passes, [false]);
+    assert!(outcome.calibration.thresholds.depth.is_none());
+    noted(&outcome, "needs the scene detector");
+    pipeline.camera_motion.learn_depth = false;
+    pipeline.detectors.scene = true;
+    let (outcome, passes) = calibrate_with(&pipeline);
+    assert_eq!(passes, [false], "off: one pass");
+    assert!(outcome.calibration.thresholds.depth.is_none());
 }

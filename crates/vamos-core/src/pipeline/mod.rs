@@ -17,6 +17,7 @@
 pub mod attach;
 pub mod calibration;
 pub mod dataset;
+pub mod depth;
 pub mod frames;
 pub mod novelty;
 pub mod offline;

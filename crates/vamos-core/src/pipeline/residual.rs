@@ -267,11 +267,7 @@ pub fn scene_cells(
             let dv = observed.v[i] - expected.v[i];
             let (r, wgt) = match image {
                 Some(img) => {
-                    // Central differences, one-sided at the border.
-                    let (x0, x1) = (x.saturating_sub(1), (x + 1).min(w - 1));
-                    let (y0, y1) = (y.saturating_sub(1), (y + 1).min(h - 1));
-                    let gx = (img[y * w + x1] - img[y * w + x0]) / (x1 - x0).max(1) as f32;
-                    let gy = (img[y1 * w + x] - img[y0 * w + x]) / (y1 - y0).max(1) as f32;
+                    let (gx, gy) = gradient(img, w, h, x, y);
                     let mut r = (du * gx + dv * gy).abs();
                     if let Some(change) = target.and_then(|t| {
                         sample_bilinear(t, x as f32 + expected.u[i], y as f32 + expected.v[i])
@@ -298,6 +294,17 @@ pub fn scene_cells(
             }
         })
         .collect()
+}
+
+/// The image gradient at `(x, y)` of a row-major `w x h` image: central differences,
+/// one-sided at the border (0 along an axis of one pixel).
+pub(crate) fn gradient(img: &[f32], w: usize, h: usize, x: usize, y: usize) -> (f32, f32) {
+    let (x0, x1) = (x.saturating_sub(1), (x + 1).min(w - 1));
+    let (y0, y1) = (y.saturating_sub(1), (y + 1).min(h - 1));
+    (
+        (img[y * w + x1] - img[y * w + x0]) / (x1 - x0).max(1) as f32,
+        (img[y1 * w + x] - img[y0 * w + x]) / (y1 - y0).max(1) as f32,
+    )
 }
 
 /// The flow predictor's `size x size` error map averaged per cell of `cell_px` (partial

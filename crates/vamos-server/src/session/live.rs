@@ -272,6 +272,7 @@ mod tests {
             flow_grid: (0, 0),
             phase_s: 0.0,
             kinematic_state: None,
+            depth_evidence: None,
         }
     }
 

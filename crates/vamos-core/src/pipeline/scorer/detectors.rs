@@ -2,6 +2,7 @@
 //! the frame lacks what it needs: `e_c` (camera motion), `e_b` (body motion) and `e_r`
 //! (the scene-motion residual outside the robot).
 
+use super::super::depth::{DepthEvidence, depth_evidence};
 use super::super::frames::ProcessedFrame;
 use super::super::residual::{self, BodyError};
 use super::{Pose, Scorer, ScorerError};
@@ -11,8 +12,18 @@ use vamos_robot::camera_motion::{
     Depth, camera_motion_error, expected_camera_motion, expected_image_flow, similarity_flow,
 };
 
-/// `e_r` of a frame, its per-cell residuals and their `(columns, rows)`.
-pub(super) type SceneResidual = (Option<f64>, Option<Vec<f32>>, (usize, usize));
+/// `e_r` of a frame and what calibration takes from it.
+#[derive(Default)]
+pub(super) struct SceneResidual {
+    pub e_r: Option<f64>,
+    /// The per-cell residuals and their `(columns, rows)`.
+    pub cells: Option<Vec<f32>>,
+    pub grid: (usize, usize),
+    /// The frame's evidence on the static scene's depth (for a profile with
+    /// `learn_depth` before any calibration, what calibration learns it from; frames with
+    /// a depth image give none).
+    pub depth_evidence: Option<DepthEvidence>,
+}
 
 impl Scorer {
     /// `e_c`: the camera motion expected from the previous and current camera poses
@@ -94,7 +105,7 @@ impl Scorer {
         phase_s: f64,
     ) -> Result<SceneResidual, ScorerError> {
         if !self.config.detectors.scene {
-            return Ok((None, None, (0, 0)));
+            return Ok(SceneResidual::default());
         }
         let (w, h) = (self.config.frames.width, self.config.frames.height);
         match (pose, previous_pose, intrinsics) {
@@ -125,6 +136,28 @@ impl Scorer {
                 .ceil()
                 .min(64.0) as usize;
         let exclude = residual::grow_union(current_mask, previous_mask, w, h, margin);
+        let depth_evidence = match (pose, previous_pose, intrinsics, depth) {
+            (Some((_, current)), Some((_, previous)), Some(k), Depth::Assumed)
+                if self.config.camera_motion.learn_depth
+                    && self.thresholds.depth.is_none()
+                    && self.thresholds.scales.is_none() =>
+            {
+                let grid = (
+                    self.config.camera_motion.grid_columns,
+                    self.config.camera_motion.grid_rows,
+                );
+                Some(depth_evidence(
+                    previous,
+                    current,
+                    k,
+                    &processed.flow,
+                    &processed.previous_image,
+                    &exclude,
+                    grid,
+                ))
+            }
+            _ => None,
+        };
         let cells = residual::scene_cells(
             &processed.flow,
             &self.expected_flow,
@@ -154,6 +187,11 @@ impl Scorer {
             },
             None,
         );
-        Ok((e_r, Some(cells), (columns, rows)))
+        Ok(SceneResidual {
+            e_r,
+            cells: Some(cells),
+            grid: (columns, rows),
+            depth_evidence,
+        })
     }
 }

@@ -29,6 +29,7 @@
 //! goes on from the last good one.
 
 use super::attach::AttachedShapes;
+use super::depth::{LearnedDepth, ViewIndex};
 use super::frames::{FrameProcessor, ProcessedFrame};
 use super::residual::{self, FlowPooling};
 use super::{DetectorSwitches, EffortWindow, PipelineConfig};
@@ -49,6 +50,7 @@ use vamos_vision::preprocess::NetworkInputParams;
 use vamos_vision::registration::RegistrationParams;
 
 mod detectors;
+use detectors::SceneResidual;
 mod types;
 
 pub use types::{FrameInput, FrameScore, JointInput, RobotSetup, ScorerError, StageTimings};
@@ -103,8 +105,36 @@ pub struct Scorer {
     /// has none); empty when it came without one.
     previous_depth: Vec<f32>,
     warned_depth: bool,
+    /// The calibration's learned depth of the static scene (used where a frame has no
+    /// depth image); `None` without one.
+    learned_depth: Option<LearnedDepthCache>,
     /// The last `temporal_window` fused scores.
     window: Window,
+}
+
+/// The learned depth of the static scene and the pixel depths of the view last used.
+struct LearnedDepthCache {
+    depth: LearnedDepth,
+    index: ViewIndex,
+    view: Option<usize>,
+    pixels: Arc<[f32]>,
+}
+
+impl LearnedDepthCache {
+    /// The pixel depths (`size`) for a frame whose flow starts at this camera pose: its
+    /// view's, or every view's without a pose or a view near it.
+    fn at(
+        &mut self,
+        camera_from_base: Option<&Isometry3<f64>>,
+        size: (usize, usize),
+    ) -> Arc<[f32]> {
+        let view = camera_from_base.and_then(|p| self.index.nearest(p));
+        if view != self.view {
+            self.pixels = Arc::from(self.depth.pixel_depths(view, size.0, size.1));
+            self.view = view;
+        }
+        self.pixels.clone()
+    }
 }
 
 /// Keeps the frame's depth image in `kept` at the processing resolution `size` for the
@@ -266,6 +296,22 @@ impl Scorer {
         };
         let processor = FrameProcessor::new(config.frames.clone(), flow, registration, network)?;
         let window = Window::new(config.temporal_window);
+        let learned_depth = match &thresholds.depth {
+            Some(d) => {
+                d.validate().map_err(ScorerError::Config)?;
+                Some(LearnedDepthCache {
+                    pixels: Arc::from(d.pixel_depths(
+                        None,
+                        config.frames.width,
+                        config.frames.height,
+                    )),
+                    view: None,
+                    index: d.view_index(),
+                    depth: d.clone(),
+                })
+            }
+            None => None,
+        };
         Ok(Self {
             config,
             thresholds,
@@ -282,6 +328,7 @@ impl Scorer {
             expected_flow: FlowField::zeros(0, 0),
             previous_depth: Vec::new(),
             warned_depth: false,
+            learned_depth,
             window,
         })
     }
@@ -544,15 +591,22 @@ impl Scorer {
                 flow_grid: (0, 0),
                 phase_s: phase_s(first_ns, input.stamp_ns),
                 kinematic_state,
+                depth_evidence: None,
             }));
         };
         timings.front_end = processed.timings;
 
         let t0 = Instant::now();
-        let depth = if previous_depth.is_empty() {
-            Depth::Assumed
-        } else {
-            Depth::Image(&previous_depth)
+        let learned_depth = match &mut self.learned_depth {
+            Some(cache) if previous_depth.is_empty() => {
+                Some(cache.at(previous_pose.as_ref().map(|p| &p.1), (w, h)))
+            }
+            _ => None,
+        };
+        let depth = match (&previous_depth, &learned_depth) {
+            (d, _) if !d.is_empty() => Depth::Image(d),
+            (_, Some(learned)) => Depth::Image(learned),
+            _ => Depth::Assumed,
         };
         let e_c = self.camera_error(
             pose.as_ref(),
@@ -567,7 +621,12 @@ impl Scorer {
         timings.body_us = micros(t0);
 
         let t0 = Instant::now();
-        let (e_r, scene_cells, scene_grid) = self.scene_residual(
+        let SceneResidual {
+            e_r,
+            cells: scene_cells,
+            grid: scene_grid,
+            depth_evidence,
+        } = self.scene_residual(
             pose.as_ref(),
             previous_pose.as_ref(),
             intrinsics.as_ref(),
@@ -626,6 +685,7 @@ impl Scorer {
             flow_grid,
             phase_s: phase_s(first_ns, input.stamp_ns),
             kinematic_state,
+            depth_evidence,
         }))
     }
 

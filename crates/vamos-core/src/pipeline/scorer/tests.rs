@@ -3,6 +3,7 @@
 
 use super::*;
 use crate::eval::Detector;
+use crate::pipeline::depth::LearnedDepth;
 use vamos_robot::camera_motion::{CameraMotionParams, expected_camera_motion};
 use vamos_robot::camera_motion::{Depth, expected_image_flow};
 use vamos_robot::render::RenderBackend;
@@ -602,10 +603,17 @@ fn a_depth_image_places_the_static_scene_of_a_translating_camera() {
     let texture = Texture::random(5);
     let wall = DepthImage::new(W / 2, H / 2, vec![wall_m as f32; W * H / 4]).unwrap();
     let squashed = DepthImage::new(W, H / 4, vec![wall_m as f32; W * H / 4]).unwrap();
-    // Mean raw e_r (pixels) over the frames after the first two, with the given depth.
-    let run = |depth: Option<&DepthImage>| {
-        let mut s = scorer(Some(setup.clone()), Thresholds::default(), 1);
-        let mut e_r = Vec::new();
+    // Mean raw e_r (pixels) over the frames after the first two, with the given depth
+    // image or learned depth, and the frames' depth evidence (with `learn_depth`).
+    let run = |depth: Option<&DepthImage>, learned: Option<LearnedDepth>, learn: bool| {
+        let thresholds = Thresholds {
+            depth: learned,
+            ..Thresholds::default()
+        };
+        let mut s = scorer_with(Some(setup.clone()), thresholds, 1, |c| {
+            c.camera_motion.learn_depth = learn
+        });
+        let (mut e_r, mut evidence) = (Vec::new(), Vec::new());
         for i in 0..6 {
             let image = frame(&texture, f64::from(shift) * i as f64, 0.0);
             let q = [step_m * i as f64];
@@ -626,13 +634,18 @@ fn a_depth_image_places_the_static_scene_of_a_translating_camera() {
             if i >= 2 {
                 e_r.push(score.e_r.expect("e_r"));
             }
+            evidence.extend(score.depth_evidence);
         }
-        e_r.iter().sum::<f64>() / e_r.len() as f64
+        (e_r.iter().sum::<f64>() / e_r.len() as f64, evidence)
     };
-    let with_depth = run(Some(&wall));
-    let assumed = run(None);
+    let (with_depth, none) = run(Some(&wall), None, true);
+    assert!(
+        none.is_empty(),
+        "frames with a depth image give no evidence"
+    );
+    let (assumed, evidence) = run(None, None, true);
     // A depth image of another aspect ratio is not registered to the image: left out.
-    let misfit = run(Some(&squashed));
+    let (misfit, _) = run(Some(&squashed), None, false);
     assert!(with_depth < 0.3, "with the depth image: {with_depth} px");
     assert!(
         assumed > 0.2 * f64::from(shift.abs()),
@@ -640,6 +653,18 @@ fn a_depth_image_places_the_static_scene_of_a_translating_camera() {
     );
     assert!(with_depth < 0.4 * assumed, "{with_depth} vs {assumed}");
     assert_eq!(misfit, assumed);
+    // Learned from the frames without a depth image: the wall's depth, and the scene
+    // residual of a stream without depth images as low as with them.
+    assert_eq!(evidence.len(), 5, "every frame with flow and two poses");
+    let learned = LearnedDepth::fit(&evidence, (16, 12)).unwrap();
+    let (median, near, far) = learned.summary();
+    assert!((median - 0.5).abs() < 0.05, "{median} m ({near} to {far})");
+    let (with_learned, none) = run(None, Some(learned), true);
+    assert!(none.is_empty(), "a calibrated depth is not learned again");
+    assert!(
+        with_learned < 1.5 * with_depth.max(0.1),
+        "learned: {with_learned} px, depth image: {with_depth} px, assumed {assumed} px"
+    );
 }
 
 #[test]

@@ -189,4 +189,8 @@ pub struct FrameScore {
     /// The robot's state (what calibration keeps as the nominal states of `e_k`).
     #[serde(skip)]
     pub kinematic_state: Option<Vec<f32>>,
+    /// The frame's evidence on the static scene's depth (what calibration learns the
+    /// depth from with `learn_depth`).
+    #[serde(skip)]
+    pub depth_evidence: Option<crate::pipeline::depth::DepthEvidence>,
 }

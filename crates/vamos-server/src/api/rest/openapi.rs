@@ -540,8 +540,8 @@ fn operation(method: &str, path: &str, g: &mut SchemaGenerator) -> Option<Op> {
                 .describe(
                     "A stored profile's calibration statistics that run large (the per-cell \
                  statistics in `thresholds.scene` and `thresholds.flow`, the kinematic \
-                 novelty's nominal states in `thresholds.kinematics`) are listed by their \
-                 sizes only (StatsSummary), with a `detail` saying so; \
+                 novelty's nominal states in `thresholds.kinematics`, a learned depth's \
+                 views in `thresholds.depth`) are listed by their sizes only (StatsSummary), with a `detail` saying so; \
                  `GET /v1/profiles/{name}` gives them whole.",
                 )
                 .ok::<ProfileList>(g, 200, "Profiles")
@@ -601,7 +601,7 @@ fn operation(method: &str, path: &str, g: &mut SchemaGenerator) -> Option<Op> {
         )
         .describe(
             "A job's calibration statistics that run large (`calibration.thresholds.scene`, \
-             `.flow` and `.kinematics`) are listed by their sizes only (StatsSummary), with \
+             `.flow`, `.kinematics` and `.depth`) are listed by their sizes only (StatsSummary), with \
              a `detail` saying so; `GET /v1/jobs/{id}` gives them whole.",
         )
         .ok::<JobList>(g, 200, "Jobs"),
