@@ -3,6 +3,7 @@
 //! numpy): every image encoding, compressed images, zstd/lz4/uncompressed chunks, joint
 //! interpolation, and the bad-input cases; then the score-bag writer read back.
 
+mod conformance;
 mod reading;
 mod writing;
 
