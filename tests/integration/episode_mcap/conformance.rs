@@ -473,27 +473,27 @@ fn write_variant(input: &Input, features: &[Feature]) -> Vec<u8> {
         }
         groups.push((opcode, start, out.len() as u64 - start));
     };
-    let repeated = |pick: fn(&Rec) -> Option<Fields>| -> Vec<Fields> {
-        input.records.iter().filter_map(pick).collect()
+    // The summary's copies of the data records of one kind (their content: `group` adds
+    // the opcode, length and padding).
+    let repeated = |kind: fn(&Rec) -> bool| -> Vec<Fields> {
+        let content = |r: &Rec| {
+            let mut buf = Vec::new();
+            write_data_record(&mut buf, r, false);
+            Fields(buf[9..].to_vec())
+        };
+        input
+            .records
+            .iter()
+            .filter(|r| kind(r))
+            .map(content)
+            .collect()
     };
     if on(Feature::RepeatedSchemas) {
-        let records = repeated(|r| {
-            matches!(r, Rec::Schema { .. }).then(|| {
-                let mut buf = Vec::new();
-                write_data_record(&mut buf, r, false);
-                Fields(buf[9..].to_vec())
-            })
-        });
+        let records = repeated(|r| matches!(r, Rec::Schema { .. }));
         group(&mut out, op::SCHEMA, records);
     }
     if on(Feature::RepeatedChannels) {
-        let records = repeated(|r| {
-            matches!(r, Rec::Channel { .. }).then(|| {
-                let mut buf = Vec::new();
-                write_data_record(&mut buf, r, false);
-                Fields(buf[9..].to_vec())
-            })
-        });
+        let records = repeated(|r| matches!(r, Rec::Channel { .. }));
         group(&mut out, op::CHANNEL, records);
     }
     if on(Feature::Statistics) {
