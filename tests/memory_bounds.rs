@@ -107,4 +107,50 @@ fn image_work_is_bounded_by_the_output_not_the_aspect_ratio() {
     });
     assert_eq!(small.width(), 160);
     assert!(peak < 4 * MIB, "decode + resize peak {} KiB", peak >> 10);
+
+    // 4. A 200-byte bag whose zstd chunk holds a record declaring 200 MiB (a corrupt
+    //    length): the MCAP reader reserved and zeroed the declared length before
+    //    decompressing it (up to the 256 MiB record limit, for every scan of the file).
+    //    The scan's limit is now the file's longest possible record (here the chunk's
+    //    declared 64 bytes): refused as damage, with little memory.
+    let bag = bag_with_a_lying_chunk_record(200 * MIB as u64);
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("lying.mcap");
+    std::fs::write(&path, &bag).unwrap();
+    let ((), peak) = peak_of(|| {
+        let cfg = vamos::episode::EpisodeConfig::default();
+        let err = vamos::episode::McapEpisode::open(&path, &cfg).unwrap_err();
+        assert!(err.to_string().contains("exceeds limit"), "{err}");
+    });
+    assert!(peak < 4 * MIB, "scan peak {} KiB", peak >> 10);
+}
+
+/// An MCAP file (no summary) of a header and one zstd chunk whose first record declares
+/// `declared` bytes but holds a few.
+fn bag_with_a_lying_chunk_record(declared: u64) -> Vec<u8> {
+    fn record(out: &mut Vec<u8>, opcode: u8, content: &[u8]) {
+        out.push(opcode);
+        out.extend_from_slice(&(content.len() as u64).to_le_bytes());
+        out.extend_from_slice(content);
+    }
+    let mut inner = vec![0x05];
+    inner.extend_from_slice(&declared.to_le_bytes());
+    inner.extend_from_slice(&[0u8; 55]);
+    let compressed = zstd::encode_all(&inner[..], 3).unwrap();
+    let mut out = b"\x89MCAP0\r\n".to_vec();
+    let mut header = Vec::new();
+    header.extend_from_slice(&0u32.to_le_bytes());
+    header.extend_from_slice(&0u32.to_le_bytes());
+    record(&mut out, 0x01, &header);
+    let mut chunk = Vec::new();
+    for v in [0u64, 0, inner.len() as u64] {
+        chunk.extend_from_slice(&v.to_le_bytes());
+    }
+    chunk.extend_from_slice(&0u32.to_le_bytes()); // no CRC
+    chunk.extend_from_slice(&4u32.to_le_bytes());
+    chunk.extend_from_slice(b"zstd");
+    chunk.extend_from_slice(&(compressed.len() as u64).to_le_bytes());
+    chunk.extend_from_slice(&compressed);
+    record(&mut out, 0x06, &chunk);
+    out
 }
