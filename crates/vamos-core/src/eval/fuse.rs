@@ -145,8 +145,8 @@ pub struct Thresholds {
 }
 
 /// The sizes of one of a calibration's bulky statistics (per-cell maps: tens of kB;
-/// nominal robot states: up to about 1 MB; a learned depth's views: up to about 150 kB), shown in their place where many calibrations
-/// are listed at once (the REST API's lists).
+/// nominal robot states: up to about 1 MB; a learned depth's views: up to about 150 kB),
+/// shown in their place where many calibrations are listed at once (the REST API's lists).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct StatsSummary {
@@ -225,8 +225,8 @@ enum WholeOrSummary<T> {
 }
 
 impl Thresholds {
-    /// Its JSON with the bulky statistics (`scene`, `flow`, `kinematics`, `depth`) replaced by
-    /// their [`StatsSummary`], `detail` saying where the values are.
+    /// Its JSON with the bulky statistics (`scene`, `flow`, `kinematics`, `depth`) replaced
+    /// by their [`StatsSummary`], `detail` saying where the values are.
     pub fn summarised_json(&self, detail: &str) -> serde_json::Result<serde_json::Value> {
         let mut v = serde_json::to_value(self)?;
         let cells = [("scene", &self.scene), ("flow", &self.flow)];
