@@ -165,6 +165,13 @@ pub struct ServiceConfig {
     /// server's resident memory follows what it uses after bursts (sessions closing,
     /// model swaps). 0: never.
     pub trim_memory_s: f64,
+    /// Allocations of at least this many KiB get pages of their own, handed back to the
+    /// system when freed (glibc's `M_MMAP_THRESHOLD`; Linux with glibc only). Setting it
+    /// keeps it fixed: left alone, glibc raises the threshold to the size of each large
+    /// block freed (up to 32 MiB), after which model and frame buffers come from the
+    /// shared heap and stay resident, scattered, after they are freed. 0: glibc's own
+    /// moving threshold.
+    pub mmap_threshold_kib: u64,
 }
 
 impl Default for ServiceConfig {
@@ -205,6 +212,7 @@ impl Default for ServiceConfig {
             max_connections: 0,
             header_timeout_s: 10.0,
             trim_memory_s: 30.0,
+            mmap_threshold_kib: 128,
             record_sessions: true,
             recordings_disk_mb: 2048,
             max_recording_mb: 256,

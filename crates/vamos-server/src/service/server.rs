@@ -84,6 +84,14 @@ impl Server {
         profiles: ProfileCatalog,
     ) -> Result<RunningServer, ServiceError> {
         let cfg = settings.service.clone();
+        if cfg.mmap_threshold_kib > 0
+            && !super::memory::fix_mmap_threshold(cfg.mmap_threshold_kib.saturating_mul(1024))
+        {
+            tracing::warn!(
+                kib = cfg.mmap_threshold_kib,
+                "[service] mmap_threshold_kib not taken (glibc on Linux only, below 2 GiB)"
+            );
+        }
         let tokens = Tokens::new(&cfg.admin_token_sha256, &cfg.robot_token_sha256, None, None)
             .map_err(|e| ServiceError::Config(e.to_string()))?
             .with_digests(auth::env_token_digests())
