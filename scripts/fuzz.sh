@@ -6,14 +6,17 @@
 #
 #   scripts/fuzz.sh                  # every target, FUZZ_SECONDS (default 15) each
 #   FUZZ_SECONDS=600 scripts/fuzz.sh mesh urdf
+#   FUZZ_PROFILE=release FUZZ_RUNS=1000000 FUZZ_SECONDS=3600 scripts/fuzz.sh urdf
 #
-# Settings: FUZZ_SECONDS (per target), FUZZ_SANITIZER (none | address; default none: the
+# Settings: FUZZ_SECONDS (per target), FUZZ_RUNS (stop a target after this many executions,
+# whichever of the two comes first; default: no limit), FUZZ_SANITIZER (none | address; default none: the
 # targets reach only safe Rust and well-fuzzed C, and the build stays short on 2 cores),
 # FUZZ_PROFILE (dev | release; default dev: the shortest build).
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 
 seconds="${FUZZ_SECONDS:-15}"
+runs_limit="${FUZZ_RUNS:--1}"
 sanitizer="${FUZZ_SANITIZER:-none}"
 profile="${FUZZ_PROFILE:-dev}"
 
@@ -47,8 +50,9 @@ for t in "${targets[@]}"; do
     seeds=(corpus/"$t")
     [ -d regressions/"$t" ] && seeds+=(regressions/"$t")
     log="$work/$t.log"
+    started=$SECONDS
     if ! cargo "${toolchain[@]}" fuzz run "${build_flags[@]}" "$t" "$work/$t" "${seeds[@]}" -- \
-        -max_total_time="$seconds" -max_len=65536 -rss_limit_mb=2048 -timeout=10 \
+        -max_total_time="$seconds" -runs="$runs_limit" -max_len=65536 -rss_limit_mb=2048 -timeout=10 \
         -print_final_stats=1 >"$log" 2>&1; then
         tail -n 60 "$log"
         echo "fuzz target $t FAILED (its input is in fuzz/artifacts/$t/)"
@@ -56,8 +60,9 @@ for t in "${targets[@]}"; do
     fi
     runs="$(sed -nE 's/^Done ([0-9]+) runs.*/\1/p' "$log" | tail -n 1)"
     cov="$(grep -oE 'cov: [0-9]+' "$log" | tail -n 1 | grep -oE '[0-9]+' || true)"
+    rss="$(sed -nE 's/^stat::peak_rss_mb:[[:space:]]*([0-9]+).*/\1/p' "$log" | tail -n 1)"
     corpus="$(find "$work/$t" -type f | wc -l)"
-    summary+=("$(printf '%-16s %10s runs  %6s edges  %5s new inputs  %ss' \
-        "$t" "${runs:-?}" "${cov:-?}" "$corpus" "$seconds")")
+    summary+=("$(printf '%-16s %10s runs  %6s edges  %5s new inputs  %5ss  peak %4s MB' \
+        "$t" "${runs:-?}" "${cov:-?}" "$corpus" "$((SECONDS - started))" "${rss:-?}")")
 done
 printf '%s\n' "${summary[@]}"

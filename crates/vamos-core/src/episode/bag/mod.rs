@@ -34,6 +34,7 @@
 
 mod assemble;
 mod files;
+mod longest;
 mod source;
 mod topics;
 
@@ -63,6 +64,7 @@ use vamos_vision::{DepthImage, GrayImage};
 
 use assemble::*;
 use files::*;
+use longest::longest_record;
 use source::*;
 use topics::*;
 

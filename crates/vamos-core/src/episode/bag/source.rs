@@ -189,45 +189,6 @@ impl Reorder {
     }
 }
 
-/// The longest record `file` can hold: no record in the data section is longer than the
-/// file, and none inside a chunk longer than the largest uncompressed size a chunk
-/// declares. A scan's record limit is lowered to it, because the MCAP reader reserves (and
-/// zeroes) the length a record inside a compressed chunk declares before it decompresses
-/// it: a corrupt length in a 10 KB file otherwise costs the whole limit (256 MiB or more)
-/// per scan. Reads the records' headers only; leaves `file` at its start.
-fn longest_record(file: &mut File) -> std::io::Result<usize> {
-    use std::io::BufReader;
-    let len = file.metadata()?.len();
-    let mut longest = len;
-    let mut reader = BufReader::new(&mut *file);
-    reader.seek(SeekFrom::Start(8))?;
-    let mut pos = 8u64;
-    // Opcode and length, then a chunk's start time, end time and uncompressed size.
-    let mut head = [0u8; 9 + 24];
-    while pos + 9 <= len {
-        reader.read_exact(&mut head[..9])?;
-        let record = u64::from_le_bytes(head[1..9].try_into().unwrap_or_default());
-        let mut read = 9;
-        if head[0] == op::CHUNK && pos + 9 + 24 <= len {
-            reader.read_exact(&mut head[9..])?;
-            read += 24;
-            let uncompressed = u64::from_le_bytes(head[25..33].try_into().unwrap_or_default());
-            longest = longest.max(uncompressed);
-        }
-        let Some(next) = pos.checked_add(9).and_then(|p| p.checked_add(record)) else {
-            break;
-        };
-        if next > len {
-            break;
-        }
-        reader.seek_relative(i64::try_from(next - pos - read).unwrap_or(i64::MAX))?;
-        pos = next;
-    }
-    drop(reader);
-    file.seek(SeekFrom::Start(0))?;
-    Ok(usize::try_from(longest).unwrap_or(usize::MAX))
-}
-
 /// A linear scan of a file, tolerant of damage at the end.
 pub(super) struct LinearScan {
     pub(super) file: File,
