@@ -34,7 +34,7 @@
 
 mod assemble;
 mod files;
-mod longest;
+mod prescan;
 mod source;
 mod topics;
 
@@ -64,7 +64,7 @@ use vamos_vision::{DepthImage, GrayImage};
 
 use assemble::*;
 use files::*;
-use longest::longest_record;
+use prescan::prescan;
 use source::*;
 use topics::*;
 

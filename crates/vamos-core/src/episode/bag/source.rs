@@ -197,6 +197,10 @@ pub(super) struct LinearScan {
     pub(super) schemas: HashMap<u16, (Arc<str>, Arc<str>)>,
     /// Bytes handed to the reader so far.
     pub(super) fed: u64,
+    /// Where the reader must stop (a chunk it cannot read safely, [`Prescan::damage`]) and
+    /// why, reported once when the scan gets there.
+    stop_at: u64,
+    stop_reason: Option<String>,
     pub(super) topics: Option<Vec<String>>,
     /// Whether to keep schema definitions (for [`McapEpisode::schema_of`]).
     pub(super) keep_schema_data: bool,
@@ -210,18 +214,23 @@ impl LinearScan {
         topics: Option<Vec<String>>,
     ) -> Result<Self, EpisodeError> {
         let mut file = File::open(path).map_err(|e| io_err(path, e))?;
-        let longest = longest_record(&mut file).map_err(|e| io_err(path, e))?;
+        let found = prescan(&mut file).map_err(|e| io_err(path, e))?;
         let reader = LinearReader::new_with_options(
             LinearReaderOptions::default()
                 .with_validate_chunk_crcs(true)
-                .with_record_length_limit(record_limit.min(longest)),
+                .with_record_length_limit(record_limit.min(found.longest_record)),
         );
+        let (stop_at, stop_reason) = found
+            .damage
+            .map_or((u64::MAX, None), |(at, why)| (at, Some(why)));
         Ok(Self {
             file,
             reader,
             channels: HashMap::new(),
             schemas: HashMap::new(),
             fed: 0,
+            stop_at,
+            stop_reason,
             topics,
             keep_schema_data: false,
             schema_data: HashMap::new(),
@@ -294,6 +303,10 @@ impl LinearScan {
                     continue;
                 }
             };
+            if self.fed >= self.stop_at {
+                return self.stop_reason.take().map(|why| Err((self.stop_at, why)));
+            }
+            let want = want.min(usize::try_from(self.stop_at - self.fed).unwrap_or(usize::MAX));
             match self.file.read(self.reader.insert(want)) {
                 Ok(got) => {
                     self.fed += got as u64;
