@@ -265,6 +265,67 @@ fn a_truncated_bag_yields_its_valid_frames_then_where_it_broke() {
     );
 }
 
+/// A record inside an uncompressed chunk that declares more bytes than the chunk has left
+/// (fuzz-found: the MCAP reader subtracted it from the chunk's remainder unchecked). The
+/// bag is read up to that chunk and the damage names it.
+#[test]
+fn a_record_running_past_its_uncompressed_chunk_is_damage_after_the_frames_before_it() {
+    let bytes = std::fs::read(fixtures().join("rgba8_none.mcap")).unwrap();
+    let u64_at = |at: usize| u64::from_le_bytes(bytes[at..at + 8].try_into().unwrap());
+    // The data section's chunks, and where it ends (the summary and footer are dropped so
+    // that the file is read by a linear scan).
+    let (mut chunks, mut pos) = (Vec::new(), 8);
+    while bytes[pos] != 0x0f {
+        if bytes[pos] == 0x06 {
+            chunks.push(pos);
+        }
+        pos += 9 + u64_at(pos + 1) as usize;
+    }
+    assert!(chunks.len() >= 3, "{} chunks", chunks.len());
+    let last = *chunks.last().unwrap();
+    // Opcode and length, times and uncompressed size, CRC, "" (no compression), records length.
+    assert_eq!(
+        u32::from_le_bytes(bytes[last + 37..last + 41].try_into().unwrap()),
+        0
+    );
+    let records = last + 49;
+    let records_len = u64_at(last + 41);
+    let mut damaged = bytes[..pos].to_vec();
+    damaged[records + 1..records + 9].copy_from_slice(&(records_len + 100).to_le_bytes());
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("overrun.mcap");
+    std::fs::write(&path, &damaged).unwrap();
+
+    let ep = McapEpisode::open(&path, &EpisodeConfig::default()).unwrap();
+    assert!(!ep.info().indexed);
+    let items: Vec<_> = ep.frames().collect();
+    let (end, frames) = items.split_last().unwrap();
+    match end {
+        Err(EpisodeError::Truncated { offset, reason, .. }) => {
+            assert_eq!(*offset, last as u64);
+            assert!(
+                reason.contains(&format!("chunk at byte {last}")),
+                "{reason}"
+            );
+            assert!(reason.contains("declares"), "{reason}");
+        }
+        other => panic!("the last item should be the damage: {other:?}"),
+    }
+    // Every image of the chunks before it (the fixture's chunks hold whole frames' worth of
+    // messages; at least one image is lost with the last chunk).
+    let read = frames.iter().filter(|f| f.is_ok()).count();
+    let all = expected()["bags"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|b| b["file"] == "rgba8_none.mcap")
+        .unwrap()["frames"]
+        .as_array()
+        .unwrap()
+        .len();
+    assert!(read >= 1 && read < all, "{read} of {all} frames");
+}
+
 #[test]
 fn labels_come_from_the_sidecar_or_the_label_topic() {
     let exp = expected();
