@@ -31,9 +31,9 @@ pub(super) struct Prescan {
     pub(super) damage: Option<(u64, String)>,
 }
 
-/// Reads the headers of `file`'s records (and of the records inside uncompressed chunks);
-/// leaves `file` at its start. A chunk too short for its own header is left for the scan to
-/// report.
+/// Reads the headers of `file`'s records (and of the records inside uncompressed chunks,
+/// also of a chunk cut off by the file's end); leaves `file` at its start. A chunk too short
+/// for its own header is left for the scan to report.
 pub(super) fn prescan(file: &mut File) -> std::io::Result<Prescan> {
     let len = file.metadata()?.len();
     let mut longest = len;
@@ -46,14 +46,12 @@ pub(super) fn prescan(file: &mut File) -> std::io::Result<Prescan> {
         let (record_head, chunk_head) = head.split_at_mut(RECORD_HEAD as usize);
         reader.read_exact(record_head)?;
         let record = u64_at(record_head, 1);
-        let Some(next) = (pos + RECORD_HEAD).checked_add(record) else {
-            break;
-        };
-        if next > len {
-            break;
-        }
+        // Where the record ends as declared (past the file's end when it is cut off).
+        let end = (pos + RECORD_HEAD).saturating_add(record);
         let mut read = RECORD_HEAD;
-        if record_head[0] == op::CHUNK && record >= CHUNK_HEAD + CHUNK_CRC_COMPRESSION {
+        let fits =
+            |read: u64, more: u64| read + more <= RECORD_HEAD + record && pos + read + more <= len;
+        if record_head[0] == op::CHUNK && fits(read, CHUNK_HEAD + CHUNK_CRC_COMPRESSION) {
             reader.read_exact(chunk_head)?;
             read += CHUNK_HEAD + CHUNK_CRC_COMPRESSION;
             longest = longest.max(u64_at(chunk_head, 16));
@@ -63,22 +61,26 @@ pub(super) fn prescan(file: &mut File) -> std::io::Result<Prescan> {
                 chunk_head[30],
                 chunk_head[31],
             ]);
-            if compression_len == 0 && read + CHUNK_RECORDS_LEN <= RECORD_HEAD + record {
+            if compression_len == 0 && fits(read, CHUNK_RECORDS_LEN) {
                 let mut records_len = [0u8; CHUNK_RECORDS_LEN as usize];
                 reader.read_exact(&mut records_len)?;
                 read += CHUNK_RECORDS_LEN;
                 // At most what is left of the chunk record (the reader refuses more).
-                let records = u64::from_le_bytes(records_len).min(next - pos - read);
-                read += records;
-                if let Some(reason) = inner_records_overrun(&mut reader, records)? {
+                let records = u64::from_le_bytes(records_len).min(end - pos - read);
+                let (walked, overrun) = inner_records(&mut reader, records, len - pos - read)?;
+                read += walked;
+                if let Some(reason) = overrun {
                     damage = Some((pos, format!("chunk at byte {pos}: {reason}")));
                     break;
                 }
             }
         }
+        if end > len {
+            break;
+        }
         // `read` <= RECORD_HEAD + record: each part is read only when it fits.
-        reader.seek_relative(i64::try_from(next - pos - read).unwrap_or(i64::MAX))?;
-        pos = next;
+        reader.seek_relative(i64::try_from(end - pos - read).unwrap_or(i64::MAX))?;
+        pos = end;
     }
     drop(reader);
     file.seek(SeekFrom::Start(0))?;
@@ -88,33 +90,44 @@ pub(super) fn prescan(file: &mut File) -> std::io::Result<Prescan> {
     })
 }
 
-/// Walks the `records` bytes of an uncompressed chunk (the reader just before them; just
-/// after them on `Ok(None)`): the first record that runs past their end, described.
-fn inner_records_overrun(
+/// Walks the `records` bytes of an uncompressed chunk, of which `available` are in the
+/// file (the reader just before them): the bytes walked past, and the first record that
+/// runs past the records' end, described. A record cut off by the file's end ends the walk
+/// without damage (the scan reports the truncation).
+fn inner_records(
     reader: &mut BufReader<&mut File>,
     records: u64,
-) -> std::io::Result<Option<String>> {
-    let mut left = records;
+    available: u64,
+) -> std::io::Result<(u64, Option<String>)> {
+    let mut walked = 0u64;
     let mut record_head = [0u8; RECORD_HEAD as usize];
-    while left > 0 {
+    while walked < records {
+        let left = records - walked;
         if left < RECORD_HEAD {
-            return Ok(Some(format!(
-                "{left} byte(s) at the end of its records, too few for a record"
-            )));
+            let reason = format!("{left} byte(s) at the end of its records, too few for a record");
+            return Ok((walked, Some(reason)));
+        }
+        if walked + RECORD_HEAD > available {
+            break;
         }
         reader.read_exact(&mut record_head)?;
+        walked += RECORD_HEAD;
         let inner = u64_at(&record_head, 1);
         if inner > left - RECORD_HEAD {
-            return Ok(Some(format!(
+            let reason = format!(
                 "a record (opcode {:#04x}) declares {inner} bytes, {} are left in the chunk",
                 record_head[0],
                 left - RECORD_HEAD
-            )));
+            );
+            return Ok((walked, Some(reason)));
+        }
+        if walked + inner > available {
+            break;
         }
         reader.seek_relative(i64::try_from(inner).unwrap_or(i64::MAX))?;
-        left -= RECORD_HEAD + inner;
+        walked += inner;
     }
-    Ok(None)
+    Ok((walked, None))
 }
 
 /// The little-endian u64 at `at` in `bytes` (0 when it does not fit).
@@ -222,5 +235,37 @@ mod tests {
         let (found, _) = prescan_of(&bytes).unwrap();
         let reason = found.damage.map(|d| d.1).unwrap_or_default();
         assert!(reason.contains("3 byte(s) at the end"), "{reason}");
+    }
+
+    /// Found by `mcap_episode` (`fuzz/regressions/mcap_episode/record-past-a-cut-off-chunk`):
+    /// the same in a chunk that the file's end cuts off; and a cut-off chunk whose records
+    /// are sound up to the cut is left for the scan (a truncation, not this damage).
+    #[test]
+    fn a_chunk_cut_off_by_the_end_of_the_file_is_checked_up_to_the_cut() {
+        let mut records = Vec::new();
+        record(&mut records, op::SCHEMA, &[0; 6]);
+        record(&mut records, op::MESSAGE, &[0; 40]);
+        let mut bytes = b"\x89MCAP0\r\n".to_vec();
+        record(
+            &mut bytes,
+            op::CHUNK,
+            &chunk(records.len() as u64, "", &records),
+        );
+        let whole = bytes.clone();
+        bytes.truncate(whole.len() - 20);
+        let (found, at) = prescan_of(&bytes).unwrap();
+        assert!(found.damage.is_none(), "{:?}", found.damage);
+        assert_eq!(at, 0);
+
+        // Records declared 1 byte long: the reader would read a record's head past them.
+        let mut bytes = b"\x89MCAP0\r\n".to_vec();
+        record(&mut bytes, op::CHUNK, &chunk(1, "", &[0; 40]));
+        // The records length says 40; make it 1 and cut the file inside the chunk.
+        let records_len_at = 8 + 9 + 32;
+        bytes[records_len_at..records_len_at + 8].copy_from_slice(&1u64.to_le_bytes());
+        bytes.truncate(bytes.len() - 10);
+        let (found, _) = prescan_of(&bytes).unwrap();
+        let reason = found.damage.map(|d| d.1).unwrap_or_default();
+        assert!(reason.contains("1 byte(s) at the end"), "{reason}");
     }
 }
