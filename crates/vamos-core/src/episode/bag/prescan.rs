@@ -49,8 +49,7 @@ pub(super) fn prescan(file: &mut File) -> std::io::Result<Prescan> {
         // Where the record ends as declared (past the file's end when it is cut off).
         let end = (pos + RECORD_HEAD).saturating_add(record);
         let mut read = RECORD_HEAD;
-        let fits =
-            |read: u64, more: u64| read + more <= RECORD_HEAD + record && pos + read + more <= len;
+        let fits = |read: u64, more: u64| read + more <= end - pos && pos + read + more <= len;
         if record_head[0] == op::CHUNK && fits(read, CHUNK_HEAD + CHUNK_CRC_COMPRESSION) {
             reader.read_exact(chunk_head)?;
             read += CHUNK_HEAD + CHUNK_CRC_COMPRESSION;
@@ -267,5 +266,21 @@ mod tests {
         let (found, _) = prescan_of(&bytes).unwrap();
         let reason = found.damage.map(|d| d.1).unwrap_or_default();
         assert!(reason.contains("1 byte(s) at the end"), "{reason}");
+    }
+
+    /// Found by `mcap_episode` (`fuzz/regressions/mcap_episode/chunk-of-the-largest-length`):
+    /// a chunk declaring 2^64 - 1 bytes overflowed the check of what fits in it.
+    #[test]
+    fn a_chunk_of_the_largest_length_is_read_up_to_the_end_of_the_file() {
+        let mut bytes = b"\x89MCAP0\r\n".to_vec();
+        bytes.push(op::CHUNK);
+        bytes.extend_from_slice(&u64::MAX.to_le_bytes());
+        let mut records = Vec::new();
+        record(&mut records, op::SCHEMA, &[0; 11]);
+        bytes.extend_from_slice(&chunk(0, "", &records));
+        let (found, at) = prescan_of(&bytes).unwrap();
+        assert_eq!(found.longest_record, bytes.len());
+        assert!(found.damage.is_none(), "{:?}", found.damage);
+        assert_eq!(at, 0);
     }
 }
