@@ -8,10 +8,12 @@
 #   FUZZ_SECONDS=600 scripts/fuzz.sh mesh urdf
 #   FUZZ_PROFILE=release FUZZ_RUNS=1000000 FUZZ_SECONDS=3600 scripts/fuzz.sh urdf
 #
-# Settings: FUZZ_SECONDS (per target), FUZZ_RUNS (stop a target after this many executions,
-# whichever of the two comes first; default: no limit), FUZZ_SANITIZER (none | address; default none: the
-# targets reach only safe Rust and well-fuzzed C, and the build stays short on 2 cores),
-# FUZZ_PROFILE (dev | release; default dev: the shortest build).
+# Settings: FUZZ_SECONDS (per target), FUZZ_RUNS (stop a target after this many
+# executions, whichever of the two comes first; default: no limit), FUZZ_SANITIZER (none |
+# address; default none: the targets reach only safe Rust and well-fuzzed C, and the build
+# stays short on 2 cores), FUZZ_PROFILE (dev | release; default dev: the shortest build).
+# Each target's line: executions, edges covered, new inputs, wall seconds (with any
+# rebuild) and libFuzzer's peak RSS.
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 
@@ -55,6 +57,8 @@ for t in "${targets[@]}"; do
         -max_total_time="$seconds" -runs="$runs_limit" -max_len=65536 -rss_limit_mb=2048 -timeout=10 \
         -print_final_stats=1 >"$log" 2>&1; then
         tail -n 60 "$log"
+        # The panic's message (the backtrace above can push it out of the tail).
+        grep -m 2 -A 1 "panicked at" "$log" || true
         echo "fuzz target $t FAILED (its input is in fuzz/artifacts/$t/)"
         exit 1
     fi
