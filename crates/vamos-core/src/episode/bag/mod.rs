@@ -64,7 +64,7 @@ use vamos_vision::{DepthImage, GrayImage};
 
 use assemble::*;
 use files::*;
-use prescan::prescan;
+use prescan::{Prescan, prescan};
 use source::*;
 use topics::*;
 

@@ -11,6 +11,9 @@ pub(super) struct Part {
     /// The file as named (messages name it).
     pub(super) path: PathBuf,
     pub(super) summary: Option<Arc<Summary>>,
+    /// A file read by linear scans (no usable summary): what its records' headers say,
+    /// read once when it is opened and reused by every later scan.
+    pub(super) prescan: Option<Prescan>,
     pub(super) damage: Option<(u64, String)>,
     /// The decompressed copy of a zstd-compressed file (removed when dropped).
     pub(super) _copy: Option<tempfile::NamedTempFile>,
@@ -208,13 +211,14 @@ pub(super) struct LinearScan {
 }
 
 impl LinearScan {
+    /// A scan of the file at `path` whose records' headers say `found` ([`prescan`]).
     pub(super) fn new(
         path: &Path,
+        found: &Prescan,
         record_limit: usize,
         topics: Option<Vec<String>>,
     ) -> Result<Self, EpisodeError> {
-        let mut file = File::open(path).map_err(|e| io_err(path, e))?;
-        let found = prescan(&mut file).map_err(|e| io_err(path, e))?;
+        let file = File::open(path).map_err(|e| io_err(path, e))?;
         let reader = LinearReader::new_with_options(
             LinearReaderOptions::default()
                 .with_validate_chunk_crcs(true)
@@ -222,6 +226,7 @@ impl LinearScan {
         );
         let (stop_at, stop_reason) = found
             .damage
+            .clone()
             .map_or((u64::MAX, None), |(at, why)| (at, Some(why)));
         Ok(Self {
             file,
@@ -440,7 +445,7 @@ impl Part {
             })
         });
         let mut topics: BTreeMap<String, TopicInfo> = BTreeMap::new();
-        let (span, damage);
+        let (span, damage, found);
         if let Some(s) = &summary {
             // Invariant: the filter above kept only summaries with statistics.
             let stats = s.stats.clone().unwrap_or_default();
@@ -457,9 +462,14 @@ impl Part {
                 });
                 t.message_count += stats.channel_message_counts.get(id).copied().unwrap_or(0);
             }
-            (span, damage) = ((stats.message_start_time, stats.message_end_time), None);
+            (span, damage, found) = (
+                (stats.message_start_time, stats.message_end_time),
+                None,
+                None,
+            );
         } else {
-            let mut scan = LinearScan::new(&read, record_limit(cfg), None)?;
+            let facts = prescan(&mut file).map_err(|e| io_err(path, e))?;
+            let mut scan = LinearScan::new(&read, &facts, record_limit(cfg), None)?;
             let mut counts: HashMap<String, u64> = HashMap::new();
             let (mut lo, mut hi) = (u64::MAX, 0u64);
             let mut broke = None;
@@ -493,12 +503,13 @@ impl Part {
                     reason: reason.clone(),
                 });
             }
-            (span, damage) = ((lo, hi), broke);
+            (span, damage, found) = ((lo, hi), broke, Some(facts));
         }
         let part = Self {
             read,
             path: path.to_path_buf(),
             summary: summary.map(Arc::new),
+            prescan: found,
             damage,
             _copy: copy,
         };
@@ -554,6 +565,7 @@ impl Part {
                 path: self.path.clone(),
                 scan: Box::new(LinearScan::new(
                     &self.read,
+                    self.prescan()?,
                     record_limit(cfg),
                     Some(topics.to_vec()),
                 )?),
@@ -564,6 +576,13 @@ impl Part {
 }
 
 impl Part {
+    /// The prescan of a file read by linear scans (it has one from [`Part::open`]).
+    fn prescan(&self) -> Result<&Prescan, EpisodeError> {
+        self.prescan
+            .as_ref()
+            .ok_or_else(|| io_err(&self.path, "no prescan of a file read without its summary"))
+    }
+
     pub(super) fn schema_of(
         &self,
         topic: &str,
@@ -577,7 +596,12 @@ impl Part {
                 .and_then(|c| c.schema.as_ref())
                 .map(|s| (s.name.clone(), s.encoding.clone(), s.data.to_vec())));
         }
-        let mut scan = LinearScan::new(&self.read, record_limit(cfg), Some(vec![topic.into()]))?;
+        let mut scan = LinearScan::new(
+            &self.read,
+            self.prescan()?,
+            record_limit(cfg),
+            Some(vec![topic.into()]),
+        )?;
         scan.keep_schema_data = true;
         while let Some(r) = scan.next_with(|_| ()) {
             if r.is_err() {
