@@ -22,7 +22,13 @@ from mcap_ros2.reader import read_ros2_messages  # noqa: E402
 
 from vamos.sim import robot as rb  # noqa: E402
 from vamos.sim.cli import main, plan_episodes  # noqa: E402
-from vamos.sim.episode import ANOMALY_TYPES, EPOCH_NS, EpisodeSpec, generate_episode  # noqa: E402
+from vamos.sim.episode import (  # noqa: E402
+    ANOMALY_TYPES,
+    EPOCH_NS,
+    EpisodeSpec,
+    _last_away_from_rest,
+    generate_episode,
+)
 
 pytestmark = pytest.mark.sim
 
@@ -261,6 +267,27 @@ def test_same_seed_same_episode(smoke: Path, tmp_path: Path) -> None:
     generate_episode(other, tmp_path / "other")
     ic = [bytes(m.ros_msg.data) for m in _read(tmp_path / "other" / f"{spec.name}.mcap")["/camera/image_raw"]]
     assert ic[0] != ia[0]
+
+
+def test_a_label_ends_where_the_objects_come_to_rest_not_where_they_stop_jittering() -> None:
+    level = (0.0, 0.0, 0.0, 1.0)
+    tilted = (0.0, math.sin(math.radians(3.0)), 0.0, math.cos(math.radians(3.0)))  # 6 degrees
+    toppling = [(0.1 * i, [((0.0, 0.0, 0.3 - 0.1 * i), level)]) for i in range(4)]
+    # At rest from 0.3 s on, jittering by millimetres and a degree (fast, but going nowhere).
+    jitter = [(0.3 + 0.1 * i, [((0.004 * (-1) ** i, 0.0, 0.0), (0.0, 0.009 * (-1) ** i, 0.0, 1.0))])
+              for i in range(1, 30)]
+    assert _last_away_from_rest(toppling + jitter) == pytest.approx(0.2)
+    # A slow slide of 1.2 cm (its first 2 mm are more than 1 cm from where it ends) and a
+    # tilt of 6 degrees are motions.
+    slide = [(0.1 * i, [((0.001 * i, 0.0, 0.0), level)]) for i in range(13)]
+    assert _last_away_from_rest(slide) == pytest.approx(0.1)
+    assert _last_away_from_rest([(0.0, [((0, 0, 0), level)]), (0.5, [((0, 0, 0), tilted)])]) == 0.0
+    # Two bodies: the later one counts; none watched or none moved: no end.
+    two = [(0.0, [((0, 0, 0), level), ((0, 0, 0), level)]), (0.4, [((0, 0, 0), level), ((0.02, 0, 0), level)]),
+           (0.8, [((0, 0, 0), level), ((0.02, 0, 0), level)])]
+    assert _last_away_from_rest(two) == 0.0
+    assert _last_away_from_rest([]) is None
+    assert _last_away_from_rest([(0.0, [((0, 0, 0), level)]), (1.0, [((0.005, 0, 0), level)])]) is None
 
 
 @pytest.mark.parametrize("kind", [t for t in ANOMALY_TYPES if t not in ("book_falls", "book_slips")])
