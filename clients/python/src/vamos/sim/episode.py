@@ -54,7 +54,7 @@ _MOVING_ANG_RADPS = 0.3
 # The end of such an anomaly's label: the last image at which a watched object is farther
 # than this from where it comes to rest (its pose at the episode's end). A pose, not a
 # velocity: books lying still jitter in contact above the velocities above, and that
-# jitter is not a motion a camera sees (2.8 px at 1 m for 1 cm at 320x240).
+# jitter is not a motion that takes an object anywhere (1 cm at 1 m: 2.6 px at 320x240).
 _REST_M = 0.01
 _REST_RAD = math.radians(5.0)
 
