@@ -301,7 +301,7 @@ impl McapEpisode {
                     }
                 }
             }
-            if part.summary.is_none() || lo != 0 || hi != 0 {
+            if !part.indexed() || lo != 0 || hi != 0 {
                 (start_ns, end_ns) = (start_ns.min(lo), end_ns.max(hi));
             }
             parts.push(part);
@@ -325,7 +325,7 @@ impl McapEpisode {
         let info = EpisodeInfo {
             name,
             path: path.to_path_buf(),
-            indexed: parts.iter().all(|p| p.summary.is_some()),
+            indexed: parts.iter().all(Part::indexed),
             image_messages: count(&Some(chosen.image.clone())),
             camera_info_messages: count(&chosen.camera_info),
             joint_messages: count(&chosen.joint_states),

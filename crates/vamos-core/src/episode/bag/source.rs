@@ -10,13 +10,20 @@ pub(super) struct Part {
     pub(super) read: PathBuf,
     /// The file as named (messages name it).
     pub(super) path: PathBuf,
-    pub(super) summary: Option<Arc<Summary>>,
-    /// A file read by linear scans (no usable summary): what its records' headers say,
-    /// read once when it is opened and reused by every later scan.
-    pub(super) prescan: Option<Prescan>,
+    pub(super) reading: Reading,
     pub(super) damage: Option<(u64, String)>,
     /// The decompressed copy of a zstd-compressed file (removed when dropped).
     pub(super) _copy: Option<tempfile::NamedTempFile>,
+}
+
+/// How a [`Part`] is read.
+#[derive(Debug)]
+pub(super) enum Reading {
+    /// Through its summary's indexes (complete: statistics, chunk indexes, channels).
+    Indexed(Arc<Summary>),
+    /// By linear scans, each starting from what its records' headers say (read once when
+    /// the file is opened).
+    Linear(Prescan),
 }
 
 pub(super) fn io_err(path: &Path, e: impl std::fmt::Display) -> EpisodeError {
@@ -445,8 +452,8 @@ impl Part {
             })
         });
         let mut topics: BTreeMap<String, TopicInfo> = BTreeMap::new();
-        let (span, damage, found);
-        if let Some(s) = &summary {
+        let (span, damage, reading);
+        if let Some(s) = summary {
             // Invariant: the filter above kept only summaries with statistics.
             let stats = s.stats.clone().unwrap_or_default();
             for (id, ch) in &s.channels {
@@ -462,10 +469,10 @@ impl Part {
                 });
                 t.message_count += stats.channel_message_counts.get(id).copied().unwrap_or(0);
             }
-            (span, damage, found) = (
+            (span, damage, reading) = (
                 (stats.message_start_time, stats.message_end_time),
                 None,
-                None,
+                Reading::Indexed(Arc::new(s)),
             );
         } else {
             let facts = prescan(&mut file).map_err(|e| io_err(path, e))?;
@@ -503,13 +510,12 @@ impl Part {
                     reason: reason.clone(),
                 });
             }
-            (span, damage, found) = ((lo, hi), broke, Some(facts));
+            (span, damage, reading) = ((lo, hi), broke, Reading::Linear(facts));
         }
         let part = Self {
             read,
             path: path.to_path_buf(),
-            summary: summary.map(Arc::new),
-            prescan: found,
+            reading,
             damage,
             _copy: copy,
         };
@@ -521,8 +527,8 @@ impl Part {
         topics: &[String],
         cfg: &EpisodeConfig,
     ) -> Result<MessageSource, EpisodeError> {
-        match &self.summary {
-            Some(summary) => {
+        match &self.reading {
+            Reading::Indexed(summary) => {
                 let file = File::open(&self.read).map_err(|e| io_err(&self.path, e))?;
                 let file_len = file.metadata().map_err(|e| io_err(&self.path, e))?.len();
                 let reader = IndexedReader::new_with_options(
@@ -561,11 +567,11 @@ impl Part {
                     last_chunk: 0,
                 })
             }
-            None => Ok(MessageSource::Linear {
+            Reading::Linear(found) => Ok(MessageSource::Linear {
                 path: self.path.clone(),
                 scan: Box::new(LinearScan::new(
                     &self.read,
-                    self.prescan()?,
+                    found,
                     record_limit(cfg),
                     Some(topics.to_vec()),
                 )?),
@@ -576,11 +582,9 @@ impl Part {
 }
 
 impl Part {
-    /// The prescan of a file read by linear scans (it has one from [`Part::open`]).
-    fn prescan(&self) -> Result<&Prescan, EpisodeError> {
-        self.prescan
-            .as_ref()
-            .ok_or_else(|| io_err(&self.path, "no prescan of a file read without its summary"))
+    /// Whether the file is read through its summary's indexes.
+    pub(super) fn indexed(&self) -> bool {
+        matches!(self.reading, Reading::Indexed(_))
     }
 
     pub(super) fn schema_of(
@@ -588,17 +592,20 @@ impl Part {
         topic: &str,
         cfg: &EpisodeConfig,
     ) -> Result<Option<(String, String, Vec<u8>)>, EpisodeError> {
-        if let Some(summary) = &self.summary {
-            return Ok(summary
-                .channels
-                .values()
-                .find(|c| c.topic == topic)
-                .and_then(|c| c.schema.as_ref())
-                .map(|s| (s.name.clone(), s.encoding.clone(), s.data.to_vec())));
-        }
+        let found = match &self.reading {
+            Reading::Indexed(summary) => {
+                return Ok(summary
+                    .channels
+                    .values()
+                    .find(|c| c.topic == topic)
+                    .and_then(|c| c.schema.as_ref())
+                    .map(|s| (s.name.clone(), s.encoding.clone(), s.data.to_vec())));
+            }
+            Reading::Linear(found) => found,
+        };
         let mut scan = LinearScan::new(
             &self.read,
-            self.prescan()?,
+            found,
             record_limit(cfg),
             Some(vec![topic.into()]),
         )?;
