@@ -36,8 +36,11 @@ from vamos.sim.episode import (
 )
 
 #: Generator version, recorded in dataset.json (bump when episodes change for a seed). 2: an
-#: anomaly's label ends where its objects come to rest (bags as in 1).
-GENERATOR_VERSION = "2"
+#: anomaly's label ends where its objects come to rest (bags as in 1). 3: the fingers touch the
+#: book they hold (the joint states read its width and the grip force, and a lost grasp), and
+#: a falling, slipping or jammed book's label lasts until the shelf's books it touched are at
+#: rest too.
+GENERATOR_VERSION = "3"
 SMOKE_COUNTS = {"train": 2, "val": 0, "test_nominal": 1, "test_anomalous": 2}
 SMOKE_SIZE = (160, 120)
 

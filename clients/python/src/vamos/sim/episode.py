@@ -381,9 +381,17 @@ class Episode:
         self.camera = self.link[self.camera_frame]
         self.limits = [p.getJointInfo(self.robot, j)[8:10] for j in self.movable]
         self.efforts = [p.getJointInfo(self.robot, j)[10] for j in self.movable]
-        # The grasped book never collides with the gripper (the fixed-constraint grasp).
+        # The grasped book is held by a fixed constraint (a friction grasp is not stable in
+        # pybullet), so it never collides with the hand. Its fingers do touch it, as a real
+        # gripper's do: closing on it they stop at its faces and press with their force limit,
+        # so the joint states read the book's width and the grip force, and a grasp that is
+        # lost shows there (the fingers close on nothing). Their contact is frictionless, so
+        # the constraint alone decides whether the book is held.
         for link in self.model.gripper_links:
-            p.setCollisionFilterPair(self.robot, self.book, self.link[link], -1, 0)
+            if self.link[link] not in self.fingers:  # a joint's index is its child link's
+                p.setCollisionFilterPair(self.robot, self.book, self.link[link], -1, 0)
+        for link in self.fingers:
+            p.changeDynamics(self.robot, link, lateralFriction=0.0, spinningFriction=0.0, rollingFriction=0.0)
 
     # ----- planning --------------------------------------------------------------------
     def _ik(self, pos: np.ndarray, yaw: float, seed: np.ndarray) -> np.ndarray:
@@ -460,7 +468,8 @@ class Episode:
         q_pre_place = self._ik(place + [0, 0, 0.13], place_yaw, q_via)
         q_place = self._ik(place, place_yaw, q_pre_place)
         q_retract = self._ik(place + [0, 0, 0.14], place_yaw, q_place)
-        closed = max(self.book_t / 2 - 0.002, 0.0)
+        # A grasp commands the fingers shut; they stop on the book's faces.
+        closed = 0.0
         op = self.model.finger_open_m
         plan = _Plan()
         plan.add("idle", durations["idle"], home, op)
@@ -498,18 +507,21 @@ class Episode:
         self.home = home
         # Anomaly parameters.
         motion0, motion1 = plan.phase("reach").t0, plan.phase("return").t1
+        # A book that falls, slips or is jammed may knock the shelf's books: one it touches
+        # after the onset is watched too (the label lasts until it is at rest as well).
+        knock = {"watch": [self.book], "may_knock": list(self.row_books)}
         if kind == "book_falls":
-            self.anomaly_info = {"onset": opening.t0, "motion_end": opening.t0, "watch": [self.book]}
+            self.anomaly_info = {"onset": opening.t0, "motion_end": opening.t0, **knock}
         elif kind == "book_slips":
             carry = plan.phase("carry")
             t = carry.t0 + float(r.uniform(0.2, 0.6)) * (carry.t1 - carry.t0)
             self.events["release"] = t
-            self.anomaly_info = {"onset": t, "motion_end": t, "watch": [self.book]}
+            self.anomaly_info = {"onset": t, "motion_end": t, **knock}
         elif kind == "collision_with_shelf":
             lower = plan.phase("lower")
             # Contact starts when the book's bottom reaches the board (computed in the run).
             self.anomaly_info = {"onset": None, "contact_after": lower.t0, "motion_end": opening.t1,
-                                 "watch": [self.book]}
+                                 **knock}
         elif kind == "camera_occluded":
             t0 = float(r.uniform(motion0, motion1 - 3.0 * self.scale))
             t_in, hold, t_out = (self._duration(x) for x in (0.4, 1.8, 0.4))
@@ -648,9 +660,11 @@ class Episode:
         names = list(self.model.movable_joints)
         constraint: int | None = None
         released = False
-        watch = self.anomaly_info.get("watch", [])
+        watch = list(self.anomaly_info.get("watch", []))
+        may_knock = self.anomaly_info.get("may_knock", [])
+        tracked = watch + may_knock
         last_moving = None
-        # (t, [(position, orientation)] per watched body) at every image from the onset on.
+        # (t, [(position, orientation)] per tracked body) at every image from the onset on.
         watched_poses: list[tuple[float, list[tuple[Any, Any]]]] = []
         contact_t: float | None = None
         n_images = n_js = 0
@@ -696,8 +710,8 @@ class Episode:
                 bag.camera_info(stamp, self.camera_frame, spec.width, spec.height, fx, fy, cx, cy)
                 n_images += 1
                 last_image_t = t
-                if watch and self.anomaly_info.get("onset") is not None and t >= self.anomaly_info["onset"]:
-                    watched_poses.append((t, [p.getBasePositionAndOrientation(b) for b in watch]))
+                if tracked and self.anomaly_info.get("onset") is not None and t >= self.anomaly_info["onset"]:
+                    watched_poses.append((t, [p.getBasePositionAndOrientation(b) for b in tracked]))
             p.stepSimulation()
             step += 1
             tool_pos = np.array(p.getLinkState(self.robot, self.tool)[4])
@@ -708,6 +722,7 @@ class Episode:
                 contact_t = t
                 self.anomaly_info["onset"] = onset = t
             if onset is not None and t >= onset:
+                watch += [b for b in may_knock if b not in watch and p.getContactPoints(self.book, b)]
                 for body in watch:
                     lin, ang = p.getBaseVelocity(body)
                     if np.linalg.norm(lin) > _MOVING_LIN_MPS or np.linalg.norm(ang) > _MOVING_ANG_RADPS:
@@ -720,10 +735,12 @@ class Episode:
             onset = a["onset"]
             if onset is None:  # collision_with_shelf without contact: the jam never happened
                 onset = a["contact_after"]
-            end = max(a["motion_end"], _last_away_from_rest(watched_poses) or onset)
+            knocked = [i for i, body in enumerate(tracked) if body in watch]
+            rest = _last_away_from_rest([(t, [poses[i] for i in knocked]) for t, poses in watched_poses])
+            end = max(a["motion_end"], rest or onset)
             end = min(end, last_image_t)
             intervals = [[EPOCH_NS + round(onset * 1e9), EPOCH_NS + round(end * 1e9)]]
-            details = {k: v for k, v in a.items() if k != "watch"}
+            details = {k: v for k, v in a.items() if k not in ("watch", "may_knock")}
             # The label's end by the rule used until 2026-12-07 (the last physics step at which
             # a watched object moved faster than _MOVING_*), for comparisons with older figures.
             details["end_by_velocity"] = min(max(a["motion_end"], last_moving or onset), last_image_t)

@@ -51,6 +51,8 @@ HEAD_PAN_XYZ = (-0.6, -0.3, 1.55)
 HEAD_TILT_DZ = 0.10
 #: Finger opening per finger, metres.
 FINGER_OPEN_M = 0.05
+#: Force limit of each finger, newtons: what a finger closed on an object presses with.
+FINGER_FORCE_N = 40.0
 
 _COLOURS = {
     "graphite": (0.22, 0.23, 0.26, 1.0),
@@ -236,7 +238,7 @@ def urdf_text(camera: str = "head") -> str:
     parts.append(_link("gripper_base", 0.4, [_Visual(b, (0.05, 0.15, 0.04), (0.0, 0.0, 0.02), "graphite")]))
     for name, sign in (("left", 1.0), ("right", -1.0)):
         parts.append(_joint(f"finger_{name}_joint", "prismatic", "gripper_base", f"finger_{name}_link",
-                            (0.0, 0.0, 0.04), axis=(0, sign, 0), limits=(0.0, FINGER_OPEN_M, 40, 0.2)))
+                            (0.0, 0.0, 0.04), axis=(0, sign, 0), limits=(0.0, FINGER_OPEN_M, FINGER_FORCE_N, 0.2)))
         parts.append(_link(f"finger_{name}_link", 0.05,
                            [_Visual(b, (0.02, 0.015, 0.075), (0.0, sign * 0.0075, 0.0375), "black")]))
     parts.append(_joint("tool_joint", "fixed", "gripper_base", TOOL_LINK, (0.0, 0.0, 0.085)))
