@@ -24,6 +24,7 @@ from vamos.sim import robot as rb  # noqa: E402
 from vamos.sim.cli import main, plan_episodes  # noqa: E402
 from vamos.sim.episode import (  # noqa: E402
     ANOMALY_TYPES,
+    BOOK_THICKNESS_M,
     EPOCH_NS,
     EpisodeSpec,
     _last_away_from_rest,
@@ -241,7 +242,7 @@ def test_the_fingers_stop_on_the_book_and_close_on_nothing_when_it_slips(smoke: 
     """The joint states show a grasp as a real gripper's do: the fingers stop at the book's
     faces and press with their force limit; when the book slips, they close on nothing."""
     finger = rb.MOVABLE_JOINTS.index("finger_left_joint")
-    half_thinnest = 0.025 / 2  # the thinnest book the simulator makes, per finger
+    half_thinnest = BOOK_THICKNESS_M[0] / 2  # per finger, on the thinnest book
 
     def fingers(path: Path) -> list[tuple[int, float, float]]:
         return [(_stamp_ns(m), m.ros_msg.position[finger], abs(m.ros_msg.effort[finger]))

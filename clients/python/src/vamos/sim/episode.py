@@ -43,6 +43,8 @@ ANOMALY_TYPES = ("book_falls", "book_slips", "camera_occluded", "external_push",
 SPLITS = ("train", "val", "test")
 #: Scale of phase durations in short (smoke) episodes: ~3 s instead of ~11 s.
 SHORT_SCALE = 0.28
+#: Range of a book's thickness (the grasped one's and the shelf's), metres.
+BOOK_THICKNESS_M = (0.025, 0.045)
 _DT = 1.0 / PHYSICS_HZ
 _MAX_ATTEMPTS = 8
 _CARRY_VIA = 8
@@ -280,7 +282,7 @@ class Episode:
 
     def _book_dims(self) -> tuple[float, float, float]:
         r = self.rng
-        return float(r.uniform(0.025, 0.045)), float(r.uniform(0.13, 0.17)), float(r.uniform(0.19, 0.24))
+        return float(r.uniform(*BOOK_THICKNESS_M)), float(r.uniform(0.13, 0.17)), float(r.uniform(0.19, 0.24))
 
     def _book_colour(self) -> tuple[float, float, float]:
         hue = self.rng.uniform(0, 1)
