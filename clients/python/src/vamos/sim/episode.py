@@ -392,8 +392,8 @@ class Episode:
         for link in self.model.gripper_links:
             if self.link[link] not in self.fingers:  # a joint's index is its child link's
                 p.setCollisionFilterPair(self.robot, self.book, self.link[link], -1, 0)
-        for link in self.fingers:
-            p.changeDynamics(self.robot, link, lateralFriction=0.0, spinningFriction=0.0, rollingFriction=0.0)
+        for finger in self.fingers:
+            p.changeDynamics(self.robot, finger, lateralFriction=0.0, spinningFriction=0.0, rollingFriction=0.0)
 
     # ----- planning --------------------------------------------------------------------
     def _ik(self, pos: np.ndarray, yaw: float, seed: np.ndarray) -> np.ndarray:
