@@ -724,7 +724,9 @@ class Episode:
                 contact_t = t
                 self.anomaly_info["onset"] = onset = t
             if onset is not None and t >= onset:
-                watch += [b for b in may_knock if b not in watch and p.getContactPoints(self.book, b)]
+                if may_knock:
+                    touching = {c[2] for c in p.getContactPoints(bodyA=self.book)}
+                    watch += [b for b in may_knock if b in touching and b not in watch]
                 for body in watch:
                     lin, ang = p.getBaseVelocity(body)
                     if np.linalg.norm(lin) > _MOVING_LIN_MPS or np.linalg.norm(ang) > _MOVING_ANG_RADPS:
