@@ -123,6 +123,39 @@ fn image_work_is_bounded_by_the_output_not_the_aspect_ratio() {
         assert!(err.to_string().contains("exceeds limit"), "{err}");
     });
     assert!(peak < 4 * MIB, "scan peak {} KiB", peak >> 10);
+
+    // 5. What a decoding is charged before it runs (the declared size's `peak_bytes`)
+    //    covers what it takes: a 2048^2 16-bit RGBA PNG, the costliest file pixels.
+    let side = 2048u32;
+    let pixels = vec![0x5au8; side as usize * side as usize * 8];
+    let mut data = Vec::new();
+    {
+        use image::ImageEncoder;
+        use image::codecs::png::{CompressionType, FilterType, PngEncoder};
+        PngEncoder::new_with_quality(&mut data, CompressionType::Best, FilterType::NoFilter)
+            .write_image(&pixels, side, side, image::ExtendedColorType::Rgba16)
+            .unwrap();
+    }
+    drop(pixels);
+    let msg = CompressedImageMsg {
+        header: Header::from_stamp_ns(0, ""),
+        format: "png".into(),
+        data: &data,
+    };
+    let charged = msg.encoded().check(1 << 24).unwrap().peak_bytes as usize;
+    let (gray, peak) = peak_of(|| msg.to_gray(1 << 24).unwrap());
+    assert_eq!(gray.width(), side as usize);
+    eprintln!(
+        "2048^2 RGBA16 PNG: decoding peak {} MiB, charged {} MiB",
+        peak / MIB,
+        charged / MIB
+    );
+    assert!(
+        peak <= charged,
+        "decoding peak {} MiB over the {} MiB charged",
+        peak / MIB,
+        charged / MIB
+    );
 }
 
 /// An MCAP file (no summary) of a header and one zstd chunk whose first record declares

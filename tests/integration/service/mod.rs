@@ -82,11 +82,16 @@ pub(crate) struct Fixture {
 }
 
 pub(crate) fn fixture_setup(max_sessions: usize, tokens: bool) -> Fixture {
+    fixture_with(max_sessions, tokens, "")
+}
+
+/// [`fixture_setup`] with `extra` appended to the profile file (e.g. `[thresholds]`).
+pub(crate) fn fixture_with(max_sessions: usize, tokens: bool, extra: &str) -> Fixture {
     let dir = tempfile::tempdir().unwrap();
     // The profile names the fixture's robot and camera by absolute path.
     let profile_dir = dir.path().join("profile");
     std::fs::create_dir_all(&profile_dir).unwrap();
-    let text = PROFILE
+    let text = format!("{PROFILE}{extra}")
         .replace(
             "robot/vamos_arm.urdf",
             &fixture().join("robot/vamos_arm.urdf").display().to_string(),

@@ -42,8 +42,9 @@ pub mod synthetic;
 pub mod writer;
 
 pub use bag::{
-    ChosenTopics, EpisodeConfig, EpisodeFrame, EpisodeInfo, EpisodeTopics, Frames, JointStateAt,
-    McapEpisode, SourceMessage, TopicInfo, decompress_zstd_into, is_zstd_file,
+    ChosenTopics, DecodeBudget, EpisodeConfig, EpisodeFrame, EpisodeInfo, EpisodeTopics, Frames,
+    JointStateAt, McapEpisode, Reserved, SourceMessage, TopicInfo, decompress_zstd_into,
+    is_zstd_file,
 };
 pub use folder::{EpisodeError, ImageSequence, SequenceFrame};
 pub use joints::{JointSample, JointTrack, interpolate_optional, interpolate_rows};

@@ -122,6 +122,9 @@ impl PipelineConfig {
     /// the profile is stored, so that it is refused then rather than when a robot first
     /// uses it.
     pub fn check_limits(&self) -> Result<(), String> {
+        if self.stride == 0 {
+            return Err("pipeline parameter stride must be at least 1".into());
+        }
         self.frames.validate().map_err(|e| e.to_string())?;
         self.residual.validate()?;
         self.kinematics.validate()?;

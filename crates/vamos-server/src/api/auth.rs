@@ -117,8 +117,68 @@ pub struct BadDigest {
 #[derive(Debug, Clone, Default)]
 pub struct Tokens {
     admin: Vec<[u8; 32]>,
-    robot: Vec<[u8; 32]>,
+    /// Robot tokens, each with the robots it is issued for (`None`: any robot id).
+    robot: Vec<([u8; 32], Option<Vec<String>>)>,
     viewer: Vec<[u8; 32]>,
+}
+
+/// Who is calling: a role and, for a robot token, what it may act for and see.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Caller {
+    /// The token's role.
+    pub role: Role,
+    /// A robot token's identity in this server's run (its place among the robot tokens;
+    /// kept with what it opens, never shown); `None` for the other roles.
+    pub robot_token: Option<usize>,
+    /// The robots a robot token is issued for (`None`: any robot id).
+    pub robots: Option<Vec<String>>,
+}
+
+impl Caller {
+    /// Every caller when no token is configured.
+    pub fn anyone() -> Self {
+        Self {
+            role: Role::Admin,
+            robot_token: None,
+            robots: None,
+        }
+    }
+
+    /// Whether the caller may open a session or score an episode as robot `robot_id`.
+    pub fn may_act_for(&self, robot_id: &str) -> bool {
+        self.robots
+            .as_ref()
+            .is_none_or(|r| r.iter().any(|x| x == robot_id))
+    }
+
+    /// Whether the caller may see (read, resume, mark the alarms of) what was opened by
+    /// robot token `opener` (`None`: another role) as robot `robot_id`. Admins and
+    /// viewers see everything; a robot token what its robots' sessions hold when it is
+    /// issued for robots, else only what it opened itself.
+    pub fn sees(&self, opener: Option<usize>, robot_id: &str) -> bool {
+        match (self.role, &self.robots) {
+            (Role::Admin | Role::Viewer, _) => true,
+            (Role::Robot, Some(robots)) => robots.iter().any(|r| r == robot_id),
+            (Role::Robot, None) => opener.is_some() && opener == self.robot_token,
+        }
+    }
+}
+
+/// A configured robot token: `HEX` (any robot) or `HEX:robot-a,robot-b`.
+fn parse_robot(s: &str) -> Option<([u8; 32], Option<Vec<String>>)> {
+    match s.split_once(':') {
+        None => Some((parse_hex(s)?, None)),
+        Some((hex, robots)) => {
+            let robots: Vec<String> = robots
+                .split(',')
+                .map(str::trim)
+                .filter(|r| !r.is_empty())
+                .map(String::from)
+                .collect();
+            (!robots.is_empty()).then_some(())?;
+            Some((parse_hex(hex)?, Some(robots)))
+        }
+    }
 }
 
 /// sha256 of a token.
@@ -162,8 +222,17 @@ impl Tokens {
         };
         let mut admin = parse(admin_sha256, "admin")?;
         admin.extend(plain_digests(admin_plain));
-        let mut robot = parse(robot_sha256, "robot")?;
-        robot.extend(plain_digests(robot_plain));
+        let mut robot = robot_sha256
+            .iter()
+            .enumerate()
+            .map(|(index, s)| {
+                parse_robot(s).ok_or(BadDigest {
+                    role: "robot",
+                    index,
+                })
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        robot.extend(plain_digests(robot_plain).into_iter().map(|d| (d, None)));
         Ok(Self {
             admin,
             robot,
@@ -191,7 +260,7 @@ impl Tokens {
     /// Adds token digests: admin, then robot (e.g. [`env_token_digests`]).
     pub fn with_digests(mut self, [admin, robot]: [Vec<[u8; 32]>; 2]) -> Self {
         self.admin.extend(admin);
-        self.robot.extend(robot);
+        self.robot.extend(robot.into_iter().map(|d| (d, None)));
         self
     }
 
@@ -203,8 +272,15 @@ impl Tokens {
     /// The role of an `authorization` header value (`Bearer TOKEN`); every caller is
     /// admin when no token is configured.
     pub fn role_of(&self, header: Option<&str>) -> Result<Role, AuthError> {
+        self.caller_of(header).map(|c| c.role)
+    }
+
+    /// The caller of an `authorization` header value (`Bearer TOKEN`): its role and, for
+    /// a robot token, its identity and robots; every caller is admin when no token is
+    /// configured.
+    pub fn caller_of(&self, header: Option<&str>) -> Result<Caller, AuthError> {
         if !self.enabled() {
-            return Ok(Role::Admin);
+            return Ok(Caller::anyone());
         }
         let header = header.ok_or(AuthError::Missing)?;
         let token = header
@@ -214,30 +290,47 @@ impl Tokens {
             .trim();
         let d = digest(token);
         // Every digest is compared, so the time does not tell which list matched.
-        let mut role = None;
+        let mut caller = None;
         for known in &self.viewer {
             if constant_time_eq(known, &d) {
-                role = Some(Role::Viewer);
+                caller = Some(Caller {
+                    role: Role::Viewer,
+                    robot_token: None,
+                    robots: None,
+                });
             }
         }
-        for known in &self.robot {
+        for (index, (known, robots)) in self.robot.iter().enumerate() {
             if constant_time_eq(known, &d) {
-                role = Some(Role::Robot);
+                caller = Some(Caller {
+                    role: Role::Robot,
+                    robot_token: Some(index),
+                    robots: robots.clone(),
+                });
             }
         }
         for known in &self.admin {
             if constant_time_eq(known, &d) {
-                role = Some(Role::Admin);
+                caller = Some(Caller {
+                    role: Role::Admin,
+                    robot_token: None,
+                    robots: None,
+                });
             }
         }
-        role.ok_or(AuthError::Invalid)
+        caller.ok_or(AuthError::Invalid)
     }
 
     /// Checks that the caller has at least `needed`.
     pub fn require(&self, header: Option<&str>, needed: Role) -> Result<Role, AuthError> {
-        let role = self.role_of(header)?;
-        if role >= needed {
-            Ok(role)
+        self.require_caller(header, needed).map(|c| c.role)
+    }
+
+    /// Checks that the caller has at least `needed`, and says who it is.
+    pub fn require_caller(&self, header: Option<&str>, needed: Role) -> Result<Caller, AuthError> {
+        let caller = self.caller_of(header)?;
+        if caller.role >= needed {
+            Ok(caller)
         } else {
             Err(AuthError::Forbidden { needed })
         }
@@ -311,6 +404,36 @@ mod tests {
             err,
             BadDigest {
                 role: "viewer",
+                index: 0
+            }
+        );
+    }
+
+    #[test]
+    fn robot_tokens_act_for_their_robots_and_see_only_their_own() {
+        let scoped = format!("{}:arm-1, arm-2", hex(digest("r-scoped")));
+        let t = Tokens::new(&[], &[scoped, hex(digest("r-any"))], None, Some("r-env")).unwrap();
+        let c = |tok: &str| t.caller_of(Some(&format!("Bearer {tok}"))).unwrap();
+        let (scoped, any, env) = (c("r-scoped"), c("r-any"), c("r-env"));
+        assert_eq!(
+            scoped.robots,
+            Some(vec!["arm-1".to_string(), "arm-2".to_string()])
+        );
+        assert!(scoped.may_act_for("arm-2") && !scoped.may_act_for("arm-3"));
+        assert!(any.may_act_for("arm-3") && env.may_act_for("x"));
+        // A scoped token sees its robots' sessions, whoever opened them.
+        assert!(scoped.sees(any.robot_token, "arm-1"));
+        assert!(!scoped.sees(scoped.robot_token, "arm-3"));
+        // An unscoped one only what it opened itself.
+        assert!(any.sees(any.robot_token, "arm-3"));
+        assert!(!any.sees(env.robot_token, "arm-3"));
+        assert!(!any.sees(None, "arm-3"));
+        assert!(Caller::anyone().sees(Some(7), "x"));
+        let err = Tokens::new(&[], &[format!("{}:", hex(digest("x")))], None, None).unwrap_err();
+        assert_eq!(
+            err,
+            BadDigest {
+                role: "robot",
                 index: 0
             }
         );

@@ -2,7 +2,7 @@
 
 use super::auth::Tokens;
 use crate::config::Settings;
-use crate::session::budget::{UploadTicket, Uploads};
+use crate::session::budget::{UploadPlane, UploadTicket, Uploads};
 use crate::session::calibration::Calibrator;
 use crate::session::fleet::Fleet;
 use crate::session::jobs::Jobs;
@@ -51,10 +51,10 @@ impl Shared {
         self.hub.metrics()
     }
 
-    /// Admits an upload declaring `declared` bytes before its body is read (an upload
-    /// slot and its disk).
+    /// Admits an admin-plane upload (a model, a robot, calibration episodes) declaring
+    /// `declared` bytes before its body is read (an upload slot and its disk).
     pub fn admit_upload(&self, declared: Option<u64>) -> Result<UploadTicket, SessionError> {
-        admission::admit_upload(&self.hub, &self.uploads, declared)
+        admission::admit_upload(&self.hub, &self.uploads, UploadPlane::Admin, declared)
     }
 
     /// Admits an episode to score before its body is read: a session place, then an

@@ -140,16 +140,37 @@ pub struct ServiceConfig {
     pub max_joint_buffer_bytes: u64,
     /// Uploads (episodes to score, models, robots, calibration episodes) in progress at
     /// once; more are refused (HTTP 429, gRPC RESOURCE_EXHAUSTED) before a byte is read.
+    /// Episodes to score (which robot tokens send) may hold all but one of them: the
+    /// admin's uploads always have a slot.
     pub max_uploads: usize,
+    /// Slowest upload, KiB/s: once `upload_grace_s` has passed, an upload whose average
+    /// rate since it began is below this is cut (HTTP 408, gRPC DEADLINE_EXCEEDED), so a
+    /// client that trickles bytes cannot hold an upload slot. 0: no minimum.
+    pub min_upload_rate_kib_s: u64,
+    /// Seconds an upload has before `min_upload_rate_kib_s` applies.
+    pub upload_grace_s: f64,
     /// Temporary disk all uploads in progress may use together, MiB.
     pub max_upload_disk_mb: u64,
     /// Connections open at once, both listeners together; past it new ones are closed at
     /// once. 0: the process's open-file limit less 64 (at most 4096).
     pub max_connections: usize,
+    /// Connections open at once from one client address (an IPv6 client's /64); past it
+    /// its new ones are closed at once, so one client cannot fill `max_connections`.
+    /// 0: a quarter of `max_connections` (at least 8). Behind a proxy that is the proxy's
+    /// address: raise it there.
+    pub max_connections_per_address: usize,
     /// Seconds a connection has to send its first bytes and each HTTP/1 request head
     /// (a tenth of it, at most 1 s, while more than three quarters of the connections
     /// are in use).
     pub header_timeout_s: f64,
+    /// A connection with no request in flight for this many seconds is closed (HTTP/2:
+    /// GOAWAY, after which clients reconnect on their next call); keep-alive PINGs are
+    /// not activity. A tenth of it, 0.5 to 5 s, while more than three quarters of the
+    /// connections are in use. A streaming session is a request in flight throughout.
+    pub connection_idle_s: f64,
+    /// A request body (an upload, a JSON body, a gRPC stream) that sends nothing for this
+    /// many seconds while the server reads it fails, and with it the request.
+    pub body_timeout_s: f64,
     /// Record each live session's input (gray images, joint positions, camera) in the
     /// data directory's `recordings/`, so that a session with a false alarm can join its
     /// profile's nominal set.
@@ -209,8 +230,13 @@ impl Default for ServiceConfig {
             max_joint_buffer_bytes: 16 << 20,
             max_uploads: 4,
             max_upload_disk_mb: 32 << 10,
+            min_upload_rate_kib_s: 16,
+            upload_grace_s: 10.0,
             max_connections: 0,
+            max_connections_per_address: 0,
             header_timeout_s: 10.0,
+            connection_idle_s: 60.0,
+            body_timeout_s: 30.0,
             trim_memory_s: 30.0,
             mmap_threshold_kib: 128,
             record_sessions: true,

@@ -3,28 +3,48 @@
 //! - a cap on open connections: past it a new connection is closed at once, so
 //!   connections never exhaust the process's file descriptors (the default cap leaves
 //!   headroom under `RLIMIT_NOFILE` for the data directory, models and logs);
+//! - a cap per client address (an IPv6 client's whole /64), below the server's cap, so one
+//!   client cannot fill it and health checks and the admin from elsewhere still get in;
 //! - a header-read timeout: a client must send its request head within it (HTTP/1), or
 //!   its first bytes (any protocol); past three quarters of the cap the timeout is much
 //!   shorter, so half-open connections cannot crowd out a health check that sends its
 //!   request at once;
+//! - an idle timeout: a connection with no request in flight for that long is closed
+//!   (HTTP/2: GOAWAY), whatever else the peer sends: answering keep-alive PINGs or
+//!   sending SETTINGS is not activity. Past three quarters of the cap it is much shorter;
+//! - a request-body timeout: a body that sends nothing for that long while the server
+//!   reads it fails, so a stalled upload cannot hold its slot (nor a JSON route wait on a
+//!   `Content-Length` that never comes);
 //! - HTTP/2 keep-alive pings, so a vanished peer's connection is closed;
 //! - TLS handshakes inside the connection's slot, with their own timeout;
 //! - graceful shutdown: no new connections, open ones finish their requests.
 
 use crate::session::metrics::Metrics;
+use axum::body::{Body, Bytes};
+use axum::http::{Request, Response};
 use hyper_util::rt::{TokioExecutor, TokioIo, TokioTimer};
 use hyper_util::server::conn::auto::Builder;
 use hyper_util::service::TowerToHyperService;
+use std::collections::HashMap;
+use std::convert::Infallible;
 use std::future::Future;
-use std::sync::Arc;
+use std::net::{IpAddr, Ipv6Addr};
+use std::pin::Pin;
+use std::sync::{Arc, Mutex};
+use std::task::{Context, Poll};
 use std::time::Duration;
 use tokio::io::{AsyncRead, AsyncWrite};
 use tokio::net::TcpListener;
 use tokio::sync::Semaphore;
+use tokio::time::Instant;
 use tokio_rustls::TlsAcceptor;
 
 /// Longest TLS handshake before the connection is dropped.
 const HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(10);
+
+/// How long a connection told to close when idle (HTTP/2: GOAWAY) has to go before it is
+/// dropped, for a peer that ignores the GOAWAY and its PING.
+const CLOSE_GRACE: Duration = Duration::from_secs(5);
 
 /// A connection's byte stream, plain or TLS.
 trait Io: AsyncRead + AsyncWrite + Unpin + Send {}
@@ -35,12 +55,27 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> Io for T {}
 pub struct ConnLimits {
     /// Most connections open at once (both listeners share it).
     pub max_connections: usize,
+    /// Most connections open at once from one client address (an IPv6 /64).
+    pub max_per_address: usize,
     /// Time a connection has for its first bytes and each HTTP/1 request head.
     pub header_timeout: Duration,
     /// The same while more than three quarters of the cap are in use.
     pub pressed_header_timeout: Duration,
+    /// A connection with no request in flight for this long is closed.
+    pub idle_timeout: Duration,
+    /// The same while more than three quarters of the cap are in use.
+    pub pressed_idle_timeout: Duration,
+    /// A request body that sends nothing for this long while it is read fails.
+    pub body_timeout: Duration,
     /// HTTP/2 ping interval (a peer that does not answer within it is dropped).
     pub keep_alive: Duration,
+}
+
+impl ConnLimits {
+    /// The per-address cap when none is set: a quarter of the server's cap, at least 8.
+    pub fn default_per_address(max_connections: usize) -> usize {
+        (max_connections / 4).max(8).min(max_connections)
+    }
 }
 
 /// The default connection cap: `RLIMIT_NOFILE`'s soft limit less 64 descriptors of
@@ -63,6 +98,7 @@ pub fn default_max_connections() -> usize {
 pub struct Connections {
     limits: ConnLimits,
     slots: Arc<Semaphore>,
+    addresses: Arc<Mutex<HashMap<IpAddr, usize>>>,
     normal: Arc<Builder<TokioExecutor>>,
     pressed: Arc<Builder<TokioExecutor>>,
     metrics: Metrics,
@@ -81,16 +117,71 @@ fn builder(header_timeout: Duration, keep_alive: Duration) -> Builder<TokioExecu
     b
 }
 
+/// The address a client's connections are counted under: an IPv4 address, or an IPv6
+/// address's /64 (one host's usual allocation; an IPv4-mapped address counts as IPv4).
+fn address_key(ip: IpAddr) -> IpAddr {
+    match ip {
+        IpAddr::V4(_) => ip,
+        IpAddr::V6(v6) => match v6.to_ipv4_mapped() {
+            Some(v4) => IpAddr::V4(v4),
+            None => {
+                let s = v6.segments();
+                IpAddr::V6(Ipv6Addr::new(s[0], s[1], s[2], s[3], 0, 0, 0, 0))
+            }
+        },
+    }
+}
+
+/// One client address's place among the open connections, given back on drop.
+struct AddressSlot {
+    addresses: Arc<Mutex<HashMap<IpAddr, usize>>>,
+    key: IpAddr,
+}
+
+impl Drop for AddressSlot {
+    fn drop(&mut self) {
+        let mut map = self.addresses.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(n) = map.get_mut(&self.key) {
+            *n -= 1;
+            if *n == 0 {
+                map.remove(&self.key);
+            }
+        }
+    }
+}
+
 impl Connections {
     /// A loop with `limits`, counting in `metrics`.
     pub fn new(limits: ConnLimits, metrics: Metrics) -> Self {
         Self {
             slots: Arc::new(Semaphore::new(limits.max_connections)),
+            addresses: Arc::default(),
             normal: Arc::new(builder(limits.header_timeout, limits.keep_alive)),
             pressed: Arc::new(builder(limits.pressed_header_timeout, limits.keep_alive)),
             limits,
             metrics,
         }
+    }
+
+    /// A place for one more connection from `ip`, unless that address is at its cap.
+    fn admit_address(&self, ip: IpAddr) -> Option<AddressSlot> {
+        let key = address_key(ip);
+        let mut map = self.addresses.lock().unwrap_or_else(|e| e.into_inner());
+        let n = map.entry(key).or_insert(0);
+        if *n >= self.limits.max_per_address {
+            return None;
+        }
+        *n += 1;
+        Some(AddressSlot {
+            addresses: self.addresses.clone(),
+            key,
+        })
+    }
+
+    /// More than three quarters of the connection cap are in use.
+    fn pressed(&self) -> bool {
+        let in_use = self.limits.max_connections - self.slots.available_permits();
+        4 * in_use > 3 * self.limits.max_connections
     }
 
     /// Serves `app` on `listener` (TLS-wrapped with `tls`) until `shutdown` resolves,
@@ -102,7 +193,9 @@ impl Connections {
         app: axum::Router,
         shutdown: impl Future<Output = ()> + Send,
     ) {
-        let graceful = hyper_util::server::graceful::GracefulShutdown::new();
+        let (closing, _) = tokio::sync::watch::channel(false);
+        // Every connection task holds a sender: the channel closes when the last one ends.
+        let (tasks, mut all_done) = tokio::sync::mpsc::channel::<Infallible>(1);
         tokio::pin!(shutdown);
         loop {
             let accepted = tokio::select! {
@@ -125,14 +218,25 @@ impl Connections {
             if let Err(e) = io.set_nodelay(true) {
                 tracing::debug!("TCP_NODELAY on a connection from {addr}: {e}");
             }
+            // Full, or this address at its cap: closed at once (dropping the stream),
+            // before a byte is read.
             let Ok(slot) = self.slots.clone().try_acquire_owned() else {
-                // Full: closed at once (dropping the stream), before a byte is read.
-                self.metrics.connections_refused.inc();
+                self.metrics
+                    .connections_refused
+                    .with_label_values(&["cap"])
+                    .inc();
                 drop(io);
                 continue;
             };
-            let in_use = self.limits.max_connections - self.slots.available_permits();
-            let pressed = 4 * in_use > 3 * self.limits.max_connections;
+            let Some(address_slot) = self.admit_address(addr.ip()) else {
+                self.metrics
+                    .connections_refused
+                    .with_label_values(&["address"])
+                    .inc();
+                drop((io, slot));
+                continue;
+            };
+            let pressed = self.pressed();
             let builder = if pressed {
                 self.pressed.clone()
             } else {
@@ -143,11 +247,20 @@ impl Connections {
             } else {
                 self.limits.header_timeout
             };
-            let service = TowerToHyperService::new(app.clone());
-            let gauge = self.metrics.connections_open.clone();
-            let watcher = graceful.watcher();
+            let activity = Arc::new(Activity::new());
+            let service = TowerToHyperService::new(Tracked {
+                app: app.clone(),
+                activity: activity.clone(),
+                body_timeout: self.limits.body_timeout,
+                metrics: self.metrics.clone(),
+            });
+            let this = self.clone();
+            let mut closing = closing.subscribe();
             let tls = tls.clone();
+            let done = tasks.clone();
             tokio::spawn(async move {
+                let _done = done;
+                let gauge = this.metrics.connections_open.clone();
                 gauge.inc();
                 let io: Box<dyn Io> = match tls {
                     None => Box::new(io),
@@ -169,18 +282,253 @@ impl Connections {
                 };
                 let io = TokioIo::new(FirstBytes::new(io, first_bytes));
                 let conn = builder.serve_connection_with_upgrades(io, service);
-                if let Err(e) = watcher.watch(conn.into_owned()).await {
-                    tracing::debug!("connection ended: {e}");
+                tokio::pin!(conn);
+                // Checked at least this often, so that a server coming under pressure
+                // closes idle connections at the shorter timeout.
+                let every = this.limits.pressed_idle_timeout;
+                let check = tokio::time::sleep(every);
+                tokio::pin!(check);
+                let mut state = Closing::No;
+                loop {
+                    tokio::select! {
+                        r = conn.as_mut() => {
+                            if let Err(e) = r {
+                                tracing::debug!("connection ended: {e}");
+                            }
+                            break;
+                        }
+                        _ = closing.wait_for(|v| *v), if state == Closing::No => {
+                            conn.as_mut().graceful_shutdown();
+                            state = Closing::Shutdown;
+                        }
+                        () = &mut check, if state != Closing::Shutdown => {
+                            let now = Instant::now();
+                            if let Closing::Idle(since) = state {
+                                // Told to go and still there: dropped, unless a request
+                                // began before the GOAWAY reached the peer.
+                                if activity.idle_since().is_some() && now >= since + CLOSE_GRACE {
+                                    tracing::debug!(%addr, "idle connection dropped");
+                                    break;
+                                }
+                                check.as_mut().reset(now + CLOSE_GRACE);
+                                continue;
+                            }
+                            let limit = if this.pressed() {
+                                this.limits.pressed_idle_timeout
+                            } else {
+                                this.limits.idle_timeout
+                            };
+                            match activity.idle_since() {
+                                Some(since) if now >= since + limit => {
+                                    this.metrics
+                                        .connections_closed
+                                        .with_label_values(&["idle"])
+                                        .inc();
+                                    conn.as_mut().graceful_shutdown();
+                                    state = Closing::Idle(now);
+                                    check.as_mut().reset(now + CLOSE_GRACE);
+                                }
+                                Some(since) => check.as_mut().reset((since + limit).min(now + every)),
+                                None => check.as_mut().reset(now + every),
+                            }
+                        }
+                    }
                 }
                 gauge.dec();
-                drop(slot);
+                drop((slot, address_slot));
             });
         }
         drop(listener);
-        graceful.shutdown().await;
+        let _ = closing.send(true);
+        drop(tasks);
+        let _ = all_done.recv().await;
     }
 }
 
+/// Where a connection is in being closed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Closing {
+    /// Serving.
+    No,
+    /// Told to go (HTTP/2: GOAWAY) at this time because it was idle.
+    Idle(Instant),
+    /// The server is shutting down: open requests finish.
+    Shutdown,
+}
+
+/// A connection's requests in flight, and since when it has had none.
+struct Activity {
+    state: Mutex<(usize, Instant)>,
+}
+
+impl Activity {
+    fn new() -> Self {
+        Self {
+            state: Mutex::new((0, Instant::now())),
+        }
+    }
+
+    fn lock(&self) -> std::sync::MutexGuard<'_, (usize, Instant)> {
+        self.state.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// Since when no request has been in flight; `None` while one is.
+    fn idle_since(&self) -> Option<Instant> {
+        let (in_flight, since) = *self.lock();
+        (in_flight == 0).then_some(since)
+    }
+
+    /// A request begins: in flight until the guard (held by its response body) drops.
+    fn begin(self: &Arc<Self>) -> InFlight {
+        self.lock().0 += 1;
+        InFlight(self.clone())
+    }
+}
+
+/// One request in flight on its connection: from its head to the end of its response
+/// body (a gRPC stream's whole life).
+struct InFlight(Arc<Activity>);
+
+impl Drop for InFlight {
+    fn drop(&mut self) {
+        let mut state = self.0.lock();
+        state.0 -= 1;
+        if state.0 == 0 {
+            state.1 = Instant::now();
+        }
+    }
+}
+
+/// The app as one connection serves it: each request counted in flight on the
+/// connection, its body read under the body timeout.
+#[derive(Clone)]
+struct Tracked {
+    app: axum::Router,
+    activity: Arc<Activity>,
+    body_timeout: Duration,
+    metrics: Metrics,
+}
+
+impl<B> tower_service::Service<Request<B>> for Tracked
+where
+    B: http_body::Body<Data = Bytes> + Send + Unpin + 'static,
+    B::Error: Into<axum::BoxError>,
+{
+    type Response = Response<Body>;
+    type Error = Infallible;
+    type Future = Pin<Box<dyn Future<Output = Result<Response<Body>, Infallible>> + Send>>;
+
+    fn poll_ready(&mut self, _: &mut Context<'_>) -> Poll<Result<(), Infallible>> {
+        Poll::Ready(Ok(()))
+    }
+
+    fn call(&mut self, req: Request<B>) -> Self::Future {
+        let guard = self.activity.begin();
+        let timeout = self.body_timeout;
+        let metrics = self.metrics.clone();
+        let req = req.map(|body| {
+            Body::new(Watched {
+                inner: body,
+                timeout,
+                waiting: None,
+                metrics,
+            })
+        });
+        let response = tower_service::Service::call(&mut self.app.clone(), req);
+        Box::pin(async move {
+            let response = response.await?;
+            Ok(response.map(|body| {
+                Body::new(Guarded {
+                    inner: body,
+                    _guard: guard,
+                })
+            }))
+        })
+    }
+}
+
+/// A response body that keeps its request in flight until it is sent or dropped.
+struct Guarded {
+    inner: Body,
+    _guard: InFlight,
+}
+
+impl http_body::Body for Guarded {
+    type Data = Bytes;
+    type Error = axum::Error;
+
+    fn poll_frame(
+        mut self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+    ) -> Poll<Option<Result<http_body::Frame<Bytes>, axum::Error>>> {
+        Pin::new(&mut self.inner).poll_frame(cx)
+    }
+
+    fn is_end_stream(&self) -> bool {
+        self.inner.is_end_stream()
+    }
+
+    fn size_hint(&self) -> http_body::SizeHint {
+        self.inner.size_hint()
+    }
+}
+
+/// Why a request body failed: it sent nothing for the body timeout.
+#[derive(Debug, thiserror::Error)]
+#[error("the request body sent nothing for {0:?} ([service] body_timeout_s)")]
+struct BodyStalled(Duration);
+
+/// A request body that fails when the client sends nothing for `timeout` while the
+/// server waits for it (time the server spends not reading does not count).
+struct Watched<B> {
+    inner: B,
+    timeout: Duration,
+    waiting: Option<Pin<Box<tokio::time::Sleep>>>,
+    metrics: Metrics,
+}
+
+impl<B> http_body::Body for Watched<B>
+where
+    B: http_body::Body<Data = Bytes> + Unpin,
+    B::Error: Into<axum::BoxError>,
+{
+    type Data = Bytes;
+    type Error = axum::BoxError;
+
+    fn poll_frame(
+        mut self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+    ) -> Poll<Option<Result<http_body::Frame<Bytes>, axum::BoxError>>> {
+        match Pin::new(&mut self.inner).poll_frame(cx) {
+            Poll::Pending => {
+                let timeout = self.timeout;
+                let deadline = self
+                    .waiting
+                    .get_or_insert_with(|| Box::pin(tokio::time::sleep(timeout)));
+                if deadline.as_mut().poll(cx).is_ready() {
+                    self.metrics
+                        .connections_closed
+                        .with_label_values(&["stalled"])
+                        .inc();
+                    return Poll::Ready(Some(Err(Box::new(BodyStalled(timeout)))));
+                }
+                Poll::Pending
+            }
+            Poll::Ready(frame) => {
+                self.waiting = None;
+                Poll::Ready(frame.map(|f| f.map_err(Into::into)))
+            }
+        }
+    }
+
+    fn is_end_stream(&self) -> bool {
+        self.inner.is_end_stream()
+    }
+
+    fn size_hint(&self) -> http_body::SizeHint {
+        self.inner.size_hint()
+    }
+}
 /// A stream that fails with `TimedOut` if its first bytes do not arrive within the
 /// deadline (hyper's HTTP/1 header timeout does not cover a client that sends nothing,
 /// nor the HTTP/2 preface).

@@ -10,7 +10,7 @@ use crate::api::auth::{self, Tokens};
 use crate::api::grpc::MonitorService;
 use crate::api::{Shared, proto, rest};
 use crate::config::{FleetRole, Settings};
-use crate::session::budget::Uploads;
+use crate::session::budget::{MinRate, Uploads};
 use crate::session::fleet::Fleet;
 use crate::session::jobs::Jobs;
 use crate::session::metrics::Metrics;
@@ -175,6 +175,10 @@ impl Server {
                 cfg.max_uploads,
                 cfg.max_upload_disk_mb << 20,
                 metrics_for_uploads,
+                MinRate {
+                    bytes_per_s: cfg.min_upload_rate_kib_s << 10,
+                    grace: Duration::from_secs_f64(cfg.upload_grace_s.max(0.0)),
+                },
             ),
             model_validation: tokio::sync::Mutex::new(()),
         });
@@ -210,17 +214,29 @@ impl Server {
             Some(t) => Some(tokio_rustls::TlsAcceptor::from(tls::server_config(t)?)),
             None => None,
         };
+        let max_connections = match cfg.max_connections {
+            0 => conn::default_max_connections(),
+            n => n,
+        };
+        let idle = Duration::from_secs_f64(cfg.connection_idle_s.max(0.5));
         let connections = conn::Connections::new(
             conn::ConnLimits {
-                max_connections: match cfg.max_connections {
-                    0 => conn::default_max_connections(),
+                max_connections,
+                max_per_address: match cfg.max_connections_per_address {
+                    0 => conn::ConnLimits::default_per_address(max_connections),
                     n => n,
                 },
                 header_timeout: Duration::from_secs_f64(cfg.header_timeout_s.max(0.1)),
                 pressed_header_timeout: Duration::from_secs_f64(
                     (cfg.header_timeout_s / 10.0).clamp(0.1, 1.0),
                 ),
-                keep_alive: Duration::from_secs(20),
+                idle_timeout: idle,
+                pressed_idle_timeout: (idle / 10)
+                    .clamp(Duration::from_millis(500), Duration::from_secs(5)),
+                body_timeout: Duration::from_secs_f64(cfg.body_timeout_s.max(0.5)),
+                // Pings well inside the idle time (they are not activity, but they find a
+                // vanished peer of a long stream).
+                keep_alive: (idle / 3).clamp(Duration::from_secs(1), Duration::from_secs(20)),
             },
             shared.metrics().clone(),
         );

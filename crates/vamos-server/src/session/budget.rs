@@ -8,6 +8,7 @@
 use prometheus::IntGauge;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
+use vamos_core::episode::{DecodeBudget, Reserved};
 
 /// Refused: the budget cannot take `needed` more bytes.
 #[derive(Debug, Clone, thiserror::Error)]
@@ -140,13 +141,100 @@ impl Drop for Charge {
     }
 }
 
+/// A charge held by a frame and its clones ([`Reserved`]), given back when the last
+/// one drops.
+#[derive(Debug)]
+pub struct SharedCharge(std::sync::Mutex<Charge>);
+
+impl SharedCharge {
+    /// `charge`, to share.
+    pub fn new(charge: Charge) -> Arc<Self> {
+        Arc::new(Self(std::sync::Mutex::new(charge)))
+    }
+}
+
+impl Reserved for SharedCharge {
+    fn resize(&self, bytes: u64) {
+        let mut charge = self.0.lock().unwrap_or_else(|e| e.into_inner());
+        // Shrinking always succeeds; growing past the budget keeps the charge as it was.
+        let _ = charge.resize(bytes);
+    }
+}
+
+/// How long an episode's image decoding waits for room in the memory budget before it
+/// is refused (the frame is reported as refused, the episode goes on).
+pub const DECODE_WAIT: std::time::Duration = std::time::Duration::from_secs(10);
+
+/// The memory budget as an episode reader's [`DecodeBudget`]: an image's decoding waits
+/// for room (frames being scored give theirs back) for up to `wait`, then is refused, as
+/// a decoding larger than the whole budget is at once.
+#[derive(Debug)]
+pub struct DecodeRoom {
+    budget: Arc<ByteBudget>,
+    wait: std::time::Duration,
+}
+
+impl DecodeRoom {
+    /// Decodings within `budget`, each waiting up to `wait` for room.
+    pub fn new(budget: Arc<ByteBudget>, wait: std::time::Duration) -> Arc<Self> {
+        Arc::new(Self { budget, wait })
+    }
+}
+
+impl DecodeBudget for DecodeRoom {
+    fn reserve(&self, bytes: u64) -> Result<Arc<dyn Reserved>, String> {
+        if bytes > self.budget.limit() {
+            return Err(format!(
+                "decoding it takes {bytes} bytes, more than the server's whole memory budget \
+                 of {} ([service] memory_budget_mb)",
+                self.budget.limit()
+            ));
+        }
+        let deadline = std::time::Instant::now() + self.wait;
+        loop {
+            match self.budget.charge(bytes) {
+                Ok(c) => return Ok(SharedCharge::new(c)),
+                Err(e) if std::time::Instant::now() >= deadline => {
+                    return Err(format!("{e} ([service] memory_budget_mb)"));
+                }
+                Err(_) => std::thread::sleep(std::time::Duration::from_millis(20)),
+            }
+        }
+    }
+}
+
 /// Uploads in progress: at most `max_uploads` at once, their temporary files within the
-/// upload disk budget. Admission comes before the first byte is read.
+/// upload disk budget. Admission comes before the first byte is read. Uploads a robot
+/// token may send (episodes to score) hold at most all slots but one, so the admin
+/// plane (models, robots, calibrations) always has one. An upload whose average rate
+/// since admission falls below the minimum (after a grace period) is cut, so a client
+/// that trickles bytes cannot hold a slot either.
 #[derive(Debug)]
 pub struct Uploads {
     slots: Arc<tokio::sync::Semaphore>,
+    robot_slots: Arc<tokio::sync::Semaphore>,
     max: usize,
     disk: Arc<ByteBudget>,
+    min_rate: MinRate,
+}
+
+/// The slowest an upload may be: after `grace`, its average since admission at least
+/// `bytes_per_s`.
+#[derive(Debug, Clone, Copy)]
+pub struct MinRate {
+    /// Bytes per second.
+    pub bytes_per_s: u64,
+    /// Time an upload has before the rate is checked.
+    pub grace: std::time::Duration,
+}
+
+/// Who may send an upload: decides which slots it may take.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum UploadPlane {
+    /// An upload a robot token may send (an episode to score): all slots but one.
+    Robot,
+    /// An admin-only upload (a model, a robot, calibration episodes): any slot.
+    Admin,
 }
 
 /// Why an upload was not admitted.
@@ -163,13 +251,31 @@ pub enum UploadRefused {
     /// The temporary disk of uploads is spent.
     #[error("{0} ([service] max_upload_disk_mb); retry later")]
     Disk(#[from] BudgetSpent),
+    /// The upload came slower than the minimum rate.
+    #[error(
+        "the upload is too slow: {received} bytes in {seconds:.0} s, below the minimum of \
+         {min_bytes_per_s} bytes/s ([service] min_upload_rate_kib_s)"
+    )]
+    TooSlow {
+        /// Bytes received.
+        received: u64,
+        /// Seconds since admission.
+        seconds: f64,
+        /// The minimum rate.
+        min_bytes_per_s: u64,
+    },
 }
 
-/// An admitted upload: its slot and the disk its file holds, both given back on drop.
+/// An admitted upload: its slots and the disk its file holds, both given back on drop.
 #[derive(Debug)]
 pub struct UploadTicket {
-    _slot: tokio::sync::OwnedSemaphorePermit,
+    _slots: (
+        tokio::sync::OwnedSemaphorePermit,
+        Option<tokio::sync::OwnedSemaphorePermit>,
+    ),
     disk: Charge,
+    admitted: std::time::Instant,
+    min_rate: MinRate,
 }
 
 impl UploadTicket {
@@ -177,6 +283,21 @@ impl UploadTicket {
     pub fn written(&mut self, total: u64) -> Result<(), UploadRefused> {
         if total > self.disk.bytes() {
             self.disk.resize(total)?;
+        }
+        Ok(())
+    }
+
+    /// `total` bytes of the body received so far: refused when the average rate since
+    /// admission is below the minimum after the grace period.
+    pub fn received(&mut self, total: u64) -> Result<(), UploadRefused> {
+        let elapsed = self.admitted.elapsed();
+        let floor = self.min_rate.bytes_per_s as f64 * elapsed.as_secs_f64();
+        if elapsed > self.min_rate.grace && (total as f64) < floor {
+            return Err(UploadRefused::TooSlow {
+                received: total,
+                seconds: elapsed.as_secs_f64(),
+                min_bytes_per_s: self.min_rate.bytes_per_s,
+            });
         }
         Ok(())
     }
@@ -189,25 +310,37 @@ impl UploadTicket {
 
 impl Uploads {
     /// At most `max` uploads at once, `disk_limit` bytes of temporary files, the disk in
-    /// use mirrored in `gauge`.
-    pub fn new(max: usize, disk_limit: u64, gauge: IntGauge) -> Self {
+    /// use mirrored in `gauge`, each upload at least `min_rate` fast.
+    pub fn new(max: usize, disk_limit: u64, gauge: IntGauge, min_rate: MinRate) -> Self {
         Self {
             slots: Arc::new(tokio::sync::Semaphore::new(max)),
+            robot_slots: Arc::new(tokio::sync::Semaphore::new(max.saturating_sub(1).max(1))),
             max,
             disk: ByteBudget::new("upload disk budget", disk_limit, gauge),
+            min_rate,
         }
     }
 
-    /// Admits an upload that declares `declared` bytes (the whole declared size is
-    /// charged at once), or says why not.
-    pub fn admit(&self, declared: Option<u64>) -> Result<UploadTicket, UploadRefused> {
-        let slot = self
-            .slots
-            .clone()
-            .try_acquire_owned()
-            .map_err(|_| UploadRefused::Busy { max: self.max })?;
+    /// Admits an upload of `plane` that declares `declared` bytes (the whole declared size
+    /// is charged at once), or says why not.
+    pub fn admit(
+        &self,
+        plane: UploadPlane,
+        declared: Option<u64>,
+    ) -> Result<UploadTicket, UploadRefused> {
+        let busy = |_| UploadRefused::Busy { max: self.max };
+        let robot_slot = match plane {
+            UploadPlane::Robot => Some(self.robot_slots.clone().try_acquire_owned().map_err(busy)?),
+            UploadPlane::Admin => None,
+        };
+        let slot = self.slots.clone().try_acquire_owned().map_err(busy)?;
         let disk = self.disk.charge(declared.unwrap_or(0))?;
-        Ok(UploadTicket { _slot: slot, disk })
+        Ok(UploadTicket {
+            _slots: (slot, robot_slot),
+            disk,
+            admitted: std::time::Instant::now(),
+            min_rate: self.min_rate,
+        })
     }
 }
 
@@ -260,13 +393,17 @@ mod tests {
     #[test]
     fn uploads_are_admitted_up_to_their_count_and_disk() {
         let gauge = IntGauge::new("u", "u").unwrap_or_else(|e| panic!("{e}"));
-        let uploads = Uploads::new(2, 1000, gauge.clone());
-        let mut a = uploads.admit(Some(600)).unwrap_or_else(|e| panic!("{e}"));
-        let err = uploads.admit(Some(500)).unwrap_err();
+        let uploads = Uploads::new(2, 1000, gauge.clone(), NO_MIN_RATE);
+        let mut a = uploads
+            .admit(UploadPlane::Admin, Some(600))
+            .unwrap_or_else(|e| panic!("{e}"));
+        let err = uploads.admit(UploadPlane::Admin, Some(500)).unwrap_err();
         assert!(matches!(err, UploadRefused::Disk(_)), "{err}");
-        let mut b = uploads.admit(None).unwrap_or_else(|e| panic!("{e}"));
+        let mut b = uploads
+            .admit(UploadPlane::Admin, None)
+            .unwrap_or_else(|e| panic!("{e}"));
         assert!(matches!(
-            uploads.admit(None),
+            uploads.admit(UploadPlane::Admin, None),
             Err(UploadRefused::Busy { max: 2 })
         ));
         a.written(600).unwrap_or_else(|e| panic!("{e}"));
@@ -276,6 +413,63 @@ mod tests {
         assert_eq!(gauge.get(), 900);
         drop((a, b));
         assert_eq!(gauge.get(), 0);
-        assert!(uploads.admit(Some(1000)).is_ok());
+        assert!(uploads.admit(UploadPlane::Admin, Some(1000)).is_ok());
+    }
+
+    const NO_MIN_RATE: MinRate = MinRate {
+        bytes_per_s: 0,
+        grace: std::time::Duration::ZERO,
+    };
+
+    #[test]
+    fn robot_uploads_leave_one_slot_to_the_admin_plane() {
+        let gauge = IntGauge::new("r", "r").unwrap_or_else(|e| panic!("{e}"));
+        let uploads = Uploads::new(3, 1000, gauge, NO_MIN_RATE);
+        let robot = |u: &Uploads| u.admit(UploadPlane::Robot, None);
+        let a = robot(&uploads).unwrap_or_else(|e| panic!("{e}"));
+        let _b = robot(&uploads).unwrap_or_else(|e| panic!("{e}"));
+        assert!(matches!(
+            robot(&uploads),
+            Err(UploadRefused::Busy { max: 3 })
+        ));
+        let admin = uploads
+            .admit(UploadPlane::Admin, None)
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert!(uploads.admit(UploadPlane::Admin, None).is_err());
+        drop(admin);
+        drop(a);
+        assert!(robot(&uploads).is_ok());
+        // One slot in all: a robot may take it (there is nothing to keep).
+        let one = Uploads::new(
+            1,
+            1000,
+            IntGauge::new("o", "o").unwrap_or_else(|e| panic!("{e}")),
+            NO_MIN_RATE,
+        );
+        assert!(robot(&one).is_ok());
+    }
+
+    #[test]
+    fn an_upload_below_the_minimum_rate_is_cut_after_its_grace() {
+        let gauge = IntGauge::new("s", "s").unwrap_or_else(|e| panic!("{e}"));
+        let rate = MinRate {
+            bytes_per_s: 1000,
+            grace: std::time::Duration::from_millis(50),
+        };
+        let uploads = Uploads::new(2, 1 << 20, gauge, rate);
+        let mut t = uploads
+            .admit(UploadPlane::Robot, None)
+            .unwrap_or_else(|e| panic!("{e}"));
+        // Within the grace any rate passes.
+        t.received(1).unwrap_or_else(|e| panic!("{e}"));
+        std::thread::sleep(std::time::Duration::from_millis(120));
+        // 120 ms at 1000 B/s is 120 bytes: 10 is too slow, 1000 is not.
+        let err = t.received(10).unwrap_err();
+        assert!(
+            matches!(err, UploadRefused::TooSlow { received: 10, .. }),
+            "{err}"
+        );
+        assert!(err.to_string().contains("min_upload_rate_kib_s"), "{err}");
+        t.received(1000).unwrap_or_else(|e| panic!("{e}"));
     }
 }

@@ -4,7 +4,7 @@
 //! order as core [`FrameScore`](vamos_core::pipeline::FrameScore)s, then the damage (a
 //! [`SessionError::Damaged`]) if the file broke part-way.
 
-use super::budget::UploadTicket;
+use super::budget::{DECODE_WAIT, DecodeRoom, UploadTicket};
 use super::error::SessionError;
 use super::event::{Output, ScoredFrame};
 use super::hub::Hub;
@@ -12,7 +12,7 @@ use super::profiles::LoadedProfile;
 use super::state::{FrameJoints, ImagePayload, OpenRequest, ReadyFrame, SessionSlot};
 use futures_util::Stream;
 use std::sync::Arc;
-use std::time::{Duration, Instant};
+use std::time::Instant;
 use tokio::sync::mpsc;
 use vamos_core::episode::McapEpisode;
 use vamos_core::pipeline::offline::{FrameError, is_fatal};
@@ -57,32 +57,51 @@ impl EpisodeScores {
     }
 }
 
+/// An episode to score, besides its file and profile.
+pub struct EpisodeRequest {
+    /// Its name: seeds the predictor's sampling (as `vamos score` does) and names it in
+    /// logs.
+    pub name: String,
+    /// The session place reserved before the upload was read.
+    pub slot: SessionSlot,
+    /// The upload's slot and disk, given back when the file is removed.
+    pub ticket: Option<UploadTicket>,
+    /// Each score carries its anomaly map.
+    pub maps: bool,
+    /// The robot token that sent it ([`super::Session::opener`]).
+    pub opener: Option<usize>,
+}
+
 /// Scores the buffered episode `file` with `profile` through the worker pool, in the
-/// session place `slot` reserved before it was read. `seed_key` seeds the predictor's
-/// sampling (the episode's name, as `vamos score` does). `ticket` (the upload's slot and
-/// disk) is given back when the file is removed. With `maps`, each score carries its
-/// anomaly map.
+/// session place its request reserved.
 pub async fn score_episode(
     hub: Arc<Hub>,
     profile: Arc<LoadedProfile>,
     file: tempfile::NamedTempFile,
-    seed_key: String,
-    slot: SessionSlot,
-    ticket: Option<UploadTicket>,
-    maps: bool,
+    req: EpisodeRequest,
 ) -> Result<EpisodeScores, SessionError> {
+    let EpisodeRequest {
+        name: seed_key,
+        slot,
+        ticket,
+        maps,
+        opener,
+    } = req;
     let config = profile.setup.episode.clone();
     let path = file.path().to_path_buf();
     let episode = tokio::task::spawn_blocking(move || McapEpisode::open(&path, &config))
         .await
         .map_err(|e| SessionError::Internal(e.to_string()))?
         .map_err(|source| SessionError::NotAnEpisode { source })?;
+    // Every image is decoded within the server's memory budget, its peak charged first.
+    let episode = episode.with_decode_budget(DecodeRoom::new(hub.budget().clone(), DECODE_WAIT));
     let (tx, rx) = mpsc::channel(1024);
     let (session, _) = hub.open(
         profile,
         OpenRequest {
             robot_id: String::new(),
             task: String::new(),
+            opener,
             session_id: String::new(),
             camera: None,
             episode: true,
@@ -105,21 +124,6 @@ pub async fn score_episode(
                         .camera_info
                         .as_ref()
                         .and_then(|c| Intrinsics::from_k(c.width, c.height, &c.k).ok());
-                    // Decoded frames wait for room in the memory budget: the session's
-                    // queue, and others', drain as they are scored.
-                    // (A frame larger than the whole budget takes all of it.)
-                    let values = frame.image.data().len()
-                        + frame.depth.as_ref().map_or(0, |d| d.metres().len());
-                    let bytes = (4 * values as u64).min(hub.budget().limit());
-                    let charge = loop {
-                        match hub.budget().charge(bytes) {
-                            Ok(c) => break c,
-                            Err(_) if !hub.is_closed(&session) => {
-                                std::thread::sleep(Duration::from_millis(20));
-                            }
-                            Err(_) => return,
-                        }
-                    };
                     let ready = ReadyFrame {
                         stamp_ns: frame.stamp_ns,
                         image: ImagePayload::Decoded(frame.image, k, frame.depth),
@@ -129,7 +133,7 @@ pub async fn score_episode(
                             efforts: j.efforts,
                         }),
                         arrived: Instant::now(),
-                        charge: Some(charge),
+                        held: frame.reserved,
                     };
                     if !hub.push_blocking(&session, ready) {
                         return;

@@ -23,6 +23,18 @@ pub enum SessionError {
         /// The id.
         id: String,
     },
+    /// The caller's robot token is not issued for this robot.
+    #[error("this robot token is not issued for robot {robot_id:?}")]
+    RobotNotAllowed {
+        /// The robot id asked for.
+        robot_id: String,
+    },
+    /// A session (to resume) that another robot token opened.
+    #[error("session {id:?} was opened by another robot token")]
+    NotYours {
+        /// The id.
+        id: String,
+    },
     /// A resumed session belongs to another profile.
     #[error("session {id:?} was opened with profile {profile:?}")]
     ProfileMismatch {
@@ -50,6 +62,17 @@ pub enum SessionError {
     /// An id that is not acceptable.
     #[error("invalid session id: {0}")]
     BadId(&'static str),
+    /// A client's label (robot id, task, phase, episode name) that is too long or holds
+    /// control characters.
+    #[error(
+        "{field} must be at most {MAX_LABEL_BYTES} bytes of printable characters ({len} bytes given)"
+    )]
+    BadLabel {
+        /// The message field.
+        field: &'static str,
+        /// Its length, bytes.
+        len: usize,
+    },
     /// The open message's camera is not valid.
     #[error("camera_info: {source}")]
     BadCamera {
@@ -170,4 +193,19 @@ impl SessionError {
             source: Box::new(source),
         }
     }
+}
+
+/// Longest label a client may give (robot id, task, phase, episode name), bytes: labels
+/// are kept with the session, listed by `/v1/live` and written on log lines.
+pub const MAX_LABEL_BYTES: usize = 256;
+
+/// `value` of `field` as a label: at most [`MAX_LABEL_BYTES`], no control characters.
+pub fn check_label(field: &'static str, value: &str) -> Result<(), SessionError> {
+    if value.len() > MAX_LABEL_BYTES || value.chars().any(char::is_control) {
+        return Err(SessionError::BadLabel {
+            field,
+            len: value.len(),
+        });
+    }
+    Ok(())
 }

@@ -15,7 +15,7 @@
 //! (counted as `undelivered`), it never stalls a worker.
 
 use super::budget::ByteBudget;
-use super::error::SessionError;
+use super::error::{SessionError, check_label};
 use super::event::{Event, EventKind, Outbound, Output};
 use super::joints::JointBuffer;
 use super::metrics::Metrics;
@@ -98,6 +98,15 @@ impl Hub {
             memory_budget_mib = limit >> 20,
             "memory budget for buffered client data"
         );
+        let recordings = config.data_dir.join(super::recording::DIR);
+        match super::recording::recover_interrupted(&recordings) {
+            Ok(0) => {}
+            Ok(n) => tracing::warn!(
+                recordings = n,
+                "recordings left in progress by a server that stopped are kept as finished"
+            ),
+            Err(e) => tracing::warn!("cannot recover the recordings left in progress: {e}"),
+        }
         let hub = Arc::new(Self {
             budget,
             live_workers: AtomicUsize::new(0),
@@ -191,6 +200,8 @@ impl Hub {
         if id.len() > 128 || id.chars().any(|c| c.is_control()) {
             return Err(SessionError::BadId("at most 128 printable characters"));
         }
+        check_label("robot_id", &req.robot_id)?;
+        check_label("task", &req.task)?;
         let mut sessions = lock(&self.sessions);
         if !id.is_empty()
             && let Some(s) = sessions.get(&id)
@@ -248,6 +259,7 @@ impl Hub {
             id: id.clone(),
             robot_id: req.robot_id,
             task: req.task,
+            opener: req.opener,
             resumable,
             episode: req.episode,
             needs_joints: AtomicBool::new(profile.setup.robot.is_some()),

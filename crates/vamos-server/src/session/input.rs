@@ -3,6 +3,8 @@
 //! the end of the stream and a broken link; episodes' decoded frames pushed with
 //! backpressure.
 
+use super::budget::SharedCharge;
+use super::error::check_label;
 use super::event::{EventKind, LiveImage, LiveJoints};
 use super::hub::{Hub, event};
 use super::state::{ImagePayload, ReadyFrame, Session, SessionState, lock};
@@ -50,7 +52,7 @@ impl Hub {
             image: ImagePayload::Live(image),
             joints: None,
             arrived: Instant::now(),
-            charge: Some(charge),
+            held: vec![SharedCharge::new(charge)],
         });
         let released = self.release(s, &mut st, false);
         drop(st);
@@ -118,6 +120,10 @@ impl Hub {
 
     /// A phase marker of a live session.
     pub fn phase(&self, s: &Arc<Session>, stamp_ns: i64, phase: String) {
+        if let Err(e) = check_label("phase", &phase) {
+            self.refuse(s, "phase", format!("phase dropped: {e}"), stamp_ns);
+            return;
+        }
         {
             let mut st = lock(&s.state);
             st.last_activity = Instant::now();

@@ -76,8 +76,13 @@ pub struct Metrics {
     pub uploads_refused: IntCounterVec,
     /// Connections open, both listeners.
     pub connections_open: IntGauge,
-    /// Connections closed at once because the cap was reached.
-    pub connections_refused: IntCounter,
+    /// Connections closed at once, by reason: `cap` (the server's connection cap) or
+    /// `address` (the cap of one client address).
+    pub connections_refused: IntCounterVec,
+    /// Connections the server closed, by reason: `idle` (no request in flight for the
+    /// idle time; keep-alive pings do not count) or `stalled` (a request body that sent
+    /// nothing for the body timeout: the request fails, and on HTTP/1 its connection).
+    pub connections_closed: IntCounterVec,
     /// HTTP requests answered, by method, route (the path template, `unmatched` for
     /// unknown paths) and status code.
     pub http_requests: IntCounterVec,
@@ -222,11 +227,16 @@ impl Metrics {
             &["reason"],
         );
         let connections_open = gauge("vamos_connections_open", "Connections open");
-        let connections_refused = must(IntCounter::new(
+        let connections_refused = counter(
             "vamos_connections_refused_total",
-            "Connections closed at once because the connection cap was reached",
-        ));
-        must(registry.register(Box::new(connections_refused.clone())));
+            "Connections closed at once, by reason: the server's cap or one address's cap",
+            &["reason"],
+        );
+        let connections_closed = counter(
+            "vamos_connections_closed_total",
+            "Connections closed by the server: idle past the idle time, or a request body stalled (the request fails)",
+            &["reason"],
+        );
         let request_histogram = |name: &str, help: &str, labels: &[&str]| {
             let h = must(HistogramVec::new(
                 HistogramOpts::new(name, help).buckets(REQUEST_BUCKETS.to_vec()),
@@ -286,6 +296,7 @@ impl Metrics {
             uploads_refused,
             connections_open,
             connections_refused,
+            connections_closed,
             http_requests,
             http_request_seconds,
             grpc_requests,

@@ -271,6 +271,31 @@ impl Recorder {
     }
 }
 
+/// Recordings a server left in progress when it stopped without closing them (killed,
+/// crashed): each `<stem>.mcap.part` becomes `<stem>.mcap`, a finished recording cut
+/// short, so that it is listed, read back up to the cut and, unless kept, removed
+/// oldest-first to make room like any other (a `.part` is never removed, so left alone
+/// it would hold its disk for good). Returns how many. For a server's start, before any
+/// session records.
+pub fn recover_interrupted(dir: &Path) -> std::io::Result<usize> {
+    let mut recovered = 0;
+    let entries = match std::fs::read_dir(dir) {
+        Ok(e) => e,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(0),
+        Err(e) => return Err(e),
+    };
+    for entry in entries {
+        let entry = entry?;
+        let name = entry.file_name().to_string_lossy().into_owned();
+        let Some(done) = name.strip_suffix(".part").filter(|n| n.ends_with(".mcap")) else {
+            continue;
+        };
+        std::fs::rename(entry.path(), dir.join(done))?;
+        recovered += 1;
+    }
+    Ok(recovered)
+}
+
 /// Removes the oldest finished recordings that are not kept until the folder takes at
 /// most `target` bytes; returns what it takes then.
 fn make_room(dir: &Path, target: u64) -> std::io::Result<u64> {
@@ -470,5 +495,33 @@ mod tests {
         .unwrap_err();
         assert!(matches!(err, RecordingError::Full { .. }), "{err}");
         c.finish().unwrap();
+    }
+
+    #[test]
+    fn a_recording_left_in_progress_is_recovered_as_a_finished_one_that_can_make_room() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut r = Recorder::start(
+            dir.path(),
+            "killed",
+            &EpisodeTopics::default(),
+            limits(1 << 30, 1 << 20),
+        )
+        .unwrap();
+        r.record(&rgb(1_000_000, 8, 6, 1), None, None).unwrap();
+        let name = r.file_name();
+        drop(r); // never finished, as when the server is killed
+        let part = dir.path().join(format!("{name}.part"));
+        assert!(part.is_file());
+        assert_eq!(
+            make_room(dir.path(), 0).unwrap(),
+            part.metadata().unwrap().len(),
+            "a part is never removed"
+        );
+        assert_eq!(recover_interrupted(dir.path()).unwrap(), 1);
+        assert!(dir.path().join(&name).is_file());
+        assert!(!part.exists());
+        assert_eq!(make_room(dir.path(), 0).unwrap(), 0, "now it makes room");
+        assert!(!dir.path().join(&name).exists());
+        assert_eq!(recover_interrupted(&dir.path().join("none")).unwrap(), 0);
     }
 }

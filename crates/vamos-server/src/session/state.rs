@@ -10,6 +10,7 @@ use std::collections::VecDeque;
 use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, Condvar, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
+use vamos_core::episode::Reserved;
 use vamos_core::pipeline::Scorer;
 use vamos_robot::Intrinsics;
 use vamos_vision::{DepthImage, GrayImage};
@@ -49,8 +50,8 @@ pub struct ReadyFrame {
     /// When the image reached the server.
     pub arrived: Instant,
     /// What the frame holds of the server's memory budget (given back when the frame is
-    /// scored or dropped).
-    pub charge: Option<Charge>,
+    /// scored or dropped): its buffered bytes, or its decoded image's reservations.
+    pub held: Vec<Arc<dyn Reserved>>,
 }
 
 /// The latest score of a session, for listings.
@@ -77,6 +78,10 @@ pub struct SessionSummary {
     pub model: String,
     /// Task given at open.
     pub task: String,
+    /// The robot token that opened it ([`Session::opener`]; never shown).
+    #[serde(skip)]
+    #[schemars(skip)]
+    pub opener: Option<usize>,
     /// Current phase (latest phase marker).
     pub phase: Option<String>,
     /// `streaming`, `detached` (waiting to be resumed), `episode`.
@@ -134,6 +139,9 @@ pub struct Session {
     pub robot_id: String,
     /// Task.
     pub task: String,
+    /// The robot token that opened it (its place among the server's robot tokens;
+    /// `None`: an admin, or no tokens): who besides admins and viewers may see it.
+    pub opener: Option<usize>,
     /// Whether the client chose the id (it can resume).
     pub resumable: bool,
     /// Whether it scores an uploaded episode.
@@ -223,6 +231,7 @@ impl Session {
             profile: self.profile_name.clone(),
             model,
             task: self.task.clone(),
+            opener: self.opener,
             phase: st.phase.clone(),
             state: if self.episode {
                 "episode"
@@ -262,6 +271,8 @@ pub struct OpenRequest {
     pub robot_id: String,
     /// Task.
     pub task: String,
+    /// The robot token opening it ([`Session::opener`]).
+    pub opener: Option<usize>,
     /// Client-chosen id (resumable) or empty.
     pub session_id: String,
     /// Camera of the open message.

@@ -39,6 +39,7 @@ impl EpisodeBuffer {
         if self.size > self.limit {
             return Err(SessionError::EpisodeTooLarge { limit: self.limit });
         }
+        self.ticket.received(self.size)?;
         self.ticket.written(self.size)?;
         self.file
             .write_all(chunk)
@@ -182,8 +183,24 @@ impl Write for ChargedWriter<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::session::budget::Uploads;
+    use crate::session::budget::{MinRate, UploadPlane, Uploads};
     use prometheus::IntGauge;
+
+    fn new_uploads(disk: u64, gauge: &IntGauge) -> Uploads {
+        let any_rate = MinRate {
+            bytes_per_s: 0,
+            grace: std::time::Duration::ZERO,
+        };
+        Uploads::new(4, disk, gauge.clone(), any_rate)
+    }
+
+    /// `len` bytes of an MCAP file's contents: its magic, then `fill`.
+    fn mcap_like(len: usize, fill: impl Fn(usize) -> u8) -> Vec<u8> {
+        let magic = b"\x89MCAP0\r\n";
+        (0..len)
+            .map(|i| magic.get(i).copied().unwrap_or_else(|| fill(i)))
+            .collect()
+    }
 
     fn zstd(raw: &[u8]) -> Vec<u8> {
         // Streamed, as rosbag2 compresses: the frame does not declare its size.
@@ -193,7 +210,9 @@ mod tests {
     }
 
     fn buffer(dir: &Path, uploads: &Uploads, bytes: &[u8]) -> EpisodeBuffer {
-        let ticket = uploads.admit(None).unwrap_or_else(|e| panic!("{e}"));
+        let ticket = uploads
+            .admit(UploadPlane::Robot, None)
+            .unwrap_or_else(|e| panic!("{e}"));
         let mut b = EpisodeBuffer::new(dir, 1 << 20, ticket).unwrap_or_else(|e| panic!("{e}"));
         b.write(bytes).unwrap_or_else(|e| panic!("{e}"));
         b
@@ -203,8 +222,8 @@ mod tests {
     fn a_compressed_upload_is_replaced_by_its_copy_charged_as_written() {
         let dir = tempfile::tempdir().unwrap();
         let gauge = IntGauge::new("d", "d").unwrap();
-        let uploads = Uploads::new(4, 1_000_000, gauge.clone());
-        let raw: Vec<u8> = (0..300_000u32).map(|i| (i % 251) as u8).collect();
+        let uploads = new_uploads(1_000_000, &gauge);
+        let raw = mcap_like(300_000, |i| (i % 251) as u8);
         let packed = zstd(&raw);
         let b = buffer(dir.path(), &uploads, &packed);
         let compressed_path = b.path().to_path_buf();
@@ -231,16 +250,16 @@ mod tests {
     fn a_copy_past_the_disk_budget_or_the_limit_is_refused_and_leaves_nothing() {
         let dir = tempfile::tempdir().unwrap();
         let gauge = IntGauge::new("d", "d").unwrap();
-        let raw = vec![3u8; 500_000];
+        let raw = mcap_like(500_000, |_| 3);
         let packed = zstd(&raw);
         // The compressed upload fits the budget; its copy does not.
-        let uploads = Uploads::new(4, 400_000, gauge.clone());
+        let uploads = new_uploads(400_000, &gauge);
         let b = buffer(dir.path(), &uploads, &packed);
         let err = b.decompress(1 << 20).err().expect("refused");
         assert!(matches!(err, SessionError::Upload(_)), "{err}");
         assert!(err.to_string().contains("upload disk budget"), "{err}");
         // Past `max_decompressed_bytes`.
-        let uploads = Uploads::new(4, 10_000_000, gauge.clone());
+        let uploads = new_uploads(10_000_000, &gauge);
         let b = buffer(dir.path(), &uploads, &packed);
         let err = b.decompress(100_000).err().expect("refused");
         assert!(matches!(err, SessionError::NotAnEpisode { .. }), "{err}");
@@ -257,14 +276,16 @@ mod tests {
     fn an_upload_part_is_decompressed_in_place_charged_on_top_of_the_others() {
         let dir = tempfile::tempdir().unwrap();
         let gauge = IntGauge::new("d", "d").unwrap();
-        let raw = vec![5u8; 300_000];
+        let raw = mcap_like(300_000, |_| 5);
         let packed = zstd(&raw);
         let part = dir.path().join("b.mcap");
         std::fs::write(&part, &packed).unwrap();
         let held = 100_000 + packed.len() as u64;
         // The other files (100 kB) and this one, then its copy on top: over a 350 kB budget.
-        let uploads = Uploads::new(4, 350_000, gauge.clone());
-        let mut ticket = uploads.admit(None).unwrap_or_else(|e| panic!("{e}"));
+        let uploads = new_uploads(350_000, &gauge);
+        let mut ticket = uploads
+            .admit(UploadPlane::Robot, None)
+            .unwrap_or_else(|e| panic!("{e}"));
         ticket.written(held).unwrap_or_else(|e| panic!("{e}"));
         let err = decompress_in_place(&part, 1 << 20, &mut ticket, held).unwrap_err();
         assert!(err.to_string().contains("upload disk budget"), "{err}");
@@ -281,8 +302,10 @@ mod tests {
         drop(ticket);
         assert_eq!(gauge.get(), 0);
         // With room: the part becomes its copy.
-        let uploads = Uploads::new(4, 1_000_000, gauge.clone());
-        let mut ticket = uploads.admit(None).unwrap_or_else(|e| panic!("{e}"));
+        let uploads = new_uploads(1_000_000, &gauge);
+        let mut ticket = uploads
+            .admit(UploadPlane::Robot, None)
+            .unwrap_or_else(|e| panic!("{e}"));
         ticket.written(held).unwrap_or_else(|e| panic!("{e}"));
         let size = decompress_in_place(&part, 1 << 20, &mut ticket, held)
             .unwrap_or_else(|e| panic!("{e}"));

@@ -262,7 +262,7 @@ impl Hub {
         let stamp = frame.stamp_ns;
         let started = Instant::now();
         // Held until the frame is scored: the buffered bytes, then the decoding's.
-        let _buffered = frame.charge;
+        let _buffered = frame.held;
         let decode_span = tracing::debug_span!("decode").entered();
         let (image, frame_camera, recorded_depth, _decoding, live) = match frame.image {
             ImagePayload::Decoded(img, k, depth) => (img, k, depth, None, None),

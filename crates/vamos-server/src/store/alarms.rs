@@ -59,6 +59,11 @@ pub struct AlarmRecord {
     pub session_id: String,
     /// The session's robot.
     pub robot_id: String,
+    /// The robot token that opened the session ([`crate::session::Session::opener`]):
+    /// kept in memory only, never shown or stored.
+    #[serde(skip)]
+    #[schemars(skip)]
+    pub opener: Option<usize>,
     /// The session's profile.
     pub profile: String,
     /// The session's model label.
@@ -180,6 +185,7 @@ mod tests {
             id: id.into(),
             session_id: "s1".into(),
             robot_id: "r".into(),
+            opener: None,
             profile: profile.into(),
             model: "none".into(),
             started_unix_s: 1,

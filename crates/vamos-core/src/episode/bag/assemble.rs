@@ -35,6 +35,7 @@ pub(super) struct PendingFrame {
     pub(super) camera_info: Option<CameraInfoMsg>,
     pub(super) warnings: Vec<String>,
     pub(super) source: SourceMessage,
+    pub(super) reserved: Option<Arc<dyn Reserved>>,
 }
 
 /// Turns the message stream into frames.
@@ -66,10 +67,14 @@ pub(super) struct Assembler {
     // image or why not), the latest stamp read.
     pub(super) depth_topic: Option<String>,
     pub(super) max_depth_gap_ns: f64,
-    pub(super) depths: VecDeque<(i64, usize, Result<DepthImage, String>)>,
+    pub(super) depths: VecDeque<(i64, usize, Result<HeldDepth, String>)>,
     pub(super) depth_msgs_seen: usize,
     pub(super) latest_depth_ns: Option<i64>,
+    pub(super) budget: Option<Arc<dyn DecodeBudget>>,
 }
+
+/// A decoded depth image and its reservation in the episode's budget.
+pub(super) type HeldDepth = (DepthImage, Option<Arc<dyn Reserved>>);
 
 /// Depth images held for the images still waiting: enough for a depth camera a few times
 /// faster than the colour camera.
@@ -117,6 +122,7 @@ impl Assembler {
             depths: VecDeque::new(),
             depth_msgs_seen: 0,
             latest_depth_ns: None,
+            budget: ep.budget.clone(),
         }
     }
 
@@ -161,15 +167,21 @@ impl Assembler {
             }
         } else if self.depth_topic.as_deref() == Some(m.topic) {
             let decoded = ImageMsg::decode(m.data)
-                .map_err(|e| e.to_string())
                 .and_then(|msg| {
                     let stamp = msg.header.stamp_ns();
                     let pixels = self.max_image_bytes;
-                    msg.encoded()
-                        .to_depth(pixels)
-                        .map(|d| (stamp, d))
-                        .map_err(|e| e.to_string())
-                });
+                    let encoded = msg.encoded();
+                    let reserved = match &self.budget {
+                        Some(_) => self.reserve(encoded.check(pixels)?)?,
+                        None => None,
+                    };
+                    let depth = encoded.to_depth(pixels)?;
+                    if let Some(r) = &reserved {
+                        r.resize(std::mem::size_of_val(depth.metres()) as u64);
+                    }
+                    Ok((stamp, (depth, reserved)))
+                })
+                .map_err(|e| e.to_string());
             self.depth(m, decoded);
         } else if m.schema == schema::CAMERA_INFO {
             let index = self.camera_msgs_seen;
@@ -209,13 +221,17 @@ impl Assembler {
             }));
         }
         let decoded = if m.schema == schema::COMPRESSED_IMAGE {
-            CompressedImageMsg::decode(m.data)
-                .and_then(|c| Ok((c.header.stamp_ns(), c.to_gray(self.max_image_bytes)?)))
+            CompressedImageMsg::decode(m.data).and_then(|c| {
+                let (image, reserved) = self.decode_gray(&c.encoded())?;
+                Ok((c.header.stamp_ns(), image, reserved))
+            })
         } else {
-            ImageMsg::decode(m.data)
-                .and_then(|c| Ok((c.header.stamp_ns(), c.to_gray(self.max_image_bytes)?)))
+            ImageMsg::decode(m.data).and_then(|c| {
+                let (image, reserved) = self.decode_gray(&c.encoded())?;
+                Ok((c.header.stamp_ns(), image, reserved))
+            })
         };
-        let (stamp, image) = match decoded {
+        let (stamp, image, reserved) = match decoded {
             Ok(v) => v,
             Err(MessageError::UnknownEncoding { encoding }) => {
                 return Some(Err(EpisodeError::UnknownEncoding {
@@ -263,11 +279,46 @@ impl Assembler {
                 log_time_ns: m.log_time,
                 cdr: m.data.to_vec(),
             },
+            reserved,
         }))
     }
 
+    /// Room in the episode's budget (when it has one) for a decoding of `size`: its peak
+    /// reserved before a byte is decoded.
+    fn reserve(&self, size: CheckedSize) -> Result<Option<Arc<dyn Reserved>>, MessageError> {
+        self.budget
+            .as_ref()
+            .map(|b| {
+                b.reserve(size.peak_bytes)
+                    .map_err(|reason| MessageError::BadSize {
+                        reason: format!(
+                            "the {}x{} image is not decoded: {reason}",
+                            size.width, size.height
+                        ),
+                    })
+            })
+            .transpose()
+    }
+
+    /// An image decoded to gray within the episode's budget: the reservation, shrunk to
+    /// the gray image, goes with it.
+    fn decode_gray(
+        &self,
+        encoded: &EncodedImage<'_>,
+    ) -> Result<(GrayImage, Option<Arc<dyn Reserved>>), MessageError> {
+        let reserved = match &self.budget {
+            Some(_) => self.reserve(encoded.check(self.max_image_bytes)?)?,
+            None => None,
+        };
+        let image = encoded.to_gray(self.max_image_bytes)?;
+        if let Some(r) = &reserved {
+            r.resize(std::mem::size_of_val(image.data()) as u64);
+        }
+        Ok((image, reserved))
+    }
+
     /// Holds a depth message (decoded, or why it is not) for the frames near its stamp.
-    fn depth(&mut self, m: RawMsg<'_>, decoded: Result<(i64, DepthImage), String>) {
+    fn depth(&mut self, m: RawMsg<'_>, decoded: Result<(i64, HeldDepth), String>) {
         let index = self.depth_msgs_seen;
         self.depth_msgs_seen += 1;
         let (stamp_ns, item) = match decoded {
@@ -291,7 +342,7 @@ impl Assembler {
         stamp_ns: i64,
         size: (usize, usize),
         warnings: &mut Vec<String>,
-    ) -> Option<DepthImage> {
+    ) -> Option<HeldDepth> {
         let topic = self.depth_topic.as_deref()?;
         let gap = |t: i64| (t.saturating_sub(stamp_ns)).unsigned_abs() as f64;
         let nearest = (0..self.depths.len())
@@ -300,8 +351,10 @@ impl Assembler {
             Some(i) if gap(self.depths[i].0) <= self.max_depth_gap_ns => {
                 let (_, index, item) = &self.depths[i];
                 match item {
-                    Ok(d) if d.fits(size.0, size.1) => Some(d.clone()),
-                    Ok(d) => {
+                    Ok((d, reserved)) if d.fits(size.0, size.1) => {
+                        Some((d.clone(), reserved.clone()))
+                    }
+                    Ok((d, _)) => {
                         let (w, h) = d.size();
                         warnings.push(format!(
                             "{topic} message {index}: depth image {w}x{h} does not fit the \
@@ -415,7 +468,11 @@ impl Assembler {
 
     pub(super) fn finish_frame(&mut self, p: PendingFrame) -> EpisodeFrame {
         let mut warnings = p.warnings;
-        let depth = self.depth_for(p.stamp_ns, p.image.size(), &mut warnings);
+        let (depth, depth_reserved) =
+            match self.depth_for(p.stamp_ns, p.image.size(), &mut warnings) {
+                Some((d, r)) => (Some(d), r),
+                None => (None, None),
+            };
         let joints = match &self.joint_names {
             Some(names) if !self.joint_stamps.is_empty() => {
                 let n = names.len();
@@ -468,6 +525,7 @@ impl Assembler {
             depth,
             warnings,
             source: p.source,
+            reserved: p.reserved.into_iter().chain(depth_reserved).collect(),
         }
     }
 }

@@ -41,6 +41,7 @@ mod topics;
 pub use files::{decompress_zstd_into, is_zstd_file};
 
 use super::EpisodeError;
+use super::image::{CheckedSize, EncodedImage};
 use super::joints::{interpolate_optional, interpolate_rows};
 use super::labels::Labels;
 use super::ros::{
@@ -67,6 +68,21 @@ use files::*;
 use prescan::{Prescan, prescan};
 use source::*;
 use topics::*;
+
+/// Memory an episode's reader reserves before it decodes an image (a server's memory
+/// budget, [`McapEpisode::with_decode_budget`]): the decoding's peak is reserved first,
+/// then the reservation is shrunk to the decoded image and held by its frame (and the
+/// frame's clones) until they drop, so no decoded byte is outside the budget.
+pub trait DecodeBudget: Send + Sync + std::fmt::Debug {
+    /// Reserves `bytes`, waiting for room if the budget does; `Err` says why not.
+    fn reserve(&self, bytes: u64) -> Result<Arc<dyn Reserved>, String>;
+}
+
+/// A reservation of [`DecodeBudget`], given back when the last holder drops it.
+pub trait Reserved: Send + Sync + std::fmt::Debug {
+    /// Makes the reservation `bytes` (what a decoded image keeps).
+    fn resize(&self, bytes: u64);
+}
 
 /// Images held while waiting for a joint sample past their stamp; beyond this the oldest
 /// is released with the joint samples read so far (nearest sample, gap reported).
@@ -265,6 +281,9 @@ pub struct EpisodeFrame {
     pub warnings: Vec<String>,
     /// The image message as read.
     pub source: SourceMessage,
+    /// The memory the decoded image (and depth image) hold in the episode's
+    /// [`DecodeBudget`]; empty without one.
+    pub reserved: Vec<Arc<dyn Reserved>>,
 }
 
 /// A ROS 2 bag in MCAP, opened for reading.
@@ -276,6 +295,7 @@ pub struct McapEpisode {
     parts: Vec<Part>,
     info: EpisodeInfo,
     skipped_backwards: Cell<usize>,
+    budget: Option<Arc<dyn DecodeBudget>>,
 }
 
 impl McapEpisode {
@@ -351,7 +371,14 @@ impl McapEpisode {
             parts,
             info,
             skipped_backwards: Cell::new(0),
+            budget: None,
         })
+    }
+
+    /// Images are decoded within `budget` ([`DecodeBudget`]).
+    pub fn with_decode_budget(mut self, budget: Arc<dyn DecodeBudget>) -> Self {
+        self.budget = Some(budget);
+        self
     }
 
     /// The episode's name (file stem).

@@ -2,6 +2,7 @@
 //! of [`AuthError`] to status codes.
 
 use crate::api::auth::AuthError;
+use crate::session::budget::UploadRefused;
 use crate::session::{ProfileLookupError, SessionError};
 use tonic::{Code, Status};
 
@@ -9,10 +10,13 @@ use tonic::{Code, Status};
 pub fn code_of(e: &SessionError) -> Code {
     use SessionError as E;
     match e {
+        E::Upload(UploadRefused::TooSlow { .. }) => Code::DeadlineExceeded,
         E::TooMany { .. } | E::Upload(_) | E::EpisodeTooLarge { .. } => Code::ResourceExhausted,
         E::Busy { .. } => Code::AlreadyExists,
+        E::RobotNotAllowed { .. } | E::NotYours { .. } => Code::PermissionDenied,
         E::ProfileMismatch { .. }
         | E::BadId(_)
+        | E::BadLabel { .. }
         | E::BadCamera { .. }
         | E::OpenExpected
         | E::SecondOpen

@@ -3,11 +3,12 @@
 //! layer; errors become statuses in [`super::error`].
 
 use super::convert::{frame_score, intrinsics_of, live_image, live_joints, stream_response};
-use crate::api::auth::Role;
+use crate::api::auth::{Caller, Role};
 use crate::api::proto::monitor_server::Monitor;
 use crate::api::proto::{self, stream_request::Message as In};
 use crate::api::state::Shared;
-use crate::session::episode::score_episode;
+use crate::session::episode::{EpisodeRequest, score_episode};
+use crate::session::error::check_label;
 use crate::session::upload::EpisodeBuffer;
 use crate::session::{Event, EventKind, Hub, OpenRequest, Output, Session, SessionError};
 use futures_util::StreamExt;
@@ -31,12 +32,12 @@ impl MonitorService {
         Self { shared }
     }
 
-    fn authorize<T>(&self, req: &Request<T>) -> Result<Role, Status> {
+    fn authorize<T>(&self, req: &Request<T>) -> Result<Caller, Status> {
         let header = req
             .metadata()
             .get("authorization")
             .and_then(|v| v.to_str().ok());
-        Ok(self.shared.tokens.require(header, Role::Robot)?)
+        Ok(self.shared.tokens.require_caller(header, Role::Robot)?)
     }
 }
 
@@ -114,7 +115,7 @@ impl Monitor for MonitorService {
         &self,
         request: Request<Streaming<proto::StreamRequest>>,
     ) -> Result<Response<Self::StreamStream>, Status> {
-        self.authorize(&request)?;
+        let caller = self.authorize(&request)?;
         let request_id = request
             .extensions()
             .get::<crate::api::observe::RequestId>()
@@ -135,6 +136,18 @@ impl Monitor for MonitorService {
             .get_async(&open.profile)
             .await
             .map_err(SessionError::from)?;
+        // A robot token acts for its robots, and resumes only what it may see.
+        if !caller.may_act_for(&open.robot_id) {
+            return Err(SessionError::RobotNotAllowed {
+                robot_id: open.robot_id,
+            }
+            .into());
+        }
+        if let Some(s) = hub.session(open.session_id.trim())
+            && !caller.sees(s.opener, &s.robot_id)
+        {
+            return Err(SessionError::NotYours { id: s.id.clone() }.into());
+        }
         let camera = open.camera_info.as_ref().map(intrinsics_of).transpose()?;
         let (tx, rx) = mpsc::channel(1024);
         let (session, resumed) = hub.open(
@@ -142,6 +155,7 @@ impl Monitor for MonitorService {
             OpenRequest {
                 robot_id: open.robot_id,
                 task: open.task,
+                opener: caller.robot_token,
                 session_id: open.session_id,
                 camera,
                 episode: false,
@@ -193,7 +207,7 @@ impl Monitor for MonitorService {
         &self,
         request: Request<Streaming<proto::EpisodeChunk>>,
     ) -> Result<Response<Self::ScoreEpisodeStream>, Status> {
-        self.authorize(&request)?;
+        let caller = self.authorize(&request)?;
         // Admitted before a byte is buffered: a session place and an upload slot.
         let (slot, ticket) = self.shared.admit_episode(None)?;
         let mut inbound = request.into_inner();
@@ -205,6 +219,7 @@ impl Monitor for MonitorService {
             if profile_name.is_none() {
                 profile_name = Some(chunk.profile.clone());
                 episode_name = chunk.name.clone();
+                check_label("name", &episode_name)?;
             }
             buffer.write(&chunk.data)?;
         }
@@ -224,10 +239,13 @@ impl Monitor for MonitorService {
             self.shared.hub.clone(),
             profile,
             file,
-            episode_name,
-            slot,
-            Some(ticket),
-            false,
+            EpisodeRequest {
+                name: episode_name,
+                slot,
+                ticket: Some(ticket),
+                maps: false,
+                opener: caller.robot_token,
+            },
         )
         .await?;
         let mapped = scores

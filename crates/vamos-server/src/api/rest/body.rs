@@ -3,6 +3,7 @@
 
 use super::errors::ApiError;
 use crate::api::state::Shared;
+use crate::session::SessionError;
 use crate::session::budget::UploadTicket;
 use crate::store::{StoreError, Upload, UploadKind};
 use axum::body::{Body, Bytes};
@@ -55,6 +56,13 @@ pub(super) async fn json_bytes(body: Body, limit: usize) -> Result<Bytes, ApiErr
 }
 
 pub(super) fn json_body<T: serde::de::DeserializeOwned>(body: &[u8]) -> Result<T, ApiError> {
+    // Every JSON body of the API is an object: serde would also take a struct's fields
+    // as an array (`[]` for a struct whose fields all have defaults).
+    if body.trim_ascii_start().first() != Some(&b'{') {
+        return Err(ApiError::bad_request(
+            "bad JSON body: expected a JSON object",
+        ));
+    }
     serde_json::from_slice(body).map_err(|e| ApiError::bad_request(format!("bad JSON body: {e}")))
 }
 
@@ -93,7 +101,8 @@ pub(super) async fn receive(
     while let Some(chunk) = stream.next().await {
         let chunk = chunk.map_err(ApiError::bad_request)?;
         size += chunk.len() as u64;
-        ticket.written(size).map_err(ApiError::too_many)?;
+        ticket.received(size).map_err(SessionError::from)?;
+        ticket.written(size).map_err(SessionError::from)?;
         match blocking(move || upload.write_chunk(&chunk).map(|()| upload)).await {
             Ok(u) => upload = u,
             // The upload is gone (its file removed). A full disk is not the client's

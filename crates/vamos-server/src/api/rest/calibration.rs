@@ -7,6 +7,7 @@ use super::body::{
 use super::errors::ApiError;
 use super::profiles::refuse_file_profile;
 use crate::api::state::Shared;
+use crate::session::SessionError;
 use crate::session::budget::UploadTicket;
 use crate::session::calibration::{CalibrationRequest, NominalEpisode, nominal_set};
 use crate::session::upload::decompress_in_place;
@@ -208,7 +209,8 @@ pub(super) async fn read_calibration_parts(
                     "the calibration upload is larger than the limit of {total_limit} bytes"
                 )));
             }
-            ticket.written(total).map_err(ApiError::too_many)?;
+            ticket.received(total).map_err(SessionError::from)?;
+            ticket.written(total).map_err(SessionError::from)?;
             file.write_all(&chunk).await.map_err(ApiError::internal)?;
         }
         file.flush().await.map_err(ApiError::internal)?;

@@ -4,14 +4,17 @@
 
 use super::body::{ApiQuery, content_length, file_body};
 use super::errors::ApiError;
+use crate::api::auth::Caller;
 use crate::api::grpc::convert::frame_score_fields;
 use crate::api::state::Shared;
-use crate::session::episode::score_episode as score;
+use crate::session::budget::{DECODE_WAIT, DecodeRoom};
+use crate::session::episode::{EpisodeRequest, score_episode as score};
+use crate::session::error::check_label;
 use crate::session::upload::EpisodeBuffer;
 use crate::session::{ScoredFrame, SessionError};
 use axum::Json;
 use axum::body::Body;
-use axum::extract::State;
+use axum::extract::{Extension, State};
 use axum::http::{HeaderMap, header};
 use axum::response::{IntoResponse, Response};
 use futures_util::StreamExt;
@@ -54,6 +57,7 @@ fn score_json(f: &ScoredFrame) -> ScoreJson {
 /// bag (damage in `x-vamos-damage`); streamed to disk first (size-limited).
 pub(super) async fn score_episode(
     State(s): State<Arc<Shared>>,
+    Extension(caller): Extension<Caller>,
     headers: HeaderMap,
     ApiQuery(q): ApiQuery<ScoreQuery>,
     body: Body,
@@ -63,6 +67,7 @@ pub(super) async fn score_episode(
         .get_async(&q.profile)
         .await
         .map_err(SessionError::from)?;
+    check_label("name", q.name.as_deref().unwrap_or_default())?;
     let limit = s.hub.config().max_episode_bytes;
     let declared = content_length(&headers);
     if declared.is_some_and(|len| len > limit) {
@@ -118,10 +123,13 @@ pub(super) async fn score_episode(
         s.hub.clone(),
         profile.clone(),
         file,
-        name,
-        slot,
-        scoring_ticket,
-        wants_mcap,
+        EpisodeRequest {
+            name,
+            slot,
+            ticket: scoring_ticket,
+            maps: wants_mcap,
+            opener: caller.robot_token,
+        },
     )
     .await?;
     let (frames, damage) = scores.collect().await;
@@ -134,8 +142,9 @@ pub(super) async fn score_episode(
         Some(input) => {
             let dir = s.upload_dir();
             let thresholds = profile.setup.detector_thresholds();
+            let room = DecodeRoom::new(s.hub.budget().clone(), DECODE_WAIT);
             let out = tokio::task::spawn_blocking(move || {
-                scored_bag(input.path(), &config, &frames, &dir, thresholds)
+                scored_bag(input.path(), &config, room, &frames, &dir, thresholds)
             })
             .await
             .map_err(ApiError::internal)??;
@@ -155,11 +164,14 @@ pub(super) async fn score_episode(
 fn scored_bag(
     input: &Path,
     config: &EpisodeConfig,
+    room: Arc<DecodeRoom>,
     frames: &[ScoredFrame],
     dir: &Path,
     thresholds: DetectorThresholds,
 ) -> Result<tempfile::NamedTempFile, ApiError> {
-    let episode = McapEpisode::open(input, config).map_err(ApiError::bad_request)?;
+    let episode = McapEpisode::open(input, config)
+        .map_err(ApiError::bad_request)?
+        .with_decode_budget(room);
     let out = tempfile::Builder::new()
         .prefix("scored-")
         .suffix(".mcap")

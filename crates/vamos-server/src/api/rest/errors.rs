@@ -3,6 +3,7 @@
 //! check's errors to statuses; handlers name an error, never a status.
 
 use crate::api::auth::AuthError;
+use crate::session::budget::UploadRefused;
 use crate::session::calibration::{CalibrationRefused, RecalibrationRefused};
 use crate::session::jobs::JobError;
 use crate::session::{ProfileLookupError, SessionError};
@@ -100,11 +101,14 @@ impl From<AuthError> for ApiError {
 fn status_of(e: &SessionError) -> StatusCode {
     use SessionError as E;
     match e {
+        E::Upload(UploadRefused::TooSlow { .. }) => StatusCode::REQUEST_TIMEOUT,
         E::TooMany { .. } | E::Upload(_) => StatusCode::TOO_MANY_REQUESTS,
         E::EpisodeTooLarge { .. } | E::MessageTooLarge { .. } => StatusCode::PAYLOAD_TOO_LARGE,
         E::Busy { .. } | E::Reload { .. } => StatusCode::CONFLICT,
+        E::RobotNotAllowed { .. } | E::NotYours { .. } => StatusCode::FORBIDDEN,
         E::ProfileMismatch { .. }
         | E::BadId(_)
+        | E::BadLabel { .. }
         | E::BadCamera { .. }
         | E::OpenExpected
         | E::SecondOpen

@@ -9,7 +9,7 @@
 
 use super::body::ApiQuery;
 use super::errors::ApiError;
-use crate::api::auth::Role;
+use crate::api::auth::{Caller, Role};
 use crate::api::state::Shared;
 use crate::session::SessionError;
 use crate::session::SessionSummary;
@@ -17,7 +17,7 @@ use crate::session::alarms::mark_false_alarm;
 use crate::session::live::FramePoint;
 use crate::store::AlarmRecord;
 use axum::Json;
-use axum::extract::{Path, State};
+use axum::extract::{Extension, Path, State};
 use axum::http::{HeaderMap, header};
 use axum::response::sse::{Event, KeepAlive, Sse};
 use axum::response::{IntoResponse, Response};
@@ -117,6 +117,7 @@ pub struct LiveSnapshot {
 /// false alarms (oldest mark first), of a session / profile when given.
 pub(super) async fn list_alarms(
     State(s): State<Arc<Shared>>,
+    Extension(caller): Extension<Caller>,
     ApiQuery(q): ApiQuery<AlarmQuery>,
 ) -> Result<Response, ApiError> {
     if q.marked {
@@ -128,6 +129,7 @@ pub(super) async fn list_alarms(
         let marked: Vec<_> = marked
             .into_iter()
             .filter(|a| q.session.as_ref().is_none_or(|x| &a.session_id == x))
+            .filter(|a| caller.sees(a.opener, &a.robot_id))
             .collect();
         return Ok(Json(AlarmList { alarms: marked }).into_response());
     }
@@ -137,6 +139,7 @@ pub(super) async fn list_alarms(
         .list(q.session.as_deref())
         .into_iter()
         .filter(|a| q.profile.as_ref().is_none_or(|p| &a.profile == p))
+        .filter(|a| caller.sees(a.opener, &a.robot_id))
         .collect();
     Ok(Json(AlarmList { alarms }).into_response())
 }
@@ -144,19 +147,28 @@ pub(super) async fn list_alarms(
 /// `GET /v1/alarms/{id}`: a recent alarm, else a stored (marked) one.
 pub(super) async fn get_alarm(
     State(s): State<Arc<Shared>>,
+    Extension(caller): Extension<Caller>,
     Path(id): Path<String>,
 ) -> Result<Response, ApiError> {
-    if let Some(a) = s.hub.alarms.get(&id) {
-        return Ok(Json(a).into_response());
-    }
-    let store = s.store.clone();
-    let key = id.clone();
-    match tokio::task::spawn_blocking(move || store.marked_alarm(&key))
-        .await
-        .map_err(ApiError::internal)??
-    {
-        Some(a) => Ok(Json(a).into_response()),
-        None => Err(SessionError::UnknownAlarm { id }.into()),
+    Ok(Json(visible_alarm(&s, &caller, id).await?).into_response())
+}
+
+/// A recent alarm, else a stored (marked) one, if the caller may see it (else it is
+/// unknown to the caller).
+async fn visible_alarm(s: &Shared, caller: &Caller, id: String) -> Result<AlarmRecord, ApiError> {
+    let alarm = match s.hub.alarms.get(&id) {
+        Some(a) => Some(a),
+        None => {
+            let store = s.store.clone();
+            let key = id.clone();
+            tokio::task::spawn_blocking(move || store.marked_alarm(&key))
+                .await
+                .map_err(ApiError::internal)??
+        }
+    };
+    match alarm {
+        Some(a) if caller.sees(a.opener, &a.robot_id) => Ok(a),
+        _ => Err(SessionError::UnknownAlarm { id }.into()),
     }
 }
 
@@ -174,9 +186,15 @@ fn png(bytes: Vec<u8>) -> Response {
 /// `GET /v1/alarms/{id}/thumbnail`: the frame at the alarm's start (PNG, gray).
 pub(super) async fn alarm_thumbnail(
     State(s): State<Arc<Shared>>,
+    Extension(caller): Extension<Caller>,
     Path(id): Path<String>,
 ) -> Result<Response, ApiError> {
-    match s.hub.alarms.thumbnail(&id) {
+    let visible = s
+        .hub
+        .alarms
+        .get(&id)
+        .is_some_and(|a| caller.sees(a.opener, &a.robot_id));
+    match s.hub.alarms.thumbnail(&id).filter(|_| visible) {
         Some(p) => Ok(png(p)),
         None => Err(ApiError::not_found(format!(
             "no thumbnail of alarm {id:?} (unknown, older than the recent alarms, or the \
@@ -202,13 +220,15 @@ pub(super) async fn mark_alarm(
     headers: HeaderMap,
     body: axum::body::Bytes,
 ) -> Result<Response, ApiError> {
-    let role = super::authorize(&s, &headers, Role::Robot)?;
+    let caller = super::authorize(&s, &headers, Role::Robot)?;
+    // A robot marks only what it may see (an alarm of its own sessions).
+    visible_alarm(&s, &caller, id.clone()).await?;
     let mark: MarkBody = if body.iter().all(u8::is_ascii_whitespace) {
         MarkBody::default()
     } else {
         serde_json::from_slice(&body).map_err(|e| ApiError::bad_request(format!("body: {e}")))?
     };
-    let by_role = match role {
+    let by_role = match caller.role {
         Role::Admin => "admin",
         Role::Robot => "robot",
         Role::Viewer => "viewer",
@@ -222,21 +242,34 @@ pub(super) async fn mark_alarm(
     Ok(Json(alarm).into_response())
 }
 
-fn open_session(s: &Shared, id: &str) -> Result<Arc<crate::session::Session>, ApiError> {
+/// An open session the caller may see (else it is unknown to the caller).
+fn open_session(
+    s: &Shared,
+    caller: &Caller,
+    id: &str,
+) -> Result<Arc<crate::session::Session>, ApiError> {
     s.hub
         .session(id)
+        .filter(|x| caller.sees(x.opener, &x.robot_id))
         .ok_or_else(|| SessionError::UnknownSession { id: id.into() }.into())
 }
 
 /// `GET /v1/sessions/{id}/alarms`: the session's recent alarms, newest first.
 pub(super) async fn session_alarms(
     State(s): State<Arc<Shared>>,
+    Extension(caller): Extension<Caller>,
     Path(id): Path<String>,
 ) -> Result<Response, ApiError> {
-    let alarms = s.hub.alarms.list(Some(&id));
+    let alarms: Vec<_> = s
+        .hub
+        .alarms
+        .list(Some(&id))
+        .into_iter()
+        .filter(|a| caller.sees(a.opener, &a.robot_id))
+        .collect();
     if alarms.is_empty() {
         // An unknown session is a 404; an open one without alarms an empty list.
-        open_session(&s, &id)?;
+        open_session(&s, &caller, &id)?;
     }
     Ok(Json(AlarmList { alarms }).into_response())
 }
@@ -253,10 +286,11 @@ pub struct TimelineQuery {
 /// the thresholds in force and the session's summary.
 pub(super) async fn timeline(
     State(s): State<Arc<Shared>>,
+    Extension(caller): Extension<Caller>,
     Path(id): Path<String>,
     ApiQuery(q): ApiQuery<TimelineQuery>,
 ) -> Result<Response, ApiError> {
-    let session = open_session(&s, &id)?;
+    let session = open_session(&s, &caller, &id)?;
     let points = session.timeline(q.after);
     Ok(Json(timeline_of(&session, points)).into_response())
 }
@@ -272,9 +306,10 @@ fn timeline_of(session: &crate::session::Session, points: Vec<FramePoint>) -> Ti
 /// `GET /v1/sessions/{id}/frame`: the latest frame, shrunk (PNG, gray).
 pub(super) async fn latest_frame(
     State(s): State<Arc<Shared>>,
+    Extension(caller): Extension<Caller>,
     Path(id): Path<String>,
 ) -> Result<Response, ApiError> {
-    let session = open_session(&s, &id)?;
+    let session = open_session(&s, &caller, &id)?;
     match session.latest_images().0 {
         Some(p) => Ok(png(p)),
         None => Err(ApiError::not_found(format!(
@@ -286,9 +321,10 @@ pub(super) async fn latest_frame(
 /// `GET /v1/sessions/{id}/map`: the latest anomaly map (PNG, gray, 0 = nominal).
 pub(super) async fn latest_map(
     State(s): State<Arc<Shared>>,
+    Extension(caller): Extension<Caller>,
     Path(id): Path<String>,
 ) -> Result<Response, ApiError> {
-    let session = open_session(&s, &id)?;
+    let session = open_session(&s, &caller, &id)?;
     match session.latest_images().1 {
         Some(p) => Ok(png(p)),
         None => Err(ApiError::not_found(format!(
@@ -303,9 +339,9 @@ pub(super) async fn whoami(
     State(s): State<Arc<Shared>>,
     headers: HeaderMap,
 ) -> Result<Response, ApiError> {
-    let role = super::authorize(&s, &headers, Role::Viewer)?;
+    let caller = super::authorize(&s, &headers, Role::Viewer)?;
     Ok(Json(Whoami {
-        role,
+        role: caller.role,
         tokens: s.tokens.enabled(),
     })
     .into_response())
@@ -321,6 +357,7 @@ pub struct LiveQuery {
 
 struct LiveState {
     shared: Arc<Shared>,
+    caller: Caller,
     session: Option<String>,
     after: Option<u64>,
     stop: tokio::sync::watch::Receiver<bool>,
@@ -335,6 +372,7 @@ struct LiveState {
 /// of the same (`{"sessions": .., "timeline": .., "alarms": .., "gone": ..}`).
 pub(super) async fn live(
     State(s): State<Arc<Shared>>,
+    Extension(caller): Extension<Caller>,
     ApiQuery(q): ApiQuery<LiveQuery>,
     headers: HeaderMap,
 ) -> Response {
@@ -346,22 +384,25 @@ pub(super) async fn live(
         let mut st = LiveState {
             stop: s.stop.subscribe(),
             shared: s,
+            caller,
             session: q.session,
             after: None,
             first: true,
         };
         return Json(live_round(&mut st)).into_response();
     }
-    live_stream(s, q.session).into_response()
+    live_stream(s, caller, q.session).into_response()
 }
 
 fn live_stream(
     s: Arc<Shared>,
+    caller: Caller,
     session: Option<String>,
 ) -> Sse<impl Stream<Item = Result<Event, Infallible>>> {
     let state = LiveState {
         stop: s.stop.subscribe(),
         shared: s,
+        caller,
         session,
         after: None,
         first: true,
@@ -391,6 +432,7 @@ fn live_round(st: &mut LiveState) -> LiveSnapshot {
         .hub
         .sessions()
         .into_iter()
+        .filter(|summary| st.caller.sees(summary.opener, &summary.robot_id))
         .map(|summary| {
             let last_alarm = s.hub.alarms.list(Some(&summary.id)).into_iter().next();
             LiveSession {
@@ -406,7 +448,11 @@ fn live_round(st: &mut LiveState) -> LiveSnapshot {
         gone: None,
     };
     if let Some(id) = &st.session {
-        match s.hub.session(id) {
+        match s
+            .hub
+            .session(id)
+            .filter(|x| st.caller.sees(x.opener, &x.robot_id))
+        {
             Some(session) => {
                 let points = session.timeline(st.after);
                 if let Some(last) = points.last() {

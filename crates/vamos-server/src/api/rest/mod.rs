@@ -42,7 +42,7 @@ pub use errors::ApiError;
 #[doc(hidden)]
 pub use models::parse_active_request;
 
-use crate::api::auth::Role;
+use crate::api::auth::{Caller, Role};
 use crate::api::state::Shared;
 use axum::Router;
 use axum::extract::{Request, State};
@@ -51,12 +51,12 @@ use axum::middleware::Next;
 use axum::response::{IntoResponse, Response};
 use axum::routing::{MethodRouter, delete, get, patch, post, put};
 use std::sync::Arc;
-/// Checks the bearer token of `headers` for `role`.
-pub fn authorize(shared: &Shared, headers: &HeaderMap, role: Role) -> Result<Role, ApiError> {
+/// Checks the bearer token of `headers` for `role`; says who the caller is.
+pub fn authorize(shared: &Shared, headers: &HeaderMap, role: Role) -> Result<Caller, ApiError> {
     let h = headers
         .get(header::AUTHORIZATION)
         .and_then(|v| v.to_str().ok());
-    Ok(shared.tokens.require(h, role)?)
+    Ok(shared.tokens.require_caller(h, role)?)
 }
 
 /// Who may call a route.
@@ -203,8 +203,13 @@ async fn require(
         Access::Robot => Role::Robot,
         Access::Admin => Role::Admin,
     };
+    // Handlers that show a robot only its own read the caller (`Extension<Caller>`).
     match authorize(&s, req.headers(), role) {
-        Ok(_) => next.run(req).await,
+        Ok(caller) => {
+            let mut req = req;
+            req.extensions_mut().insert(caller);
+            next.run(req).await
+        }
         Err(e) => e.into_response(),
     }
 }
