@@ -1,8 +1,11 @@
 //! The HTTP connection loop of both listeners (gRPC over HTTP/2, REST over HTTP/1.1 or
 //! 2), with what `axum::serve` lacks for a server on a network:
-//! - a cap on open connections: past it a new connection is closed at once, so
-//!   connections never exhaust the process's file descriptors (the default cap leaves
-//!   headroom under `RLIMIT_NOFILE` for the data directory, models and logs);
+//! - a cap on open connections, so connections never exhaust the process's file
+//!   descriptors (the default cap leaves headroom under `RLIMIT_NOFILE` for the data
+//!   directory, models and logs). When it is reached, a new connection takes the place of
+//!   an idle one (no request in flight; the idlest of a random sample), so a client that
+//!   sends its request at once always gets in while any connection is idle; only when
+//!   none is, or too many newcomers already wait for a place, it is closed at once;
 //! - a cap per client address (an IPv6 client's whole /64), below the server's cap, so one
 //!   client cannot fill it and health checks and the admin from elsewhere still get in;
 //! - a header-read timeout: a client must send its request head within it (HTTP/1), or
@@ -30,6 +33,7 @@ use std::convert::Infallible;
 use std::future::Future;
 use std::net::{IpAddr, Ipv6Addr};
 use std::pin::Pin;
+use std::sync::atomic::Ordering;
 use std::sync::{Arc, Mutex};
 use std::task::{Context, Poll};
 use std::time::Duration;
@@ -45,6 +49,17 @@ const HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(10);
 /// How long a connection told to close when idle (HTTP/2: GOAWAY) has to go before it is
 /// dropped, for a peer that ignores the GOAWAY and its PING.
 const CLOSE_GRACE: Duration = Duration::from_secs(5);
+
+/// Newcomers that may wait at once for the place of an evicted idle connection (each holds
+/// a socket meanwhile, within the cap's headroom of descriptors).
+const MAX_WAITING: usize = 16;
+
+/// How long a newcomer waits for the place of the connection it evicted.
+const EVICT_WAIT: Duration = Duration::from_secs(1);
+
+/// Connections looked at to choose one to evict (a random sample: the choice costs the
+/// same however many are open).
+const EVICT_SAMPLE: usize = 16;
 
 /// A connection's byte stream, plain or TLS.
 trait Io: AsyncRead + AsyncWrite + Unpin + Send {}
@@ -99,6 +114,8 @@ pub struct Connections {
     limits: ConnLimits,
     slots: Arc<Semaphore>,
     addresses: Arc<Mutex<HashMap<IpAddr, usize>>>,
+    open: Arc<Mutex<Registry>>,
+    waiting: Arc<std::sync::atomic::AtomicUsize>,
     normal: Arc<Builder<TokioExecutor>>,
     pressed: Arc<Builder<TokioExecutor>>,
     metrics: Metrics,
@@ -156,6 +173,8 @@ impl Connections {
         Self {
             slots: Arc::new(Semaphore::new(limits.max_connections)),
             addresses: Arc::default(),
+            open: Arc::default(),
+            waiting: Arc::default(),
             normal: Arc::new(builder(limits.header_timeout, limits.keep_alive)),
             pressed: Arc::new(builder(limits.pressed_header_timeout, limits.keep_alive)),
             limits,
@@ -176,6 +195,34 @@ impl Connections {
             addresses: self.addresses.clone(),
             key,
         })
+    }
+
+    /// Tells an idle connection (no request in flight; the idlest of a random sample) to
+    /// go at once, making room for a newcomer; `false` when none of the sample is idle.
+    fn evict_idle(&self) -> bool {
+        let mut open = self.open.lock().unwrap_or_else(|e| e.into_inner());
+        let n = open.entries.len();
+        if n == 0 {
+            return false;
+        }
+        let victim = (0..EVICT_SAMPLE)
+            .filter_map(|_| {
+                let i = fastrand::usize(..n);
+                let since = open.entries[i].as_ref()?.activity.idle_since()?;
+                Some((since, i))
+            })
+            .min();
+        let Some((_, i)) = victim else {
+            return false;
+        };
+        if let Some(c) = open.remove(i) {
+            c.evict.notify_one();
+            self.metrics
+                .connections_closed
+                .with_label_values(&["evicted"])
+                .inc();
+        }
+        true
     }
 
     /// More than three quarters of the connection cap are in use.
@@ -218,23 +265,33 @@ impl Connections {
             if let Err(e) = io.set_nodelay(true) {
                 tracing::debug!("TCP_NODELAY on a connection from {addr}: {e}");
             }
-            // Full, or this address at its cap: closed at once (dropping the stream),
-            // before a byte is read.
-            let Ok(slot) = self.slots.clone().try_acquire_owned() else {
+            // This address at its cap, or the server full with no idle connection to
+            // give way: closed at once (dropping the stream), before a byte is read. Full
+            // with an idle one: that one goes, and the newcomer waits for its place.
+            let refuse = |reason: &str| {
                 self.metrics
                     .connections_refused
-                    .with_label_values(&["cap"])
+                    .with_label_values(&[reason])
                     .inc();
+            };
+            let Some(address_slot) = self.admit_address(addr.ip()) else {
+                refuse("address");
                 drop(io);
                 continue;
             };
-            let Some(address_slot) = self.admit_address(addr.ip()) else {
-                self.metrics
-                    .connections_refused
-                    .with_label_values(&["address"])
-                    .inc();
-                drop((io, slot));
-                continue;
+            let slot = match self.slots.clone().try_acquire_owned() {
+                Ok(slot) => Some(slot),
+                Err(_) => {
+                    let waiters = self.waiting.fetch_add(1, Ordering::SeqCst);
+                    if waiters < MAX_WAITING && self.evict_idle() {
+                        None
+                    } else {
+                        self.waiting.fetch_sub(1, Ordering::SeqCst);
+                        refuse("cap");
+                        drop((io, address_slot));
+                        continue;
+                    }
+                }
             };
             let pressed = self.pressed();
             let builder = if pressed {
@@ -260,6 +317,30 @@ impl Connections {
             let done = tasks.clone();
             tokio::spawn(async move {
                 let _done = done;
+                let slot = match slot {
+                    Some(slot) => slot,
+                    None => {
+                        let place =
+                            tokio::time::timeout(EVICT_WAIT, this.slots.clone().acquire_owned())
+                                .await;
+                        this.waiting.fetch_sub(1, Ordering::SeqCst);
+                        match place {
+                            Ok(Ok(slot)) => slot,
+                            _ => {
+                                this.metrics
+                                    .connections_refused
+                                    .with_label_values(&["cap"])
+                                    .inc();
+                                return;
+                            }
+                        }
+                    }
+                };
+                let registered = Arc::new(Registered {
+                    activity: activity.clone(),
+                    evict: tokio::sync::Notify::new(),
+                });
+                let place = this.open_insert(&registered);
                 let gauge = this.metrics.connections_open.clone();
                 gauge.inc();
                 let io: Box<dyn Io> = match tls {
@@ -270,11 +351,13 @@ impl Connections {
                             Ok(Err(e)) => {
                                 tracing::debug!(%addr, "TLS handshake failed: {e}");
                                 gauge.dec();
+                                this.open_remove(place, &registered);
                                 return;
                             }
                             Err(_) => {
                                 tracing::debug!(%addr, "TLS handshake timed out");
                                 gauge.dec();
+                                this.open_remove(place, &registered);
                                 return;
                             }
                         }
@@ -295,6 +378,10 @@ impl Connections {
                             if let Err(e) = r {
                                 tracing::debug!("connection ended: {e}");
                             }
+                            break;
+                        }
+                        () = registered.evict.notified() => {
+                            tracing::debug!(%addr, "idle connection evicted for a newcomer");
                             break;
                         }
                         _ = closing.wait_for(|v| *v), if state == Closing::No => {
@@ -335,6 +422,7 @@ impl Connections {
                     }
                 }
                 gauge.dec();
+                this.open_remove(place, &registered);
                 drop((slot, address_slot));
             });
         }
@@ -342,6 +430,61 @@ impl Connections {
         let _ = closing.send(true);
         drop(tasks);
         let _ = all_done.recv().await;
+    }
+}
+
+/// An open connection as the cap sees it: whether it is idle, and how to make it go.
+struct Registered {
+    activity: Arc<Activity>,
+    evict: tokio::sync::Notify,
+}
+
+/// The open connections, in places that are reused (so a random place is a random
+/// connection).
+#[derive(Default)]
+struct Registry {
+    entries: Vec<Option<Arc<Registered>>>,
+    free: Vec<usize>,
+}
+
+impl Registry {
+    fn insert(&mut self, c: Arc<Registered>) -> usize {
+        match self.free.pop() {
+            Some(i) => {
+                self.entries[i] = Some(c);
+                i
+            }
+            None => {
+                self.entries.push(Some(c));
+                self.entries.len() - 1
+            }
+        }
+    }
+
+    fn remove(&mut self, i: usize) -> Option<Arc<Registered>> {
+        let c = self.entries.get_mut(i)?.take()?;
+        self.free.push(i);
+        Some(c)
+    }
+}
+
+impl Connections {
+    fn open_insert(&self, c: &Arc<Registered>) -> usize {
+        let mut open = self.open.lock().unwrap_or_else(|e| e.into_inner());
+        open.insert(c.clone())
+    }
+
+    /// Removes `c` from place `i` unless it was evicted (and the place reused) already.
+    fn open_remove(&self, i: usize, c: &Arc<Registered>) {
+        let mut open = self.open.lock().unwrap_or_else(|e| e.into_inner());
+        if open
+            .entries
+            .get(i)
+            .and_then(Option::as_ref)
+            .is_some_and(|x| Arc::ptr_eq(x, c))
+        {
+            open.remove(i);
+        }
     }
 }
 

@@ -80,8 +80,9 @@ pub struct Metrics {
     /// `address` (the cap of one client address).
     pub connections_refused: IntCounterVec,
     /// Connections the server closed, by reason: `idle` (no request in flight for the
-    /// idle time; keep-alive pings do not count) or `stalled` (a request body that sent
-    /// nothing for the body timeout: the request fails, and on HTTP/1 its connection).
+    /// idle time; keep-alive pings do not count), `evicted` (an idle one that made room
+    /// for a newcomer at the cap) or `stalled` (a request body that sent nothing for the
+    /// body timeout: the request fails, and on HTTP/1 its connection).
     pub connections_closed: IntCounterVec,
     /// HTTP requests answered, by method, route (the path template, `unmatched` for
     /// unknown paths) and status code.
@@ -234,7 +235,7 @@ impl Metrics {
         );
         let connections_closed = counter(
             "vamos_connections_closed_total",
-            "Connections closed by the server: idle past the idle time, or a request body stalled (the request fails)",
+            "Connections closed by the server: idle past the idle time, evicted for a newcomer at the cap, or a request body stalled (the request fails)",
             &["reason"],
         );
         let request_histogram = |name: &str, help: &str, labels: &[&str]| {
