@@ -52,11 +52,7 @@ pub fn inspect(path: &Path, config: &ModelConfig) -> Result<bool> {
     };
     let m = &bundle.manifest;
     out["sha256"] = json!(bundle.sha256);
-    out["manifest"] = json!({
-        "name": m.name, "created": m.created, "format_version": m.format_version,
-        "opset": m.opset, "flow_variant": m.flow_variant, "temporal": m.temporal,
-        "input": m.input, "processing": m.processing, "architecture": m.architecture,
-    });
+    out["manifest"] = serde_json::to_value(m)?;
     out["members"] = json!({
         "encoder.onnx": {"bytes": bundle.encoder.len()},
         "head.onnx": {"bytes": bundle.head.len()},

@@ -698,3 +698,44 @@ async fn uploaded_recordings_are_decoded_within_the_memory_budget() {
     );
     server.kill();
 }
+
+/// A model bundle whose graph asks for a gigabyte when ONNX Runtime builds it (a 4-byte
+/// shape of a ConstantOfShape, folded at load) is validated in a child process within its
+/// own memory limit: refused with a reason, the server's memory untouched; a good bundle
+/// still validates.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_model_bomb_is_validated_within_its_own_memory_limit() {
+    use super::faults::Process;
+    use super::service::ADMIN;
+    let dir = tempfile::tempdir().unwrap();
+    let server = Process::start_env(
+        &dir.path().join("data"),
+        "info",
+        &[("VAMOS_SERVICE__MODEL_VALIDATION_MB", "512")],
+    );
+    let put = |name: &'static str, file: &'static str| {
+        let url = format!("{}/v1/models/{name}", server.rest);
+        async move {
+            let body = std::fs::read(super::service_admin::model_fixture(file)).unwrap();
+            let r = reqwest::Client::new()
+                .put(url)
+                .bearer_auth(ADMIN)
+                .body(body)
+                .send()
+                .await
+                .unwrap();
+            let status = r.status();
+            (status, r.text().await.unwrap())
+        }
+    };
+    let (status, answer) = put("bomb", "constant_of_shape.vamos").await;
+    assert_eq!(status, reqwest::StatusCode::BAD_REQUEST, "{answer}");
+    assert!(answer.contains("not a valid model bundle"), "{answer}");
+    let peak = peak_rss(server.pid());
+    eprintln!("model bomb: server peak RSS {} MiB ({answer})", peak >> 20);
+    // In the server's own process the validation took 1.09 GB.
+    assert!(peak < 256 << 20, "peak RSS {} MiB", peak >> 20);
+    let (status, answer) = put("tiny", "tiny_trained.vamos").await;
+    assert_eq!(status, reqwest::StatusCode::CREATED, "{answer}");
+    server.kill();
+}

@@ -111,6 +111,7 @@ pub(crate) fn fixture_with(max_sessions: usize, tokens: bool, extra: &str) -> Fi
     settings.service.workers = 2;
     settings.service.queue_depth = 64;
     settings.service.shutdown_grace_s = 5.0;
+    settings.service.model_validator = Some(env!("CARGO_BIN_EXE_vamos").into());
     if tokens {
         settings.service.admin_token_sha256 = vec![hex_sha256(ADMIN)];
         settings.service.robot_token_sha256 = vec![hex_sha256(ROBOT)];

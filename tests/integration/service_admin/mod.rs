@@ -46,6 +46,9 @@ pub(crate) fn settings(dir: &std::path::Path) -> Settings {
     s.service.shutdown_grace_s = 5.0;
     s.service.admin_token_sha256 = vec![hex_sha256(ADMIN)];
     s.service.robot_token_sha256 = vec![hex_sha256(ROBOT)];
+    // Uploaded models are validated by the vamos binary in a child process, as in `vamos
+    // serve` (this test program is not vamos).
+    s.service.model_validator = Some(env!("CARGO_BIN_EXE_vamos").into());
     s
 }
 

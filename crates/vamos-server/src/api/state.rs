@@ -8,7 +8,7 @@ use crate::session::fleet::Fleet;
 use crate::session::jobs::Jobs;
 use crate::session::metrics::Metrics;
 use crate::session::{Hub, ProfileCatalog, SessionError, SessionSlot, admission};
-use crate::store::Store;
+use crate::store::{ModelValidator, Store};
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
@@ -37,6 +37,8 @@ pub struct Shared {
     pub uploads: Uploads,
     /// Held while an uploaded model is validated (one at a time).
     pub model_validation: tokio::sync::Mutex<()>,
+    /// How uploaded models are validated (a bounded child process).
+    pub model_validator: ModelValidator,
 }
 
 impl Shared {

@@ -104,6 +104,16 @@ pub struct ServiceConfig {
     pub max_model_bytes: u64,
     /// Largest robot package upload, bytes.
     pub max_robot_bytes: u64,
+    /// The `vamos` executable that validates uploaded models in a child process (`vamos
+    /// model inspect`). Absent: this program when it is `vamos`; a server started inside
+    /// another program then validates in its own process, without the limits below.
+    pub model_validator: Option<PathBuf>,
+    /// Memory a model's validation may use (the child's data segment), MiB; past it the
+    /// upload is refused (422).
+    pub model_validation_mb: u64,
+    /// Longest model validation, seconds; past it the child is killed and the upload
+    /// refused (422).
+    pub model_validation_s: f64,
     /// Calibration jobs running at once; more are refused (HTTP 429) until one ends.
     pub max_jobs: usize,
     /// Largest calibration upload (all the episodes of one multipart request), bytes.
@@ -214,6 +224,9 @@ impl Default for ServiceConfig {
             max_episode_bytes: 4 << 30,
             max_model_bytes: 512 << 20,
             max_robot_bytes: 512 << 20,
+            model_validator: None,
+            model_validation_mb: 2048,
+            model_validation_s: 120.0,
             max_jobs: 2,
             max_calibration_bytes: 16 << 30,
             admin_token_sha256: Vec::new(),

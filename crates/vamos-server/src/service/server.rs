@@ -15,7 +15,7 @@ use crate::session::fleet::Fleet;
 use crate::session::jobs::Jobs;
 use crate::session::metrics::Metrics;
 use crate::session::{Hub, ProfileCatalog};
-use crate::store::{Store, StoreLimits};
+use crate::store::{ModelValidator, Store, StoreLimits};
 use std::net::SocketAddr;
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
@@ -156,6 +156,24 @@ impl Server {
                 "no tokens configured: every caller is admin (listening on {grpc_addr} and {rest_addr})"
             );
         }
+        // Uploaded models are validated by `vamos model inspect` in a child process.
+        let validator_exe = cfg.model_validator.clone().or_else(|| {
+            std::env::current_exe()
+                .ok()
+                .filter(|p| p.file_stem().is_some_and(|s| s == "vamos"))
+        });
+        let model_validator = ModelValidator::new(
+            validator_exe,
+            cfg.model_validation_mb.saturating_mul(1 << 20),
+            Duration::from_secs_f64(cfg.model_validation_s.max(1.0)),
+            settings.model.clone(),
+        );
+        if model_validator.in_process() {
+            tracing::warn!(
+                "no vamos executable to validate uploaded models in a child process \
+                 ([service] model_validator): they are validated in this process, unbounded"
+            );
+        }
         let metrics = Metrics::new();
         let metrics_for_uploads = metrics.upload_disk_used.clone();
         let hub = Hub::start(cfg.clone(), metrics);
@@ -181,6 +199,7 @@ impl Server {
                 },
             ),
             model_validation: tokio::sync::Mutex::new(()),
+            model_validator,
         });
         let (transport_stop, _) = tokio::sync::watch::channel(false);
         let mut tasks = Vec::new();

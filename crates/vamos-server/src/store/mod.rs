@@ -84,7 +84,7 @@ pub use types::{
     ResolvedProfile, RobotInfo, StoreLimits, StoreProblem, ThresholdsPatch,
 };
 pub use upload::{RobotFormat, Upload, UploadKind};
-pub use validate::{model_bundle_summary, robot_summary};
+pub use validate::{ModelValidator, model_bundle_summary, robot_summary};
 
 use files::{check_name, list_dir, read_json};
 pub(crate) use files::{hex, now_unix_s};

@@ -5,7 +5,7 @@ use super::body::{blocking, json_body, receive};
 use super::errors::ApiError;
 use crate::api::state::Shared;
 use crate::session::reload::{Reloaded, reload_model_sessions};
-use crate::store::{ModelInfo, ModelVersionInfo, UploadKind, model_bundle_summary};
+use crate::store::{ModelInfo, ModelVersionInfo, UploadKind};
 use axum::Json;
 use axum::body::{Body, Bytes};
 use axum::extract::{Path, State};
@@ -14,7 +14,6 @@ use axum::response::{IntoResponse, Response};
 use serde::Serialize;
 use std::collections::BTreeMap;
 use std::sync::Arc;
-use vamos_model::FlowModel;
 
 /// `GET /v1/models`.
 #[derive(Debug, Serialize, schemars::JsonSchema)]
@@ -74,22 +73,13 @@ pub(super) async fn put_model(
 ) -> Result<Response, ApiError> {
     let (upload, _ticket) = receive(&s, UploadKind::Model, &headers, body).await?;
     let store = s.store.clone();
-    // Validation loads the model once (one replica, one thread) and one upload at a time:
-    // its memory is one model's, however many uploads arrive together.
-    let options = vamos_model::LoadOptions {
-        replicas: 1,
-        intra_threads: 1,
-        ..s.settings.model.load_options()
-    };
+    // Validation loads the model once (one replica, one thread, in a child process with
+    // its own memory and time limits) and one upload at a time.
+    let validator = s.model_validator.clone();
     let _validating = s.model_validation.lock().await;
     let n = name.clone();
     let (info, active) = blocking(move || {
-        let info = store.commit_model(&n, upload, |path| {
-            let summary = model_bundle_summary(path)?;
-            FlowModel::load(path, &options)
-                .map_err(|e| format!("the model does not load with ONNX Runtime: {e}"))?;
-            Ok(summary)
-        })?;
+        let info = store.commit_model(&n, upload, |path| validator.check(path))?;
         let active = store.model(&n)?.active;
         Ok((info, active))
     })
