@@ -601,14 +601,19 @@ async fn an_adversarial_barrage_leaves_a_live_server_small_and_scoring() {
 fn rgba16_png_bag(path: &std::path::Path, frames: usize, side: u32) {
     use image::ImageEncoder;
     use image::codecs::png::{CompressionType, FilterType, PngEncoder};
-    use vamos::episode::ros::{CompressedImageMsg, Header, schema};
     let pixels = vec![0x5au8; side as usize * side as usize * 8];
     let mut png = Vec::new();
     PngEncoder::new_with_quality(&mut png, CompressionType::Best, FilterType::NoFilter)
         .write_image(&pixels, side, side, image::ExtendedColorType::Rgba16)
         .unwrap();
+    png_bag(path, &vec![png; frames]);
+}
+
+/// A recording of `pngs` as a `CompressedImage` topic, 10 Hz.
+fn png_bag(path: &std::path::Path, pngs: &[Vec<u8>]) {
+    use vamos::episode::ros::{CompressedImageMsg, Header, schema};
     let mut bag = vamos::episode::ScoreBagWriter::create(path, None).unwrap();
-    for i in 0..frames {
+    for (i, png) in pngs.iter().enumerate() {
         let stamp_ns = 1_000_000_000 + i as i64 * 100_000_000;
         let msg = CompressedImageMsg {
             header: Header {
@@ -617,7 +622,7 @@ fn rgba16_png_bag(path: &std::path::Path, frames: usize, side: u32) {
                 frame_id: "camera".into(),
             },
             format: "png".into(),
-            data: &png,
+            data: png,
         };
         let source = vamos::episode::SourceMessage {
             topic: "/camera/image_raw/compressed".into(),
@@ -738,4 +743,53 @@ async fn a_model_bomb_is_validated_within_its_own_memory_limit() {
     let (status, answer) = put("tiny", "tiny_trained.vamos").await;
     assert_eq!(status, reqwest::StatusCode::CREATED, "{answer}");
     server.kill();
+}
+
+/// An uploaded recording's frames that cannot be read are reported in the answer, in
+/// order, and an upload that is no episode is refused without the server's paths.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn refused_frames_of_an_upload_are_reported_and_no_server_path_is_shown() {
+    use super::service::{ROBOT, fixture_setup, start};
+    let f = fixture_setup(4, true);
+    let server = start(&f).await;
+    let dir = tempfile::tempdir().unwrap();
+    let good = png(64, 48);
+    let bad = b"\x89PNG\r\n\x1a\n this is no PNG".to_vec();
+    let bag = dir.path().join("one_bad.mcap");
+    png_bag(&bag, &[good.clone(), bad, good]);
+    let post = |body: Vec<u8>| {
+        let url = format!(
+            "http://{}/v1/episodes:score?profile=sim-arm&name=one_bad",
+            server.rest_addr
+        );
+        async move {
+            let r = reqwest::Client::new()
+                .post(url)
+                .bearer_auth(ROBOT)
+                .body(body)
+                .send()
+                .await
+                .unwrap();
+            (r.status(), r.text().await.unwrap())
+        }
+    };
+    let (status, answer) = post(std::fs::read(&bag).unwrap()).await;
+    assert_eq!(status, 200, "{answer}");
+    let v: serde_json::Value = serde_json::from_str(&answer).unwrap();
+    let refused = v["refused"].as_array().unwrap();
+    assert_eq!(refused.len(), 1, "{answer}");
+    assert!(
+        refused[0].as_str().unwrap().contains("frame refused"),
+        "{answer}"
+    );
+    // Not an episode: the reason names the upload, not where the server keeps it.
+    let (status, answer) = post(b"no MCAP at all".to_vec()).await;
+    assert_eq!(status, 400, "{answer}");
+    assert!(answer.contains("not a readable episode"), "{answer}");
+    let data = f.settings.service.data_dir.display().to_string();
+    assert!(
+        !answer.contains(&data) && !answer.contains("/tmp"),
+        "{answer}"
+    );
+    server.shutdown().await.unwrap();
 }

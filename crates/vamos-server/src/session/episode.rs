@@ -6,7 +6,7 @@
 
 use super::budget::{DECODE_WAIT, DecodeRoom, UploadTicket};
 use super::error::SessionError;
-use super::event::{Output, ScoredFrame};
+use super::event::{EventKind, Output, ScoredFrame};
 use super::hub::Hub;
 use super::profiles::LoadedProfile;
 use super::state::{FrameJoints, ImagePayload, OpenRequest, ReadyFrame, SessionSlot};
@@ -15,13 +15,14 @@ use std::sync::Arc;
 use std::time::Instant;
 use tokio::sync::mpsc;
 use vamos_core::episode::McapEpisode;
-use vamos_core::pipeline::offline::{FrameError, is_fatal};
+use vamos_core::pipeline::offline::is_fatal;
 use vamos_robot::Intrinsics;
 
 /// The scores of an episode as they come: frames in order, then at most one error (the
 /// damage, or the session closed by the server).
 pub struct EpisodeScores {
     rx: mpsc::Receiver<Output>,
+    refused: Vec<String>,
 }
 
 impl EpisodeScores {
@@ -30,22 +31,30 @@ impl EpisodeScores {
         loop {
             match self.rx.recv().await? {
                 Output::Score(s) => return Some(Ok(s)),
+                Output::Event(e) if e.kind == EventKind::MessageError => {
+                    self.refused.push(e.detail);
+                }
                 Output::Event(_) | Output::Alarm(_) => continue,
                 Output::Closed(e) => return Some(Err(e)),
             }
         }
     }
 
-    /// Every score, and the error that ended the scoring early, if any.
-    pub async fn collect(mut self) -> (Vec<ScoredFrame>, Option<SessionError>) {
+    /// Every score, the frames refused (why, in order), and the error that ended the
+    /// scoring early, if any.
+    pub async fn collect(mut self) -> (Vec<ScoredFrame>, Vec<String>, Option<SessionError>) {
         let mut frames = Vec::new();
+        let mut end = None;
         while let Some(item) = self.next().await {
             match item {
                 Ok(f) => frames.push(f),
-                Err(e) => return (frames, Some(e)),
+                Err(e) => {
+                    end = Some(e);
+                    break;
+                }
             }
         }
-        (frames, None)
+        (frames, self.refused, end)
     }
 
     /// The scores as a stream.
@@ -92,7 +101,7 @@ pub async fn score_episode(
     let episode = tokio::task::spawn_blocking(move || McapEpisode::open(&path, &config))
         .await
         .map_err(|e| SessionError::Internal(e.to_string()))?
-        .map_err(|source| SessionError::NotAnEpisode { source })?;
+        .map_err(|source| SessionError::not_an_episode(&source, file.path()))?;
     // Every image is decoded within the server's memory budget, its peak charged first.
     let episode = episode.with_decode_budget(DecodeRoom::new(hub.budget().clone(), DECODE_WAIT));
     let (tx, rx) = mpsc::channel(1024);
@@ -115,7 +124,6 @@ pub async fn score_episode(
     tokio::task::spawn_blocking(move || {
         let _file = file;
         let _ticket = ticket;
-        let mut errors: Vec<FrameError> = Vec::new();
         let mut damage = None;
         for item in episode.frames() {
             match item {
@@ -144,15 +152,12 @@ pub async fn score_episode(
                         damage = Some(e);
                         break;
                     }
-                    errors.push(FrameError {
-                        index: None,
-                        message: e.to_string(),
-                    });
+                    // Reported in order with the scores (a MESSAGE_ERROR event), and
+                    // counted as dropped.
+                    tracing::warn!(session = %session.id, "episode frame refused: {e}");
+                    hub.refuse(&session, "frame", format!("frame refused: {e}"), 0);
                 }
             }
-        }
-        for e in &errors {
-            tracing::warn!(session = %session.id, "episode frame refused: {}", e.message);
         }
         hub.finish(&session);
         if let Some(source) = damage {
@@ -161,5 +166,8 @@ pub async fn score_episode(
             let _ = tx.blocking_send(Output::Closed(SessionError::Damaged { source }));
         }
     });
-    Ok(EpisodeScores { rx })
+    Ok(EpisodeScores {
+        rx,
+        refused: Vec::new(),
+    })
 }

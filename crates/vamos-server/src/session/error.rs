@@ -137,11 +137,10 @@ pub enum SessionError {
         source: std::io::Error,
     },
     /// The upload is not an episode vamos reads.
-    #[error("not a readable episode: {source}")]
+    #[error("not a readable episode: {reason}")]
     NotAnEpisode {
-        /// Why.
-        #[source]
-        source: EpisodeError,
+        /// Why, without the server's path of the upload ([`Self::not_an_episode`]).
+        reason: String,
     },
     /// The episode broke part-way; the frames before the damage were scored.
     #[error("the episode is damaged; frames before the damage were scored: {source}")]
@@ -191,6 +190,18 @@ impl SessionError {
     pub fn scorer(source: SetupError) -> Self {
         Self::Scorer {
             source: Box::new(source),
+        }
+    }
+}
+
+impl SessionError {
+    /// An upload buffered at `path` that is not an episode vamos reads: the reason names
+    /// it "the upload", never the server's path (which a client has no business seeing).
+    pub fn not_an_episode(source: &EpisodeError, path: &std::path::Path) -> Self {
+        Self::NotAnEpisode {
+            reason: source
+                .to_string()
+                .replace(&path.display().to_string(), "the upload"),
         }
     }
 }

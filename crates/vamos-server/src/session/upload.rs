@@ -121,7 +121,7 @@ fn charged_copy(
     ticket: &mut UploadTicket,
     held: u64,
 ) -> Result<Option<(tempfile::NamedTempFile, u64)>, SessionError> {
-    let not_an_episode = |source| SessionError::NotAnEpisode { source };
+    let not_an_episode = |source| SessionError::not_an_episode(&source, path);
     if !is_zstd_file(path).map_err(not_an_episode)? {
         return Ok(None);
     }

@@ -153,17 +153,27 @@ impl ModelValidator {
     }
 }
 
-/// Sets the child's `RLIMIT_DATA` to `bytes` before it runs (Linux and other Unixes).
+/// Sets the child's `RLIMIT_DATA` to `bytes` (at most the limit the server itself runs
+/// under) before it runs (Linux and other Unixes).
 #[cfg(unix)]
 fn limit_data(cmd: &mut std::process::Command, bytes: u64) {
     use std::os::unix::process::CommandExt;
-    // SAFETY: setrlimit is async-signal-safe; the closure allocates nothing and touches
-    // no lock, as pre_exec requires.
+    // SAFETY: getrlimit and setrlimit are async-signal-safe; the closure allocates
+    // nothing and touches no lock, as pre_exec requires.
     unsafe {
         cmd.pre_exec(move || {
+            let mut current = libc::rlimit {
+                rlim_cur: 0,
+                rlim_max: 0,
+            };
+            if libc::getrlimit(libc::RLIMIT_DATA, &mut current) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            // A hard limit can be lowered, never raised.
+            let bytes = (bytes as libc::rlim_t).min(current.rlim_max);
             let limit = libc::rlimit {
-                rlim_cur: bytes as libc::rlim_t,
-                rlim_max: bytes as libc::rlim_t,
+                rlim_cur: bytes,
+                rlim_max: bytes,
             };
             if libc::setrlimit(libc::RLIMIT_DATA, &limit) != 0 {
                 return Err(std::io::Error::last_os_error());

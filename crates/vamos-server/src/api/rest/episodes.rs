@@ -41,6 +41,9 @@ pub struct ScoreQuery {
 pub struct EpisodeScores {
     /// Every scored frame, in order.
     pub frames: Vec<ScoreJson>,
+    /// The frames that were not scored, why, in order (an image that does not decode, one
+    /// the memory budget could not hold).
+    pub refused: Vec<String>,
     /// Why reading stopped early (a damaged or truncated bag: the frames before it are
     /// scored), if it did.
     pub damage: Option<String>,
@@ -132,12 +135,17 @@ pub(super) async fn score_episode(
         },
     )
     .await?;
-    let (frames, damage) = scores.collect().await;
+    let (frames, refused, damage) = scores.collect().await;
     let damage = damage.map(|e| e.to_string());
     match input {
         None => {
             let frames = frames.iter().map(score_json).collect();
-            Ok(Json(EpisodeScores { frames, damage }).into_response())
+            Ok(Json(EpisodeScores {
+                frames,
+                refused,
+                damage,
+            })
+            .into_response())
         }
         Some(input) => {
             let dir = s.upload_dir();
