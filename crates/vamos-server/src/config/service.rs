@@ -159,7 +159,8 @@ pub struct ServiceConfig {
     pub min_upload_rate_kib_s: u64,
     /// Seconds an upload has before `min_upload_rate_kib_s` applies.
     pub upload_grace_s: f64,
-    /// Temporary disk all uploads in progress may use together, MiB.
+    /// Temporary disk all uploads in progress may use together, MiB. 0: a quarter of the
+    /// data directory's free disk when the server starts, 256 MiB to 32 GiB.
     pub max_upload_disk_mb: u64,
     /// Connections open at once, both listeners together; past it new ones are closed at
     /// once. 0: the process's open-file limit less 64 (at most 4096).
@@ -242,7 +243,7 @@ impl Default for ServiceConfig {
             joint_buffer_s: 10.0,
             max_joint_buffer_bytes: 16 << 20,
             max_uploads: 4,
-            max_upload_disk_mb: 32 << 10,
+            max_upload_disk_mb: 0,
             min_upload_rate_kib_s: 16,
             upload_grace_s: 10.0,
             max_connections: 0,

@@ -191,7 +191,10 @@ impl Server {
             ready: AtomicBool::new(false),
             uploads: Uploads::new(
                 cfg.max_uploads,
-                cfg.max_upload_disk_mb << 20,
+                match cfg.max_upload_disk_mb {
+                    0 => crate::session::budget::default_upload_disk(&cfg.data_dir),
+                    mb => mb << 20,
+                },
                 metrics_for_uploads,
                 MinRate {
                     bytes_per_s: cfg.min_upload_rate_kib_s << 10,

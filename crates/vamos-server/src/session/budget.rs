@@ -344,6 +344,35 @@ impl Uploads {
     }
 }
 
+/// The upload disk budget when `[service] max_upload_disk_mb` is 0: a quarter of the free
+/// space of the file system that holds `dir` (the data directory) when the server starts,
+/// between 256 MiB and 32 GiB; 32 GiB where the free space cannot be read.
+pub fn default_upload_disk(dir: &std::path::Path) -> u64 {
+    free_bytes(dir).map_or(32 << 30, |free| (free / 4).clamp(256 << 20, 32 << 30))
+}
+
+/// Bytes an unprivileged process may still write on the file system that holds `dir`.
+#[cfg(unix)]
+fn free_bytes(dir: &std::path::Path) -> Option<u64> {
+    use std::os::unix::ffi::OsStrExt;
+    let path = std::ffi::CString::new(dir.as_os_str().as_bytes()).ok()?;
+    // SAFETY: `path` is a NUL-terminated string that outlives the call; `stat` is plain
+    // data that statvfs fills in.
+    let stat = unsafe {
+        let mut stat: libc::statvfs = std::mem::zeroed();
+        if libc::statvfs(path.as_ptr(), &mut stat) != 0 {
+            return None;
+        }
+        stat
+    };
+    Some((stat.f_bavail as u64).saturating_mul(stat.f_frsize as u64))
+}
+
+#[cfg(not(unix))]
+fn free_bytes(_: &std::path::Path) -> Option<u64> {
+    None
+}
+
 /// The default budget when `[service] memory_budget_mb` is 0: half of the memory this
 /// process may use (the cgroup's limit when one is set, else the machine's), at least
 /// 256 MiB; 2 GiB where neither can be read.
@@ -414,6 +443,18 @@ mod tests {
         drop((a, b));
         assert_eq!(gauge.get(), 0);
         assert!(uploads.admit(UploadPlane::Admin, Some(1000)).is_ok());
+    }
+
+    #[test]
+    fn the_default_upload_disk_is_a_quarter_of_the_free_space_within_bounds() {
+        let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
+        let free = free_bytes(dir.path()).unwrap_or_else(|| panic!("no free space read"));
+        assert!(free > 0);
+        assert_eq!(
+            default_upload_disk(dir.path()),
+            (free / 4).clamp(256 << 20, 32 << 30)
+        );
+        assert_eq!(default_upload_disk(&dir.path().join("missing")), 32 << 30);
     }
 
     const NO_MIN_RATE: MinRate = MinRate {
