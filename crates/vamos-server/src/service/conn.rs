@@ -757,3 +757,37 @@ impl<S: AsyncWrite + Unpin> AsyncWrite for FirstBytes<S> {
         self.inner.is_write_vectored()
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_address_is_counted_as_its_ipv4_or_its_ipv6_slash_64() {
+        let key = |s: &str| address_key(s.parse().unwrap());
+        assert_eq!(key("192.0.2.7"), key("192.0.2.7"));
+        assert_ne!(key("192.0.2.7"), key("192.0.2.8"));
+        assert_eq!(key("::ffff:192.0.2.7"), key("192.0.2.7"));
+        assert_eq!(key("2001:db8:1:2:aaaa::1"), key("2001:db8:1:2:bbbb::9"));
+        assert_ne!(key("2001:db8:1:2::1"), key("2001:db8:1:3::1"));
+    }
+
+    #[test]
+    fn the_registry_reuses_places_and_forgets_what_it_removed() {
+        let entry = || {
+            Arc::new(Registered {
+                activity: Arc::new(Activity::new()),
+                evict: tokio::sync::Notify::new(),
+            })
+        };
+        let mut r = Registry::default();
+        let (a, b) = (entry(), entry());
+        let ia = r.insert(a.clone());
+        let ib = r.insert(b);
+        assert_ne!(ia, ib);
+        assert!(r.remove(ia).is_some_and(|x| Arc::ptr_eq(&x, &a)));
+        assert!(r.remove(ia).is_none(), "removed once");
+        assert_eq!(r.insert(entry()), ia, "the place is reused");
+        assert_eq!(r.entries.len(), 2);
+    }
+}

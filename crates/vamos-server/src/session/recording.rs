@@ -303,7 +303,13 @@ fn make_room(dir: &Path, target: u64) -> std::io::Result<u64> {
     let mut used = 0u64;
     for entry in std::fs::read_dir(dir)? {
         let entry = entry?;
-        let meta = entry.metadata()?;
+        // A file renamed or removed since the listing (another session finishing its
+        // recording, or making room) is not counted: no reason to refuse this one.
+        let meta = match entry.metadata() {
+            Ok(m) => m,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => continue,
+            Err(e) => return Err(e),
+        };
         if !meta.is_file() {
             continue;
         }
