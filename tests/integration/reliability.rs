@@ -596,6 +596,23 @@ async fn an_adversarial_barrage_leaves_a_live_server_small_and_scoring() {
     server.kill();
 }
 
+/// Sends `body` to `url` with `token`; the answer's status and text.
+async fn send(
+    method: reqwest::Method,
+    url: String,
+    token: &str,
+    body: Vec<u8>,
+) -> (reqwest::StatusCode, String) {
+    let r = reqwest::Client::new()
+        .request(method, url)
+        .bearer_auth(token)
+        .body(body)
+        .send()
+        .await
+        .unwrap();
+    (r.status(), r.text().await.unwrap())
+}
+
 /// A recording of `frames` images, each a `side` x `side` 16-bit RGBA PNG of one colour
 /// (a few KB, ~24 bytes a pixel to decode), as a `CompressedImage` topic.
 fn rgba16_png_bag(path: &std::path::Path, frames: usize, side: u32) {
@@ -665,20 +682,15 @@ async fn uploaded_recordings_are_decoded_within_the_memory_budget() {
     let body = std::fs::read(&bag).unwrap();
     assert!(body.len() < 64 << 10, "{}", body.len());
     let baseline = status_kib(server.pid(), "VmRSS:") << 10;
+    let url = format!("{}/v1/episodes:score?profile=arm-store", server.rest);
     let uploads: Vec<_> = (0..4)
         .map(|_| {
-            let body = body.clone();
-            let url = format!("{}/v1/episodes:score?profile=arm-store", server.rest);
-            tokio::spawn(async move {
-                let answer = reqwest::Client::new()
-                    .post(url)
-                    .bearer_auth(ROBOT)
-                    .body(body)
-                    .send()
-                    .await
-                    .unwrap();
-                (answer.status(), answer.text().await.unwrap())
-            })
+            tokio::spawn(send(
+                reqwest::Method::POST,
+                url.clone(),
+                ROBOT,
+                body.clone(),
+            ))
         })
         .collect();
     for u in uploads {
@@ -718,20 +730,10 @@ async fn a_model_bomb_is_validated_within_its_own_memory_limit() {
         "info",
         &[("VAMOS_SERVICE__MODEL_VALIDATION_MB", "512")],
     );
-    let put = |name: &'static str, file: &'static str| {
+    let put = |name: &str, file: &str| {
         let url = format!("{}/v1/models/{name}", server.rest);
-        async move {
-            let body = std::fs::read(super::service_admin::model_fixture(file)).unwrap();
-            let r = reqwest::Client::new()
-                .put(url)
-                .bearer_auth(ADMIN)
-                .body(body)
-                .send()
-                .await
-                .unwrap();
-            let status = r.status();
-            (status, r.text().await.unwrap())
-        }
+        let body = std::fs::read(super::service_admin::model_fixture(file)).unwrap();
+        send(reqwest::Method::PUT, url, ADMIN, body)
     };
     let (status, answer) = put("bomb", "constant_of_shape.vamos").await;
     assert_eq!(status, reqwest::StatusCode::BAD_REQUEST, "{answer}");
@@ -757,22 +759,11 @@ async fn refused_frames_of_an_upload_are_reported_and_no_server_path_is_shown() 
     let bad = b"\x89PNG\r\n\x1a\n this is no PNG".to_vec();
     let bag = dir.path().join("one_bad.mcap");
     png_bag(&bag, &[good.clone(), bad, good]);
-    let post = |body: Vec<u8>| {
-        let url = format!(
-            "http://{}/v1/episodes:score?profile=sim-arm&name=one_bad",
-            server.rest_addr
-        );
-        async move {
-            let r = reqwest::Client::new()
-                .post(url)
-                .bearer_auth(ROBOT)
-                .body(body)
-                .send()
-                .await
-                .unwrap();
-            (r.status(), r.text().await.unwrap())
-        }
-    };
+    let url = format!(
+        "http://{}/v1/episodes:score?profile=sim-arm&name=one_bad",
+        server.rest_addr
+    );
+    let post = |body: Vec<u8>| send(reqwest::Method::POST, url.clone(), ROBOT, body);
     let (status, answer) = post(std::fs::read(&bag).unwrap()).await;
     assert_eq!(status, 200, "{answer}");
     let v: serde_json::Value = serde_json::from_str(&answer).unwrap();
