@@ -286,6 +286,15 @@ async fn json_bodies_over_their_limit_are_413() {
     server.shutdown().await.unwrap();
 }
 
+/// The fixture profile's open message (a new session id) with `change` made to it.
+fn open_with(change: impl FnOnce(&mut proto::OpenSession)) -> proto::StreamRequest {
+    let mut msg = open_msg("sim-arm", "", None);
+    if let proto::stream_request::Message::Open(o) = &mut msg {
+        change(o);
+    }
+    proto::StreamRequest { message: Some(msg) }
+}
+
 /// What a raw HTTP/2 peer that holds its connection open saw.
 #[derive(Debug, Default)]
 struct H2Peer {
@@ -637,13 +646,7 @@ async fn robot_tokens_see_only_their_own_sessions_and_alarms() {
     let mut client = MonitorClient::connect(format!("http://{grpc}"))
         .await
         .unwrap();
-    let open = |robot: &str| {
-        let mut msg = open_msg("sim-arm", "", None);
-        if let proto::stream_request::Message::Open(o) = &mut msg {
-            o.robot_id = robot.into();
-        }
-        proto::StreamRequest { message: Some(msg) }
-    };
+    let open = |robot: &str| open_with(|o| o.robot_id = robot.into());
     let err = client
         .stream(authed(tokio_stream::iter([open("arm-b")]), Some(SCOPED)))
         .await
@@ -696,14 +699,10 @@ async fn long_labels_and_degenerate_profiles_are_refused() {
         .unwrap();
     let long = "x".repeat(300);
     for field in ["robot_id", "task"] {
-        let mut msg = open_msg("sim-arm", "", None);
-        if let proto::stream_request::Message::Open(o) = &mut msg {
-            match field {
-                "robot_id" => o.robot_id = long.clone(),
-                _ => o.task = long.clone(),
-            }
-        }
-        let open = proto::StreamRequest { message: Some(msg) };
+        let open = open_with(|o| match field {
+            "robot_id" => o.robot_id = long.clone(),
+            _ => o.task = long.clone(),
+        });
         let err = client
             .stream(authed(tokio_stream::iter([open]), Some(ROBOT)))
             .await

@@ -137,8 +137,13 @@ pub struct Caller {
 impl Caller {
     /// Every caller when no token is configured.
     pub fn anyone() -> Self {
+        Self::of(Role::Admin)
+    }
+
+    /// A caller of `role` that is no robot token.
+    fn of(role: Role) -> Self {
         Self {
-            role: Role::Admin,
+            role,
             robot_token: None,
             robots: None,
         }
@@ -293,11 +298,7 @@ impl Tokens {
         let mut caller = None;
         for known in &self.viewer {
             if constant_time_eq(known, &d) {
-                caller = Some(Caller {
-                    role: Role::Viewer,
-                    robot_token: None,
-                    robots: None,
-                });
+                caller = Some(Caller::of(Role::Viewer));
             }
         }
         for (index, (known, robots)) in self.robot.iter().enumerate() {
@@ -311,11 +312,7 @@ impl Tokens {
         }
         for known in &self.admin {
             if constant_time_eq(known, &d) {
-                caller = Some(Caller {
-                    role: Role::Admin,
-                    robot_token: None,
-                    robots: None,
-                });
+                caller = Some(Caller::of(Role::Admin));
             }
         }
         caller.ok_or(AuthError::Invalid)
