@@ -29,6 +29,8 @@
 # depth images for the expected motion of the static scene. ALPHA (default 0.2) is the
 # conformal threshold's alpha: with n held-out nominal episodes it is their maximum unless
 # n >= (2 - alpha) / alpha (9 at 0.2, 19 at 0.1).
+# FLOW_PRESET (default realtime) is every row's TV-L1 preset (default, realtime,
+# realtime-hq, balanced).
 # Needs the release binary (cargo build --release); about 90 s per row on 2 cores without
 # a model.
 set -eu
@@ -183,7 +185,7 @@ name = "detectors-$row"
 robot = "$urdf"
 camera = "$sim/camera.json"
 $model_line
-flow_preset = "realtime"
+flow_preset = "${FLOW_PRESET:-realtime}"
 alarm = "conformal"
 [pipeline]
 stride = 1

@@ -1,12 +1,14 @@
 //! `vamos episode inspect|copy`: what a recorded ROS 2 bag (MCAP) holds, and a copy of it
 //! through vamos's reader and writer.
 
-use anyhow::Result;
+use anyhow::{Context, Result};
 use serde_json::{Value, json};
 use std::path::Path;
 use std::path::PathBuf;
 use vamos::config::Settings;
-use vamos::episode::{EpisodeConfig, EpisodeError, ImageData, McapEpisode, ScoreBagWriter};
+use vamos::episode::{
+    EpisodeConfig, EpisodeError, EpisodeFrame, ImageData, McapEpisode, ScoreBagWriter,
+};
 
 #[derive(clap::Subcommand, Debug)]
 pub enum Command {
@@ -26,6 +28,11 @@ pub enum Command {
         input: PathBuf,
         /// The output bag (replaced).
         output: PathBuf,
+        /// Re-encode the images as JPEG files of this quality (1-100), written as
+        /// `sensor_msgs/msg/CompressedImage` on the same topic: what most robots' cameras
+        /// stream (load tests, smaller bags). 8-bit images only.
+        #[arg(long, value_name = "QUALITY", value_parser = clap::value_parser!(u8).range(1..=100))]
+        jpeg: Option<u8>,
     },
 }
 
@@ -33,7 +40,11 @@ pub enum Command {
 pub fn run(settings: &Settings, command: Command) -> Result<()> {
     let out = match command {
         Command::Inspect { bag, frames } => inspect(&bag, &settings.episode, frames)?,
-        Command::Copy { input, output } => copy(&input, &output, &settings.episode)?,
+        Command::Copy {
+            input,
+            output,
+            jpeg,
+        } => copy(&input, &output, &settings.episode, jpeg)?,
     };
     println!("{out}");
     Ok(())
@@ -80,10 +91,11 @@ pub fn inspect(bag: &Path, cfg: &EpisodeConfig, frames: bool) -> Result<Value> {
 /// Copies `input` to `output` through [`McapEpisode::frames`] and [`ScoreBagWriter`]: the
 /// image messages unchanged, the camera-info, joint-state and robot-description messages
 /// with their schemas, plus per-frame diagnostics `/vamos/joint_gap_ms` (Float64),
-/// `/vamos/joints_extrapolated` (Bool) and `/vamos/gray` (the decoded image, mono8).
+/// `/vamos/joints_extrapolated` (Bool) and `/vamos/gray` (the decoded image, mono8); with
+/// `jpeg`, the images re-encoded as JPEG files of that quality and no diagnostics.
 /// Frames that fail and a damaged tail are skipped (the valid part of a truncated bag is
 /// recovered). Returns a JSON summary.
-pub fn copy(input: &Path, output: &Path, cfg: &EpisodeConfig) -> Result<Value> {
+pub fn copy(input: &Path, output: &Path, cfg: &EpisodeConfig, jpeg: Option<u8>) -> Result<Value> {
     let ep = McapEpisode::open(input, cfg)?;
     let info = ep.info();
     let mut w = ScoreBagWriter::create(output, Some(&info))?;
@@ -131,27 +143,31 @@ pub fn copy(input: &Path, output: &Path, cfg: &EpisodeConfig) -> Result<Value> {
                 continue;
             }
         };
-        w.write_image(&c.image, f.stamp_ns, ImageData::Source(&f.source))?;
-        if let Some(j) = &f.joints {
-            w.write_f64("/vamos/joint_gap_ms", f.stamp_ns, j.gap_ns as f64 * 1e-6)?;
-            w.write_bool("/vamos/joints_extrapolated", f.stamp_ns, j.extrapolated)?;
-        }
-        let gray: Vec<u8> = f
-            .image
-            .data()
-            .iter()
-            .map(|&v| v.round().clamp(0.0, 255.0) as u8)
-            .collect();
-        w.write_image(
-            "/vamos/gray",
-            f.stamp_ns,
-            ImageData::Raw {
-                width: u32::try_from(f.image.width())?,
-                height: u32::try_from(f.image.height())?,
-                encoding: "mono8",
-                data: &gray,
-            },
-        )?;
+        let Some(quality) = jpeg else {
+            w.write_image(&c.image, f.stamp_ns, ImageData::Source(&f.source))?;
+            write_diagnostics(&mut w, &f)?;
+            frames += 1;
+            continue;
+        };
+        // Re-encoded: the bag holds what a robot's camera driver records, nothing more.
+        let (width, height, rgb) = f
+            .source
+            .to_rgb8(usize::MAX)
+            .with_context(|| format!("image {} of {}", f.index, input.display()))?;
+        let mut file = Vec::new();
+        image::codecs::jpeg::JpegEncoder::new_with_quality(&mut file, quality)
+            .encode(
+                &rgb,
+                u32::try_from(width)?,
+                u32::try_from(height)?,
+                image::ExtendedColorType::Rgb8,
+            )
+            .context("JPEG encoding")?;
+        let image = ImageData::Compressed {
+            format: "jpeg",
+            data: &file,
+        };
+        w.write_image(&c.image, f.stamp_ns, image)?;
         frames += 1;
     }
     w.finish()?;
@@ -163,4 +179,30 @@ pub fn copy(input: &Path, output: &Path, cfg: &EpisodeConfig) -> Result<Value> {
         "frame_errors": errors,
         "damage": damage,
     }))
+}
+
+/// The per-frame diagnostics of a plain copy: the joint states' gap and extrapolation,
+/// and the image as vamos decoded it.
+fn write_diagnostics(w: &mut ScoreBagWriter, f: &EpisodeFrame) -> Result<()> {
+    if let Some(j) = &f.joints {
+        w.write_f64("/vamos/joint_gap_ms", f.stamp_ns, j.gap_ns as f64 * 1e-6)?;
+        w.write_bool("/vamos/joints_extrapolated", f.stamp_ns, j.extrapolated)?;
+    }
+    let gray: Vec<u8> = f
+        .image
+        .data()
+        .iter()
+        .map(|&v| v.round().clamp(0.0, 255.0) as u8)
+        .collect();
+    w.write_image(
+        "/vamos/gray",
+        f.stamp_ns,
+        ImageData::Raw {
+            width: u32::try_from(f.image.width())?,
+            height: u32::try_from(f.image.height())?,
+            encoding: "mono8",
+            data: &gray,
+        },
+    )?;
+    Ok(())
 }

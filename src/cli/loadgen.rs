@@ -151,24 +151,71 @@ async fn one_session(
 }
 
 /// Sample of the server's process metrics.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone)]
 struct ProcessSample {
     cpu_s: f64,
     rss_bytes: f64,
+    /// `vamos_stage_seconds` by stage: (sum of seconds, count).
+    stages: HashMap<String, (f64, f64)>,
 }
 
 async fn scrape(url: &str) -> Option<ProcessSample> {
     let text = http_get(url).await.ok()?;
+    Some(parse_sample(&text)?)
+}
+
+/// The figures loadgen reads from a Prometheus exposition.
+fn parse_sample(text: &str) -> Option<ProcessSample> {
     let value = |name: &str| {
         text.lines()
             .find(|l| l.starts_with(name) && l[name.len()..].starts_with(' '))
             .and_then(|l| l.rsplit(' ').next())
             .and_then(|v| v.parse::<f64>().ok())
     };
+    let mut stages: HashMap<String, (f64, f64)> = HashMap::new();
+    for line in text.lines() {
+        for (prefix, sum) in [
+            ("vamos_stage_seconds_sum{stage=\"", true),
+            ("vamos_stage_seconds_count{stage=\"", false),
+        ] {
+            let Some(rest) = line.strip_prefix(prefix) else {
+                continue;
+            };
+            let Some((stage, tail)) = rest.split_once('"') else {
+                continue;
+            };
+            let Some(v) = tail.rsplit(' ').next().and_then(|v| v.parse::<f64>().ok()) else {
+                continue;
+            };
+            let e = stages.entry(stage.to_string()).or_default();
+            if sum {
+                e.0 = v;
+            } else {
+                e.1 = v;
+            }
+        }
+    }
     Some(ProcessSample {
         cpu_s: value("process_cpu_seconds_total")?,
         rss_bytes: value("process_resident_memory_bytes")?,
+        stages,
     })
+}
+
+/// Mean milliseconds per frame of each pipeline stage between two samples, slowest
+/// first; stages no frame passed are left out.
+fn stage_means_ms(before: &ProcessSample, after: &ProcessSample) -> Vec<(String, f64)> {
+    let mut out: Vec<(String, f64)> = after
+        .stages
+        .iter()
+        .filter_map(|(stage, (sum, count))| {
+            let (s0, c0) = before.stages.get(stage).copied().unwrap_or_default();
+            let n = count - c0;
+            (n > 0.0).then(|| (stage.clone(), ((sum - s0) / n * 1e4).round() / 10.0))
+        })
+        .collect();
+    out.sort_by(|a, b| b.1.total_cmp(&a.1).then_with(|| a.0.cmp(&b.0)));
+    out
 }
 
 /// A plain HTTP/1.1 GET (the load generator needs no HTTP client crate for one scrape).
@@ -272,19 +319,19 @@ async fn load(opts: LoadOptions) -> Result<()> {
         // lock-step.
         tokio::time::sleep(Duration::from_millis(100 / opts.robots as u64)).await;
     }
-    let mut peak_rss = before.map_or(0.0, |s| s.rss_bytes);
+    let mut peak_rss = before.as_ref().map_or(0.0, |s| s.rss_bytes);
     let mut middle_rss = None;
     // The timeline: per interval, the scores received and the server's CPU and RSS, so a
     // long (soak) run shows whether throughput stays steady and memory flat.
     let mut timeline = Vec::new();
-    let mut last_sample = (started, 0u64, before);
+    let mut last_sample = (started, 0u64, before.clone());
     while tasks.iter().any(|t| !t.is_finished()) {
         tokio::time::sleep(Duration::from_millis(500)).await;
         let sample = match &opts.metrics {
             Some(u) => scrape(u).await,
             None => None,
         };
-        if let Some(s) = sample {
+        if let Some(s) = &sample {
             peak_rss = peak_rss.max(s.rss_bytes);
             if middle_rss.is_none() && started.elapsed().as_secs_f64() >= opts.duration_s / 2.0 {
                 middle_rss = Some(s.rss_bytes);
@@ -293,7 +340,7 @@ async fn load(opts: LoadOptions) -> Result<()> {
         let since = last_sample.0.elapsed().as_secs_f64();
         if opts.sample_s > 0.0 && since >= opts.sample_s {
             let scores = shared.live_scores.load(Ordering::Relaxed);
-            let cpu = match (last_sample.2, sample) {
+            let cpu = match (&last_sample.2, &sample) {
                 (Some(a), Some(b)) => Some((b.cpu_s - a.cpu_s) / since),
                 _ => None,
             };
@@ -301,7 +348,7 @@ async fn load(opts: LoadOptions) -> Result<()> {
                 "t_s": (started.elapsed().as_secs_f64() * 10.0).round() / 10.0,
                 "scores_per_s": (scores - last_sample.1) as f64 / since,
                 "server_cpu_cores": cpu,
-                "rss_mib": sample.map(|s| (s.rss_bytes / (1 << 20) as f64 * 10.0).round() / 10.0),
+                "rss_mib": sample.as_ref().map(|s| (s.rss_bytes / (1 << 20) as f64 * 10.0).round() / 10.0),
             }));
             last_sample = (Instant::now(), scores, sample.or(last_sample.2));
         }
@@ -318,7 +365,7 @@ async fn load(opts: LoadOptions) -> Result<()> {
     t.latencies_s.sort_by(f64::total_cmp);
     t.server_latencies_s.sort_by(f64::total_cmp);
     let mb = |b: f64| (b / (1 << 20) as f64 * 10.0).round() / 10.0;
-    let server = match (before, after) {
+    let server = match (&before, &after) {
         (Some(b), Some(a)) => json!({
             "cpu_cores_busy": (a.cpu_s - b.cpu_s) / elapsed,
             "cpu_s_per_robot_second": (a.cpu_s - b.cpu_s) / elapsed / opts.robots as f64,
@@ -326,6 +373,12 @@ async fn load(opts: LoadOptions) -> Result<()> {
             "rss_mib_middle": middle_rss.map(mb),
             "rss_mib_end": mb(a.rss_bytes),
             "rss_mib_peak": mb(peak_rss),
+            // Mean ms per scored frame of each stage ("total" is the scorer's whole push;
+            // decode, record and live are the worker's own).
+            "stage_ms": stage_means_ms(b, a)
+                .into_iter()
+                .map(|(k, v)| (k, json!(v)))
+                .collect::<serde_json::Map<_, _>>(),
         }),
         _ => serde_json::Value::Null,
     };
@@ -358,4 +411,37 @@ async fn load(opts: LoadOptions) -> Result<()> {
     });
     println!("{}", serde_json::to_string_pretty(&report)?);
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn stage_means_come_from_the_histograms_sums_and_counts() {
+        let before = parse_sample(
+            "process_cpu_seconds_total 1\nprocess_resident_memory_bytes 100\n\
+             vamos_stage_seconds_sum{stage=\"flow\"} 0.5\n\
+             vamos_stage_seconds_count{stage=\"flow\"} 10\n",
+        )
+        .unwrap();
+        let after = parse_sample(
+            "process_cpu_seconds_total 3\nprocess_resident_memory_bytes 200\n\
+             vamos_stage_seconds_bucket{stage=\"flow\",le=\"0.01\"} 12\n\
+             vamos_stage_seconds_sum{stage=\"flow\"} 0.9\n\
+             vamos_stage_seconds_count{stage=\"flow\"} 30\n\
+             vamos_stage_seconds_sum{stage=\"decode\"} 0.2\n\
+             vamos_stage_seconds_count{stage=\"decode\"} 20\n\
+             vamos_stage_seconds_sum{stage=\"model\"} 0\n\
+             vamos_stage_seconds_count{stage=\"model\"} 0\n",
+        )
+        .unwrap();
+        assert_eq!(after.cpu_s, 3.0);
+        // flow: 0.4 s over 20 new frames; decode 0.2 s over 20; model never ran.
+        assert_eq!(
+            stage_means_ms(&before, &after),
+            vec![("flow".to_string(), 20.0), ("decode".to_string(), 10.0)]
+        );
+        assert!(parse_sample("vamos_stage_seconds_sum{stage=\"x\"} 1\n").is_none());
+    }
 }

@@ -279,6 +279,24 @@ async fn backpressure_drops_oldest_or_rejects_and_says_so() {
             .unwrap_or(0);
         assert!(dropped > 0, "{policy:?}: nothing dropped");
         assert_eq!(scores.len() as u64 + dropped, images, "{policy:?}");
+        // The frame after a gap starts the motion history afresh: it says how many images
+        // were lost before it and has no motion score, so a gap never raises an alarm.
+        let resumed: Vec<_> = scores.iter().filter(|s| s.frames_lost > 0).collect();
+        assert!(!resumed.is_empty(), "{policy:?}");
+        for s in &resumed {
+            assert!(
+                s.warming_up && !s.anomaly && s.score == 0.0,
+                "{policy:?}: {s:?}"
+            );
+            assert!(s.e_c.is_none() && s.e_r.is_none(), "{policy:?}: {s:?}");
+        }
+        let lost: u64 = scores.iter().map(|s| s.frames_lost).sum();
+        match policy {
+            // Every dropped image is older than a queued one, which reports it.
+            vamos::service::QueuePolicy::DropOldest => assert_eq!(lost, dropped),
+            // The last rejected images may have no successor to report them.
+            vamos::service::QueuePolicy::Reject => assert!(lost <= dropped && lost > 0),
+        }
         // Scores stay in stamp order.
         assert!(scores.windows(2).all(|w| w[0].stamp_ns < w[1].stamp_ns));
         let detail = &events
@@ -423,5 +441,96 @@ async fn streamed_depth_images_are_used_and_bad_ones_reported_without_losing_fra
             "{detail}"
         );
     }
+    server.shutdown().await.unwrap();
+}
+
+/// A live session's measured load is what admission counts: with the workers' capacity
+/// taken, another session is refused with the figures, and once it closes one is
+/// admitted again.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_session_that_would_pass_the_measured_capacity_is_refused_with_the_figures() {
+    let mut f = fixture_setup(8, false);
+    f.settings.service.workers = 1;
+    // A sliver of one worker: the first session alone fills it.
+    f.settings.service.admission_load = 0.001;
+    let server = start(&f).await;
+    let (messages, camera) = episode_messages(&episode("test_0000"));
+    let mut client = MonitorClient::connect(format!("http://{}", server.grpc_addr))
+        .await
+        .unwrap();
+    let (tx, rx) = mpsc::channel(64);
+    tx.send(proto::StreamRequest {
+        message: Some(open_msg("sim-arm", "first", camera)),
+    })
+    .await
+    .unwrap();
+    let mut first = client
+        .stream(authed(ReceiverStream::new(rx), None))
+        .await
+        .unwrap()
+        .into_inner();
+    // It sends its first frames (joint states with them) and waits for three scores.
+    let mut scores = 0;
+    let mut sent = messages.into_iter();
+    while scores < 3 {
+        for m in sent.by_ref() {
+            let image = matches!(m, In::Image(_));
+            tx.send(proto::StreamRequest { message: Some(m) })
+                .await
+                .unwrap();
+            if image {
+                break;
+            }
+        }
+        let deadline = tokio::time::Instant::now() + Duration::from_millis(300);
+        while let Ok(Some(Ok(r))) = tokio::time::timeout_at(deadline, first.next()).await {
+            if matches!(r.message, Some(proto::stream_response::Message::Score(_))) {
+                scores += 1;
+            }
+        }
+    }
+    let metrics = metrics_text(server.rest_addr).await;
+    assert!(metrics.contains("vamos_capacity_cores 0.001"), "{metrics}");
+    let load: f64 = metrics
+        .lines()
+        .find_map(|l| l.strip_prefix("vamos_load_cores "))
+        .unwrap()
+        .parse()
+        .unwrap();
+    assert!(load > 0.0, "{load}");
+    let err = stream_all(
+        server.grpc_addr,
+        None,
+        open_msg("sim-arm", "second", None),
+        vec![],
+    )
+    .await
+    .unwrap_err();
+    assert_eq!(err.code(), tonic::Code::ResourceExhausted, "{err:?}");
+    for part in [
+        "admission_load",
+        "\"sim-arm\"",
+        "ms per frame",
+        "of 0.00 cores",
+    ] {
+        assert!(err.message().contains(part), "{part}: {}", err.message());
+    }
+    // The first session ends: its load leaves, and a new session is admitted.
+    drop(tx);
+    while first.next().await.is_some() {}
+    let (_, events) = stream_all(
+        server.grpc_addr,
+        None,
+        open_msg("sim-arm", "third", None),
+        vec![],
+    )
+    .await
+    .unwrap();
+    assert_eq!(events[0].kind, proto::session_event::Kind::Opened as i32);
+    assert!(
+        metrics_text(server.rest_addr)
+            .await
+            .contains("vamos_load_cores 0\n")
+    );
     server.shutdown().await.unwrap();
 }

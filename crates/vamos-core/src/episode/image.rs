@@ -360,6 +360,46 @@ impl<'a> EncodedImage<'a> {
         GrayImage::new(w, h, data).map_err(|e| bad(e.to_string()))
     }
 
+    /// Decodes to packed 8-bit RGB (for re-encoding: `vamos episode copy --jpeg`): 8-bit
+    /// raw colour and gray encodings and JPEG / PNG files; 16-bit and float images are
+    /// refused (their scaling is not a colour image's). The declared size is checked
+    /// against `max_pixels` first.
+    pub fn to_rgb8(&self, max_pixels: usize) -> Result<(usize, usize, Vec<u8>), MessageError> {
+        let size = self.check(max_pixels)?;
+        let encoding = self.known()?;
+        let (w, h) = (size.width, size.height);
+        if let Some(format) = encoding.file_format() {
+            let img = image::load_from_memory_with_format(self.data, format)
+                .map_err(|e| self.decode_error(e.to_string()))?;
+            let (fw, fh) = (img.width() as usize, img.height() as usize);
+            check_image_size(fw, fh, max_pixels)?;
+            return Ok((fw, fh, img.to_rgb8().into_raw()));
+        }
+        let step = self.step as usize;
+        let order: (usize, [usize; 3]) = match encoding {
+            Encoding::Rgb8 => (3, [0, 1, 2]),
+            Encoding::Bgr8 => (3, [2, 1, 0]),
+            Encoding::Rgba8 => (4, [0, 1, 2]),
+            Encoding::Bgra8 => (4, [2, 1, 0]),
+            Encoding::Mono8 => (1, [0, 0, 0]),
+            _ => {
+                return Err(self.decode_error(
+                    "only 8-bit images (rgb8, bgr8, rgba8, bgra8, mono8, JPEG, PNG) convert to RGB"
+                        .into(),
+                ));
+            }
+        };
+        let (channels, at) = order;
+        let mut rgb = Vec::with_capacity(3 * w * h);
+        for y in 0..h {
+            let row = &self.data[y * step..y * step + channels * w];
+            for p in row.chunks_exact(channels) {
+                rgb.extend(at.map(|i| p[i]));
+            }
+        }
+        Ok((w, h, rgb))
+    }
+
     fn file_to_gray(
         &self,
         format: image::ImageFormat,

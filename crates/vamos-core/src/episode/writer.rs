@@ -8,7 +8,7 @@
 use super::EpisodeError;
 use super::bag::{EpisodeInfo, SourceMessage};
 use super::image::Encoding;
-use super::ros::{self, Header, ImageMsg, schema};
+use super::ros::{self, CompressedImageMsg, Header, ImageMsg, schema};
 use std::collections::{BTreeMap, HashMap};
 use std::fs::File;
 use std::io::BufWriter;
@@ -29,6 +29,13 @@ pub enum ImageData<'a> {
         /// ROS encoding (`rgb8`, `mono8`, ...).
         encoding: &'a str,
         /// Pixels.
+        data: &'a [u8],
+    },
+    /// A compressed file (`sensor_msgs/msg/CompressedImage`).
+    Compressed {
+        /// Format string (`jpeg`, `png`).
+        format: &'a str,
+        /// The file's bytes.
         data: &'a [u8],
     },
 }
@@ -246,6 +253,15 @@ impl ScoreBagWriter {
                     data,
                 };
                 let id = self.ros_channel(topic, schema::IMAGE)?;
+                self.write(id, stamp_u64(stamp_ns), &msg.encode())
+            }
+            ImageData::Compressed { format, data } => {
+                let msg = CompressedImageMsg {
+                    header: Header::from_stamp_ns(stamp_ns, ""),
+                    format: format.into(),
+                    data,
+                };
+                let id = self.ros_channel(topic, schema::COMPRESSED_IMAGE)?;
                 self.write(id, stamp_u64(stamp_ns), &msg.encode())
             }
         }

@@ -82,6 +82,12 @@ pub struct ServiceConfig {
     pub workers: usize,
     /// Sessions open at once (streams and episode uploads).
     pub max_sessions: usize,
+    /// The fraction of the scoring workers live sessions may load: a new session is
+    /// refused (`RESOURCE_EXHAUSTED`) when the live sessions' measured load plus what its
+    /// profile's recent sessions cost would exceed it, so admitted sessions keep their
+    /// latency. The rest is headroom for the server's own threads (gRPC, REST,
+    /// recordings' disk) and for bursts. 0 = no admission by load.
+    pub admission_load: f64,
     /// Images a session may have waiting to be scored.
     pub queue_depth: usize,
     /// What happens to an image that finds the queue full.
@@ -215,6 +221,7 @@ impl Default for ServiceConfig {
             profiles: Vec::new(),
             workers: 0,
             max_sessions: 64,
+            admission_load: 0.8,
             queue_depth: 8,
             queue_policy: QueuePolicy::DropOldest,
             max_message_bytes: 16 << 20,

@@ -17,6 +17,9 @@ pub enum SessionError {
         /// The limit.
         max: usize,
     },
+    /// The live sessions' measured load leaves no room for one more.
+    #[error(transparent)]
+    OverCapacity(#[from] super::capacity::OverCapacity),
     /// A session with that id is streaming.
     #[error("session {id:?} is already streaming")]
     Busy {

@@ -67,6 +67,10 @@ pub struct ScoredFrame {
     pub latency_s: f64,
     /// Time spent computing the score, seconds.
     pub compute_s: f64,
+    /// Images lost (dropped or refused) between the previous score and this frame: when
+    /// above 0 the frame started the motion history afresh, so it has no motion score
+    /// and cannot alarm.
+    pub frames_lost: u64,
     /// The frame's anomaly map (8-bit gray, 0 = nominal; see [`super::live`]), for
     /// sessions that asked for maps.
     pub anomaly_map: Option<super::live::Thumb>,

@@ -49,6 +49,8 @@ pub struct Hub {
     pub(super) injected_worker_panics: AtomicU64,
     /// The recent alarms of every session.
     pub alarms: super::alarms::AlarmBook,
+    /// The pool's capacity and the live sessions' load.
+    pub(super) capacity: super::capacity::Capacity,
 }
 
 impl Hub {
@@ -107,8 +109,11 @@ impl Hub {
             ),
             Err(e) => tracing::warn!("cannot recover the recordings left in progress: {e}"),
         }
+        let capacity = super::capacity::Capacity::new(n, config.admission_load);
+        metrics.capacity_cores.set(capacity.capacity_cores());
         let hub = Arc::new(Self {
             budget,
+            capacity,
             live_workers: AtomicUsize::new(0),
             reserved: Arc::new(AtomicUsize::new(0)),
             injected_frame_panics: AtomicU64::new(0),
@@ -236,6 +241,16 @@ impl Hub {
                 max: self.config.max_sessions,
             });
         }
+        if !req.episode
+            && let Err(e) = self.capacity.admit(&profile.name)
+        {
+            self.metrics
+                .sessions_opened
+                .with_label_values(&[&profile.name, "refused"])
+                .inc();
+            tracing::warn!(profile = %profile.name, "session refused: {e}");
+            return Err(SessionError::OverCapacity(e));
+        }
         let resumable = !id.is_empty();
         let id = if resumable {
             id
@@ -286,6 +301,8 @@ impl Hub {
                 latest: None,
                 images: 0,
                 warm_reported: false,
+                lost: 0,
+                load: Default::default(),
             }),
             space: Condvar::new(),
             scorer: Mutex::new(scorer),
@@ -296,6 +313,7 @@ impl Hub {
             alarms: Mutex::new(super::alarms::AlarmTracker::new(alarm_rule)),
             live: Mutex::new(super::live::LiveView::default()),
             recorder: Mutex::new(None),
+            share: Default::default(),
             profile: Mutex::new(profile),
         });
         sessions.insert(id.clone(), session.clone());
@@ -463,6 +481,8 @@ impl Hub {
                 return;
             }
             st.closed = true;
+            self.capacity.release(&s.share);
+            self.metrics.load_cores.set(self.capacity.load_cores());
             let n = (st.queue.len() + st.pending.len()) as i64;
             st.queue.clear();
             st.pending.clear();

@@ -22,7 +22,9 @@ impl Hub {
     pub fn image(&self, s: &Arc<Session>, image: LiveImage) {
         let stamp = image.stamp_ns;
         let mut st = lock(&s.state);
-        st.last_activity = Instant::now();
+        let now = Instant::now();
+        st.last_activity = now;
+        st.load.arrived(now);
         st.images += 1;
         if let Some(last) = st.last_image_ns
             && stamp <= last
@@ -40,6 +42,7 @@ impl Hub {
         let charge = match self.budget.charge(bytes as u64 + FRAME_OVERHEAD) {
             Ok(c) => c,
             Err(e) => {
+                st.lost += 1;
                 drop(st);
                 self.refuse_for_memory(s, format!("image at {stamp} ns dropped: {e}"), stamp);
                 return;
@@ -173,9 +176,11 @@ impl Hub {
                         st.queue.pop_front();
                         self.metrics.queue_depth.dec();
                         dropped += 1;
+                        st.lost += 1;
                     }
                     QueuePolicy::Reject => {
                         rejected += 1;
+                        st.lost += 1;
                         continue;
                     }
                 }

@@ -62,6 +62,10 @@ pub struct Metrics {
     pub shared_store_last_sync: Gauge,
     /// Scoring workers running (health and readiness fail at 0).
     pub workers_alive: IntGauge,
+    /// The cores live sessions may load (`[service] admission_load` of the workers).
+    pub capacity_cores: Gauge,
+    /// The live sessions' measured load, cores (see [`super::capacity`]).
+    pub load_cores: Gauge,
     /// Scoring workers restarted after a panic outside a frame.
     pub worker_restarts: IntCounter,
     /// Frames whose scoring panicked (reported to the session as failed), by profile.
@@ -198,6 +202,19 @@ impl Metrics {
             "Last successful round with the shared store (Unix time; 0: never)",
         ));
         must(registry.register(Box::new(shared_store_last_sync.clone())));
+        let float_gauge = |name: &str, help: &str| {
+            let g = must(Gauge::new(name, help));
+            must(registry.register(Box::new(g.clone())));
+            g
+        };
+        let capacity_cores = float_gauge(
+            "vamos_capacity_cores",
+            "Cores live sessions may load ([service] admission_load of the scoring workers)",
+        );
+        let load_cores = float_gauge(
+            "vamos_load_cores",
+            "Live sessions' measured load: worker time per frame over time between images, summed",
+        );
         let gauge = |name: &str, help: &str| {
             let g = must(IntGauge::new(name, help));
             must(registry.register(Box::new(g.clone())));
@@ -290,6 +307,8 @@ impl Metrics {
             shared_store_errors,
             shared_store_last_sync,
             workers_alive,
+            capacity_cores,
+            load_cores,
             worker_restarts,
             scoring_panics,
             memory_budget_used,

@@ -17,6 +17,8 @@
 //! - [`alarms`]: per-frame flags debounced into alarms (start/end events, the recent
 //!   alarms of all sessions, false-alarm marks stored); [`live`]: what the live view
 //!   shows of a session (timeline points, latest frame thumbnail, anomaly map).
+//! - [`capacity`]: each live session's measured load on the workers, and admission of
+//!   new ones against the pool's capacity.
 //! - [`budget`]: memory and upload-disk budgets; [`metrics`]: Prometheus metrics;
 //!   [`fleet`]: the data directory shared with other replicas.
 //!
@@ -26,6 +28,7 @@ pub mod admission;
 pub mod alarms;
 pub mod budget;
 pub mod calibration;
+pub mod capacity;
 pub mod episode;
 pub mod error;
 pub mod event;

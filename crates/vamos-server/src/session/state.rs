@@ -129,6 +129,14 @@ pub(super) struct SessionState {
     pub(super) images: u64,
     /// Whether `warming_up` has been reported.
     pub(super) warm_reported: bool,
+    /// Images lost (dropped by the queue, refused) since the worker last took a frame:
+    /// the next frame it takes restarts the scorer's motion history
+    /// ([`vamos_core::pipeline::Scorer::restart_after_gap`]). Under the `reject` queue
+    /// policy a frame queued before a rejected one restarts too (it is older, so it had
+    /// no gap): one frame without a motion score, never a score over a gap.
+    pub(super) lost: u64,
+    /// Its measured cost and image rate.
+    pub(super) load: super::capacity::SessionLoad,
 }
 
 /// One streamed task execution (or one uploaded episode).
@@ -176,6 +184,8 @@ pub struct Session {
     pub(super) live: Mutex<super::live::LiveView>,
     /// Its recording in progress ([`super::recording`]), if it is recorded.
     pub(super) recorder: Mutex<Option<super::recording::Recorder>>,
+    /// Its part of the pool's load.
+    pub(super) share: super::capacity::SessionShare,
 }
 
 impl Session {

@@ -144,15 +144,22 @@ impl Hub {
                     }
                 }
             };
-            let frame = {
+            let taken = Instant::now();
+            let (frame, lost) = {
                 let mut st = lock(&session.state);
                 let f = st.queue.pop_front();
                 if f.is_some() {
                     self.metrics.queue_depth.dec();
                 }
-                f
+                let lost = if f.is_some() {
+                    std::mem::take(&mut st.lost)
+                } else {
+                    0
+                };
+                (f, lost)
             };
             session.space.notify_all();
+            let scored = frame.is_some();
             if let Some(frame) = frame {
                 let stamp = frame.stamp_ns;
                 // One span per frame, named after its session and opening request.
@@ -171,11 +178,20 @@ impl Hub {
                     total_us = tracing::field::Empty,
                 );
                 let _entered = span.enter();
-                if let Err(panic) = catch_unwind(AssertUnwindSafe(|| self.score(&session, frame))) {
+                if let Err(panic) =
+                    catch_unwind(AssertUnwindSafe(|| self.score(&session, frame, lost)))
+                {
                     self.recover(&session, stamp, panic_message(panic.as_ref()));
                 }
             }
             let mut st = lock(&session.state);
+            if scored && !session.episode && !st.closed {
+                let seconds = taken.elapsed().as_secs_f64();
+                st.load.scored(seconds);
+                self.capacity
+                    .scored(&session.profile_name, &session.share, &st.load, seconds);
+                self.metrics.load_cores.set(self.capacity.load_cores());
+            }
             if !st.queue.is_empty() && !st.closed {
                 drop(st);
                 lock(&self.ready).push_back(session);
@@ -258,7 +274,8 @@ impl Hub {
         }
     }
 
-    fn score(&self, s: &Arc<Session>, frame: ReadyFrame) {
+    /// Scores `frame`, `lost` images after the previous frame the worker took.
+    fn score(&self, s: &Arc<Session>, frame: ReadyFrame, lost: u64) {
         let stamp = frame.stamp_ns;
         let started = Instant::now();
         // Held until the frame is scored: the buffered bytes, then the decoding's.
@@ -270,6 +287,7 @@ impl Hub {
                 match decode_live_image(&msg, self.config.max_image_pixels, Some(&self.budget)) {
                     Ok((img, charge)) => (img, None, None, charge, Some(msg)),
                     Err(e) => {
+                        lock(&s.state).lost += 1 + lost;
                         self.refuse(s, "image", format!("image refused: {e}"), stamp);
                         return;
                     }
@@ -294,6 +312,7 @@ impl Hub {
             })
         });
         // The image as received goes to the session's recording, if it has one.
+        let record_started = Instant::now();
         {
             let mut recorder = lock(&s.recorder);
             if let (Some(r), Some(msg)) = (recorder.as_mut(), live.as_ref())
@@ -316,13 +335,18 @@ impl Hub {
                 }
             }
         }
+        let record_s = record_started.elapsed().as_secs_f64();
         let joints = frame.joints.as_ref().map(|j| JointInput {
             names: &j.names,
             positions: &j.positions,
             efforts: &j.efforts,
         });
         let result = tracing::debug_span!("score").in_scope(|| {
-            lock(&s.scorer).push(&FrameInput {
+            let mut scorer = lock(&s.scorer);
+            if lost > 0 {
+                scorer.restart_after_gap();
+            }
+            scorer.push(&FrameInput {
                 stamp_ns: stamp,
                 image: &image,
                 joints,
@@ -331,9 +355,20 @@ impl Hub {
             })
         });
         match result {
-            Ok(Some(score)) => self.deliver(s, score, &image, frame.arrived, started, decode_s),
+            Ok(Some(score)) => {
+                let server = ServerStages {
+                    decode_s,
+                    record_s,
+                    lost,
+                };
+                self.deliver(s, score, &image, frame.arrived, started, server);
+            }
             Ok(None) => {}
-            Err(e) => self.refuse(s, "frame", format!("frame refused: {e}"), stamp),
+            Err(e) => {
+                // The scorer did not take the frame: the next one follows a gap.
+                lock(&s.state).lost += 1;
+                self.refuse(s, "frame", format!("frame refused: {e}"), stamp);
+            }
         }
     }
 
@@ -344,7 +379,7 @@ impl Hub {
         image: &GrayImage,
         arrived: Instant,
         started: Instant,
-        decode_s: f64,
+        server: ServerStages,
     ) {
         let m = &self.metrics;
         let profile = s.profile_name.as_str();
@@ -367,19 +402,25 @@ impl Hub {
             span.record(field, v);
         }
         let us = |v: u64| v as f64 * 1e-6;
+        let f = &t.front_end;
         for (stage, v) in [
-            ("decode", decode_s),
+            ("decode", server.decode_s),
+            ("record", server.record_s),
             ("kinematics", us(t.kinematics_us)),
             ("render", us(t.render_us)),
-            ("flow", us(t.front_end.flow_us)),
-            ("registration", us(t.front_end.registration_us)),
+            ("prepare", us(f.prepare_us)),
+            ("flow", us(f.flow_us)),
+            ("registration", us(f.registration_us)),
+            ("network_input", us(f.network_input_us)),
             ("camera", us(t.camera_us)),
             ("body", us(t.body_us)),
+            ("scene", us(t.scene_us)),
             ("model", us(t.model_us)),
             ("total", us(t.total_us)),
         ] {
             m.stage_seconds.with_label_values(&[stage]).observe(v);
         }
+        let live_started = Instant::now();
         let current = s.profile();
         if current.setup.model.is_some() {
             m.observe_inference(&current.model_label, us(t.model_us));
@@ -436,10 +477,14 @@ impl Hub {
             Some(thumb),
             map,
         );
+        m.stage_seconds
+            .with_label_values(&["live"])
+            .observe(live_started.elapsed().as_secs_f64());
         let scored = ScoredFrame {
             score,
             latency_s: latency,
             compute_s: now.saturating_duration_since(started).as_secs_f64(),
+            frames_lost: server.lost,
             anomaly_map,
         };
         self.send(s, Output::Score(scored));
@@ -447,6 +492,16 @@ impl Hub {
             self.send(s, a);
         }
     }
+}
+
+/// What a frame spent in the worker outside the scorer, seconds.
+struct ServerStages {
+    /// Decoding the streamed image (and depth).
+    decode_s: f64,
+    /// Writing it to the session's recording.
+    record_s: f64,
+    /// Images lost before it.
+    lost: u64,
 }
 
 /// The text of a caught panic's payload.

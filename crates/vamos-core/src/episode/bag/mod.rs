@@ -260,6 +260,20 @@ pub struct SourceMessage {
     pub cdr: Vec<u8>,
 }
 
+impl SourceMessage {
+    /// The image as packed 8-bit RGB (see [`EncodedImage::to_rgb8`]): width, height,
+    /// pixels.
+    pub fn to_rgb8(&self, max_pixels: usize) -> Result<(usize, usize, Vec<u8>), MessageError> {
+        if self.schema == schema::COMPRESSED_IMAGE {
+            CompressedImageMsg::decode(&self.cdr)?
+                .encoded()
+                .to_rgb8(max_pixels)
+        } else {
+            ImageMsg::decode(&self.cdr)?.encoded().to_rgb8(max_pixels)
+        }
+    }
+}
+
 /// One image with what was known at its stamp.
 #[derive(Clone, Debug)]
 pub struct EpisodeFrame {

@@ -391,6 +391,20 @@ impl Scorer {
         self.window.clear();
     }
 
+    /// Images were lost before the next one (dropped by an overloaded server, refused, or
+    /// missing from a recording): forgets the motion history as [`Self::reset`] does, but
+    /// keeps the stream's position (the counters, the stamp order and the phase's origin).
+    /// The next image starts the history afresh: it gets no motion score and cannot alarm
+    /// (a [`FrameScore::warming_up`] frame), so the motion over a gap is never compared
+    /// with the motion expected between two consecutive frames.
+    pub fn restart_after_gap(&mut self) {
+        let (images, frames) = (self.images, self.frames);
+        let (last, first) = (self.last_stamp_ns, self.first_stamp_ns);
+        self.reset();
+        (self.images, self.frames) = (images, frames);
+        (self.last_stamp_ns, self.first_stamp_ns) = (last, first);
+    }
+
     /// Takes over the stream position of `previous` (the image and frame counters and
     /// the last stamp) with none of its history: a scorer that replaces another mid-stream
     /// (another model version) keeps the indices going and the stamp order checked, and

@@ -224,6 +224,61 @@ fn motion_the_joints_do_not_show_triggers_the_camera_detector() {
 }
 
 #[test]
+fn after_a_gap_the_next_frame_starts_the_history_afresh_and_cannot_alarm() {
+    let setup = setup();
+    let thresholds = Thresholds::paper(Some(0.8), None);
+    let mut s = scorer(Some(setup.clone()), thresholds, 1);
+    let step = 0.01;
+    // A pushed camera alarms on every frame with a predecessor.
+    let texture = Texture::random(11);
+    let names = names();
+    let push = |s: &mut Scorer, k: usize| {
+        let (sx, sy) = expected_shift(&setup, 0.0, step * k as f64);
+        let image = frame(&texture, sx, sy);
+        s.push(&FrameInput {
+            stamp_ns: k as i64 * 100_000_000,
+            image: &image,
+            joints: Some(JointInput {
+                names: &names,
+                positions: &[0.0],
+                efforts: &[],
+            }),
+            intrinsics: None,
+            depth: None,
+        })
+        .unwrap()
+        .unwrap()
+    };
+    for k in 0..3 {
+        let f = push(&mut s, k);
+        assert_eq!(f.anomaly, k > 0, "frame {k}: {}", f.score);
+    }
+    // Images 3 and 4 were lost.
+    s.restart_after_gap();
+    let resumed = push(&mut s, 5);
+    assert!(resumed.warming_up && !resumed.anomaly && resumed.e_c.is_none());
+    assert_eq!(resumed.score, 0.0);
+    // The stream's position goes on: counters, phase, stamp order.
+    assert_eq!((resumed.index, resumed.frame), (3, 3));
+    assert!((resumed.phase_s - 0.5).abs() < 1e-9, "{}", resumed.phase_s);
+    let next = push(&mut s, 6);
+    assert!(next.anomaly && next.e_c.is_some(), "{}", next.score);
+    s.restart_after_gap();
+    let image = frame(&texture, 0.0, 0.0);
+    let back = s.push(&FrameInput {
+        stamp_ns: 600_000_000,
+        image: &image,
+        joints: None,
+        intrinsics: None,
+        depth: None,
+    });
+    assert!(
+        matches!(back, Err(ScorerError::StampNotIncreasing { .. })),
+        "{back:?}"
+    );
+}
+
+#[test]
 fn joint_states_no_nominal_run_had_show_in_e_k() {
     let setup = setup();
     let step = 0.01;

@@ -106,6 +106,7 @@ pub fn frame_score_fields(f: &ScoredFrame) -> proto::FrameScore {
         latency_s: f.latency_s,
         compute_s: f.compute_s,
         anomaly_map: Vec::new(),
+        frames_lost: f.frames_lost,
     }
 }
 

@@ -11,7 +11,9 @@ pub fn code_of(e: &SessionError) -> Code {
     use SessionError as E;
     match e {
         E::Upload(UploadRefused::TooSlow { .. }) => Code::DeadlineExceeded,
-        E::TooMany { .. } | E::Upload(_) | E::EpisodeTooLarge { .. } => Code::ResourceExhausted,
+        E::TooMany { .. } | E::OverCapacity(_) | E::Upload(_) | E::EpisodeTooLarge { .. } => {
+            Code::ResourceExhausted
+        }
         E::Busy { .. } => Code::AlreadyExists,
         E::RobotNotAllowed { .. } | E::NotYours { .. } => Code::PermissionDenied,
         E::ProfileMismatch { .. }

@@ -102,7 +102,7 @@ fn status_of(e: &SessionError) -> StatusCode {
     use SessionError as E;
     match e {
         E::Upload(UploadRefused::TooSlow { .. }) => StatusCode::REQUEST_TIMEOUT,
-        E::TooMany { .. } | E::Upload(_) => StatusCode::TOO_MANY_REQUESTS,
+        E::TooMany { .. } | E::OverCapacity(_) | E::Upload(_) => StatusCode::TOO_MANY_REQUESTS,
         E::EpisodeTooLarge { .. } | E::MessageTooLarge { .. } => StatusCode::PAYLOAD_TOO_LARGE,
         E::Busy { .. } | E::Reload { .. } => StatusCode::CONFLICT,
         E::RobotNotAllowed { .. } | E::NotYours { .. } => StatusCode::FORBIDDEN,

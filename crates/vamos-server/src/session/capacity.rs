@@ -1,0 +1,299 @@
+//! The scoring capacity: what each live session costs the worker pool, measured as it
+//! runs, and whether one more session fits.
+//!
+//! A session's load is its workers' time per scored frame over the time between its
+//! images (both moving averages), in cores: a robot streaming 10 Hz into a profile that
+//! takes 23 ms per frame loads 0.23 core. The capacity is `[service] admission_load` of
+//! the scoring workers. A live session is refused (`RESOURCE_EXHAUSTED`, naming the load
+//! and the limit) when the live sessions' load plus what its profile's recent sessions
+//! cost would pass it, so the sessions already admitted keep their latency. A session's
+//! frames are scored one at a time, so it loads at most one core (a client that sends in
+//! bursts counts as one busy worker, not more). An idle server admits any session, and a
+//! profile no session has used yet is admitted and measured: a session that alone cannot
+//! keep up loses frames explicitly (`frames_lost`, `FRAMES_DROPPED`), never silently.
+//! Uploaded episodes are not admitted by load: their queue paces them, and they take
+//! what is left.
+
+use super::state::lock;
+use std::collections::HashMap;
+use std::sync::Mutex;
+use std::sync::atomic::{AtomicI64, Ordering};
+use std::time::Instant;
+
+/// Weight of the newest sample in the moving averages (about the last 20 frames count).
+const EWMA_WEIGHT: f64 = 0.1;
+
+/// An exponentially weighted moving average; the first sample starts it.
+#[derive(Debug, Clone, Copy, Default)]
+pub(super) struct Ewma(Option<f64>);
+
+impl Ewma {
+    fn add(&mut self, v: f64) {
+        if !v.is_finite() || v < 0.0 {
+            return;
+        }
+        self.0 = Some(match self.0 {
+            None => v,
+            Some(m) => m + EWMA_WEIGHT * (v - m),
+        });
+    }
+
+    fn get(self) -> Option<f64> {
+        self.0
+    }
+}
+
+/// One session's measured cost (kept in its state).
+#[derive(Debug, Default)]
+pub(super) struct SessionLoad {
+    /// Worker seconds per scored frame.
+    frame_s: Ewma,
+    /// Seconds between the session's images as they arrive.
+    interval_s: Ewma,
+    last_arrival: Option<Instant>,
+}
+
+impl SessionLoad {
+    /// An image arrived now.
+    pub(super) fn arrived(&mut self, now: Instant) {
+        if let Some(last) = self.last_arrival.replace(now) {
+            self.interval_s.add(now.duration_since(last).as_secs_f64());
+        }
+    }
+
+    /// A frame took the worker `seconds`.
+    pub(super) fn scored(&mut self, seconds: f64) {
+        self.frame_s.add(seconds);
+    }
+
+    /// Cores the session keeps busy (at most one), once both figures are measured.
+    fn cores(&self) -> Option<f64> {
+        let (f, i) = (self.frame_s.get()?, self.interval_s.get()?);
+        Some(if i > 0.0 { (f / i).min(1.0) } else { 1.0 })
+    }
+}
+
+/// A profile's cost, from the frames of all its live sessions.
+#[derive(Debug, Clone, Copy, Default)]
+struct ProfileCost {
+    frame_s: Ewma,
+    interval_s: Ewma,
+}
+
+/// Why a session was not admitted.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error(
+    "the server's scoring capacity is in use: live sessions load {load:.2} of {capacity:.2} \
+     cores ({workers} workers x [service] admission_load {fraction}), and a session of \
+     profile {profile:?} adds about {adds:.2} ({frame_ms:.1} ms per frame at {rate_hz:.1} Hz, \
+     measured on its recent sessions)"
+)]
+pub struct OverCapacity {
+    /// The live sessions' load, cores.
+    pub load: f64,
+    /// The limit, cores.
+    pub capacity: f64,
+    /// Scoring workers.
+    pub workers: usize,
+    /// `[service] admission_load`.
+    pub fraction: f64,
+    /// The profile asked for.
+    pub profile: String,
+    /// What the new session would add, cores.
+    pub adds: f64,
+    /// Its profile's time per frame, ms.
+    pub frame_ms: f64,
+    /// Its profile's image rate, Hz.
+    pub rate_hz: f64,
+}
+
+/// The pool's capacity and the live sessions' load.
+#[derive(Debug)]
+pub struct Capacity {
+    workers: usize,
+    fraction: f64,
+    /// The live sessions' load, millicores (each session's share in its
+    /// [`SessionShare`]).
+    load_millicores: AtomicI64,
+    profiles: Mutex<HashMap<String, ProfileCost>>,
+}
+
+/// A session's part of the pool's load, millicores.
+#[derive(Debug, Default)]
+pub struct SessionShare(AtomicI64);
+
+impl Capacity {
+    /// `workers` scoring workers, of which `fraction` may be promised to live sessions
+    /// (0: no admission by load).
+    pub fn new(workers: usize, fraction: f64) -> Self {
+        Self {
+            workers,
+            fraction: if fraction.is_finite() {
+                fraction.max(0.0)
+            } else {
+                0.0
+            },
+            load_millicores: AtomicI64::new(0),
+            profiles: Mutex::new(HashMap::new()),
+        }
+    }
+
+    /// The cores live sessions may load.
+    pub fn capacity_cores(&self) -> f64 {
+        self.workers as f64 * self.fraction
+    }
+
+    /// The live sessions' measured load, cores.
+    pub fn load_cores(&self) -> f64 {
+        self.load_millicores.load(Ordering::Relaxed).max(0) as f64 * 1e-3
+    }
+
+    /// Admits a live session of `profile`, or says why not.
+    pub fn admit(&self, profile: &str) -> Result<(), OverCapacity> {
+        if self.fraction <= 0.0 {
+            return Ok(());
+        }
+        let Some(cost) = lock(&self.profiles).get(profile).copied() else {
+            return Ok(());
+        };
+        let (Some(frame_s), Some(interval_s)) = (cost.frame_s.get(), cost.interval_s.get()) else {
+            return Ok(());
+        };
+        let adds = if interval_s > 0.0 {
+            (frame_s / interval_s).min(1.0)
+        } else {
+            1.0
+        };
+        let (load, capacity) = (self.load_cores(), self.capacity_cores());
+        if load <= 0.0 || load + adds <= capacity {
+            return Ok(());
+        }
+        Err(OverCapacity {
+            load,
+            capacity,
+            workers: self.workers,
+            fraction: self.fraction,
+            profile: profile.to_string(),
+            adds,
+            frame_ms: frame_s * 1e3,
+            rate_hz: 1.0 / interval_s,
+        })
+    }
+
+    /// A frame of a live session of `profile` took the worker `frame_s`; `load` is the
+    /// session's measurement after it. Moves the session's share to its new load.
+    pub(super) fn scored(
+        &self,
+        profile: &str,
+        share: &SessionShare,
+        load: &SessionLoad,
+        frame_s: f64,
+    ) {
+        {
+            let mut profiles = lock(&self.profiles);
+            let cost = profiles.entry(profile.to_string()).or_default();
+            cost.frame_s.add(frame_s);
+            if let Some(i) = load.interval_s.get() {
+                cost.interval_s.add(i);
+            }
+        }
+        if let Some(cores) = load.cores() {
+            let new = (cores * 1e3).round() as i64;
+            let old = share.0.swap(new, Ordering::Relaxed);
+            self.load_millicores.fetch_add(new - old, Ordering::Relaxed);
+        }
+    }
+
+    /// The session closed: its share leaves the load.
+    pub(super) fn release(&self, share: &SessionShare) {
+        let old = share.0.swap(0, Ordering::Relaxed);
+        self.load_millicores.fetch_sub(old, Ordering::Relaxed);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::time::Duration;
+
+    fn measured(frame_s: f64, interval_s: f64) -> SessionLoad {
+        let mut l = SessionLoad::default();
+        let t = Instant::now();
+        l.arrived(t);
+        l.arrived(t + Duration::from_secs_f64(interval_s));
+        l.scored(frame_s);
+        l
+    }
+
+    #[test]
+    fn sessions_are_admitted_while_their_measured_load_fits() {
+        let cap = Capacity::new(2, 0.8);
+        // Unknown profile: admitted, then measured.
+        assert!(cap.admit("p").is_ok());
+        let (a, b, c) = (
+            SessionShare::default(),
+            SessionShare::default(),
+            SessionShare::default(),
+        );
+        // 50 ms per frame at 10 Hz: half a core each.
+        let load = measured(0.05, 0.1);
+        cap.scored("p", &a, &load, 0.05);
+        assert!((cap.load_cores() - 0.5).abs() < 1e-9);
+        assert!(cap.admit("p").is_ok());
+        cap.scored("p", &b, &load, 0.05);
+        assert!((cap.load_cores() - 1.0).abs() < 1e-9);
+        // A third would load 1.5 of 1.6 cores: admitted; a fourth not.
+        assert!(cap.admit("p").is_ok());
+        cap.scored("p", &c, &load, 0.05);
+        let err = cap.admit("p").unwrap_err();
+        assert!(
+            (err.load - 1.5).abs() < 1e-9 && (err.adds - 0.5).abs() < 1e-9,
+            "{err}"
+        );
+        let text = err.to_string();
+        assert!(
+            text.contains("1.50 of 1.60 cores") && text.contains("10.0 Hz"),
+            "{text}"
+        );
+        // Another profile has no measurement yet: admitted.
+        assert!(cap.admit("q").is_ok());
+        // A session that closes gives its share back, once.
+        cap.release(&c);
+        cap.release(&c);
+        assert!((cap.load_cores() - 1.0).abs() < 1e-9);
+        assert!(cap.admit("p").is_ok());
+        // Re-measured sessions move their share, not add to it.
+        cap.scored("p", &a, &measured(0.01, 0.1), 0.01);
+        assert!(
+            (cap.load_cores() - 0.6).abs() < 1e-9,
+            "{}",
+            cap.load_cores()
+        );
+        // One session loads at most a core, however fast it sends; an idle server
+        // admits anyone.
+        let bursty = SessionShare::default();
+        let idle = Capacity::new(1, 0.5);
+        idle.scored("p", &bursty, &measured(0.05, 0.001), 0.05);
+        assert!((idle.load_cores() - 1.0).abs() < 1e-9);
+        assert!(idle.admit("p").unwrap_err().adds <= 1.0);
+        idle.release(&bursty);
+        assert!(idle.admit("p").is_ok());
+        // admission_load = 0: never refused.
+        let off = Capacity::new(2, 0.0);
+        off.scored("p", &a, &measured(1.0, 0.1), 1.0);
+        assert!(off.admit("p").is_ok());
+    }
+
+    #[test]
+    fn the_averages_ignore_nonsense_and_follow_recent_samples() {
+        let mut e = Ewma::default();
+        e.add(f64::NAN);
+        e.add(-1.0);
+        assert_eq!(e.get(), None);
+        e.add(1.0);
+        for _ in 0..100 {
+            e.add(2.0);
+        }
+        assert!((e.get().unwrap() - 2.0).abs() < 1e-3);
+    }
+}
