@@ -11,7 +11,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 use tokio::sync::Mutex;
-use vamos::api::proto::{self, stream_request::Message as In};
+use vamos::api::proto;
 use vamos::client::replay::{Recording, record};
 use vamos::client::{Client, ClientOptions, Pace, Update};
 
@@ -115,6 +115,7 @@ async fn one_session(
         task: "loadgen".into(),
         session_id: format!("loadgen-{robot}-{n}"),
         anomaly_maps: false,
+        image_rate_hz: 0.0,
     };
     let mut sent_at: HashMap<i64, Instant> = HashMap::new();
     let mut local = Tally::default();
@@ -161,7 +162,7 @@ struct ProcessSample {
 
 async fn scrape(url: &str) -> Option<ProcessSample> {
     let text = http_get(url).await.ok()?;
-    Some(parse_sample(&text)?)
+    parse_sample(&text)
 }
 
 /// The figures loadgen reads from a Prometheus exposition.
@@ -266,21 +267,9 @@ async fn load(opts: LoadOptions) -> Result<()> {
         .iter()
         .map(|p| record(p, &Default::default()).with_context(|| format!("episode {}", p.display())))
         .collect::<Result<_>>()?;
-    let image_rate = {
-        let r = &recordings[0];
-        let images: Vec<Duration> = r
-            .messages
-            .iter()
-            .filter(|(_, m)| matches!(m, In::Image(_)))
-            .map(|(t, _)| *t)
-            .collect();
-        match (images.first(), images.last()) {
-            (Some(a), Some(b)) if images.len() > 1 && b > a => {
-                (images.len() - 1) as f64 / (*b - *a).as_secs_f64() * opts.speed
-            }
-            _ => f64::NAN,
-        }
-    };
+    let image_rate = recordings[0]
+        .image_rate_hz()
+        .map_or(f64::NAN, |r| r * opts.speed);
     let before = match &opts.metrics {
         Some(u) => scrape(u).await,
         None => None,

@@ -181,6 +181,7 @@ async fn stream(opts: StreamOptions) -> Result<()> {
                 task: stem.clone(),
                 session_id: opts.session_id.clone().unwrap_or_else(|| stem.clone()),
                 anomaly_maps: false,
+                image_rate_hz: 0.0,
             };
             let summary = client
                 .replay(open, &rec, pace, |u| match u {

@@ -15,6 +15,7 @@ fn open(session_id: &str, camera: Option<proto::CameraInfo>) -> proto::OpenSessi
         task: "place_book".into(),
         session_id: session_id.into(),
         anomaly_maps: false,
+        image_rate_hz: 0.0,
     }
 }
 

@@ -99,6 +99,7 @@ async fn dashboards_and_alerts_query_metrics_the_server_exposes() {
         task: String::new(),
         session_id: String::new(),
         anomaly_maps: false,
+        image_rate_hz: 0.0,
     };
     let summary = client
         .replay(open, &rec, Pace::Window(2), |_| {})

@@ -233,6 +233,13 @@ impl Client {
             Pace::Window(n) => n.max(1),
             Pace::Recorded { .. } => usize::MAX,
         };
+        // Paced by the recording: the server is told the rate, to admit the session by it.
+        let mut open = open;
+        if let (Pace::Recorded { speed }, Some(rate)) = (pace, recording.image_rate_hz())
+            && open.image_rate_hz <= 0.0
+        {
+            open.image_rate_hz = rate * speed;
+        }
         let started = Instant::now();
         let mut session = self.open(open).await?;
         let mut summary = SessionSummary::default();

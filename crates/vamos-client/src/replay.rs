@@ -38,6 +38,22 @@ pub struct Recording {
     pub camera: Option<proto::CameraInfo>,
 }
 
+impl Recording {
+    /// The recorded image rate, Hz (images over the time from the first to the last);
+    /// `None` with fewer than two images.
+    pub fn image_rate_hz(&self) -> Option<f64> {
+        let mut images = self
+            .messages
+            .iter()
+            .filter(|(_, m)| matches!(m, Message::Image(_)))
+            .map(|(t, _)| *t);
+        let first = images.next()?;
+        let (n, last) = images.fold((1usize, first), |(n, _), t| (n + 1, t));
+        let span = last.saturating_sub(first).as_secs_f64();
+        (n > 1 && span > 0.0).then(|| (n - 1) as f64 / span)
+    }
+}
+
 /// Reads the bag at `path`.
 pub fn record(path: &Path, config: &EpisodeConfig) -> Result<Recording, ReplayError> {
     let ep = McapEpisode::open(path, config)?;

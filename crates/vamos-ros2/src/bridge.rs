@@ -361,6 +361,7 @@ impl Link {
                 task: self.options.task.clone(),
                 session_id: self.resolved.session_id.clone(),
                 anomaly_maps: false,
+                image_rate_hz: 0.0,
             })
             .await?;
         let sender = session.take_sender().ok_or(ClientError::Closed)?;

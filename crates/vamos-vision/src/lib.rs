@@ -21,17 +21,30 @@ pub mod synthetic;
 pub use image::{DepthImage, FlowField, GrayImage, ImageError};
 
 /// The `[vision]` section: parameters of the vision kernels.
-#[derive(
-    Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize, schemars::JsonSchema,
-)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct VisionConfig {
     /// Worker threads for the vision kernels; 0 = one per core.
     pub threads: usize,
-    /// TV-L1 optical flow.
+    /// TV-L1 optical flow: the `realtime` preset ([`flow::FlowParams::realtime`]) unless
+    /// set. It detects as well as OpenCV's defaults at a fraction of their cost (README,
+    /// "Choosing the defaults"); a profile's `flow_preset` replaces it. A partial
+    /// `[vision.flow]` section keeps the realtime preset's values for the keys it leaves
+    /// out.
     pub flow: flow::FlowParams,
     /// Fourier-Mellin registration.
     pub registration: registration::RegistrationParams,
     /// Flow -> network input.
     pub network_input: preprocess::NetworkInputParams,
+}
+
+impl Default for VisionConfig {
+    fn default() -> Self {
+        Self {
+            threads: 0,
+            flow: flow::FlowParams::realtime(),
+            registration: Default::default(),
+            network_input: Default::default(),
+        }
+    }
 }

@@ -441,6 +441,7 @@ async fn stream_all(
                 // this episode, so the demo's scores equal offline scoring's.
                 session_id: name.clone(),
                 anomaly_maps: true,
+                image_rate_hz: 0.0,
             };
             let mut sent_at: BTreeMap<i64, Instant> = BTreeMap::new();
             let mut latencies_s = Vec::new();

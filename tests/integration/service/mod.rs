@@ -155,6 +155,7 @@ pub(crate) fn open_msg(profile: &str, session_id: &str, camera: Option<proto::Ca
         task: "place_book".into(),
         session_id: session_id.into(),
         anomaly_maps: false,
+        image_rate_hz: 0.0,
     })
 }
 

@@ -498,22 +498,31 @@ async fn a_session_that_would_pass_the_measured_capacity_is_refused_with_the_fig
         .parse()
         .unwrap();
     assert!(load > 0.0, "{load}");
-    let err = stream_all(
-        server.grpc_addr,
-        None,
-        open_msg("sim-arm", "second", None),
-        vec![],
-    )
-    .await
-    .unwrap_err();
-    assert_eq!(err.code(), tonic::Code::ResourceExhausted, "{err:?}");
-    for part in [
+    // A client that says it sends 10 Hz is told what it would add; one that does not
+    // say is refused on the load alone.
+    let mut at_10_hz = open_msg("sim-arm", "second", None);
+    if let In::Open(o) = &mut at_10_hz {
+        o.image_rate_hz = 10.0;
+    }
+    let told: &[&str] = &[
         "admission_load",
         "\"sim-arm\"",
         "ms per frame",
+        "10.0 Hz",
         "of 0.00 cores",
+    ];
+    let untold: &[&str] = &["admission_load", "of 0.00 cores"];
+    for (open, parts) in [
+        (at_10_hz, told),
+        (open_msg("sim-arm", "second", None), untold),
     ] {
-        assert!(err.message().contains(part), "{part}: {}", err.message());
+        let err = stream_all(server.grpc_addr, None, open, vec![])
+            .await
+            .unwrap_err();
+        assert_eq!(err.code(), tonic::Code::ResourceExhausted, "{err:?}");
+        for part in parts {
+            assert!(err.message().contains(part), "{part}: {}", err.message());
+        }
     }
     // The first session ends: its load leaves, and a new session is admitted.
     drop(tx);

@@ -181,7 +181,7 @@ mod tests {
     fn defaults_are_the_recommended_values() {
         let s = Settings::load_with_env(None, env(&[])).unwrap();
         assert_eq!(s, Settings::default());
-        assert_eq!(s.vision.flow, vamos_vision::flow::FlowParams::default());
+        assert_eq!(s.vision.flow, vamos_vision::flow::FlowParams::realtime());
     }
 
     #[test]
@@ -211,6 +211,10 @@ mod tests {
         assert_eq!(s.log.format, crate::telemetry::LogFormat::Json);
         assert_eq!(s.vision.threads, 1, "environment beats the file");
         assert_eq!(s.vision.flow.warps, 2);
+        // The keys the file leaves out keep the realtime preset's values.
+        let realtime = vamos_vision::flow::FlowParams::realtime();
+        assert_eq!(s.vision.flow.scale_step, realtime.scale_step);
+        assert_eq!(s.vision.flow.finest_scale, realtime.finest_scale);
     }
 
     #[test]

@@ -3,16 +3,19 @@
 //!
 //! A session's load is its workers' time per scored frame over the time between its
 //! images (both moving averages), in cores: a robot streaming 10 Hz into a profile that
-//! takes 23 ms per frame loads 0.23 core. The capacity is `[service] admission_load` of
-//! the scoring workers. A live session is refused (`RESOURCE_EXHAUSTED`, naming the load
-//! and the limit) when the live sessions' load plus what its profile's recent sessions
-//! cost would pass it, so the sessions already admitted keep their latency. A session's
-//! frames are scored one at a time, so it loads at most one core (a client that sends in
-//! bursts counts as one busy worker, not more). An idle server admits any session, and a
-//! profile no session has used yet is admitted and measured: a session that alone cannot
-//! keep up loses frames explicitly (`frames_lost`, `FRAMES_DROPPED`), never silently.
-//! Uploaded episodes are not admitted by load: their queue paces them, and they take
-//! what is left.
+//! takes 20 ms per frame loads 0.2 core. A session's frames are scored one at a time, so
+//! it loads at most one core (a client that sends in bursts counts as one busy worker).
+//! The capacity is `[service] admission_load` of the scoring workers.
+//!
+//! A client that says its image rate (`OpenSession.image_rate_hz`) is admitted when the
+//! live sessions' load plus its profile's measured time per frame at that rate fits, and
+//! holds that estimate until its own frames are measured: sessions opening together are
+//! admitted exactly as far as they fit, and the admitted ones keep their latency. A
+//! client that does not say is admitted while the load measured so far is under the
+//! capacity, and counts once measured. An idle server admits any session, and so does a
+//! profile no session has measured yet: a session that alone cannot keep up loses frames
+//! explicitly (`frames_lost`, `FRAMES_DROPPED`), never silently. Uploaded episodes are not
+//! admitted by load: their queue paces them, and they take what is left.
 
 use super::state::lock;
 use std::collections::HashMap;
@@ -73,20 +76,12 @@ impl SessionLoad {
     }
 }
 
-/// A profile's cost, from the frames of all its live sessions.
-#[derive(Debug, Clone, Copy, Default)]
-struct ProfileCost {
-    frame_s: Ewma,
-    interval_s: Ewma,
-}
-
 /// Why a session was not admitted.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 #[error(
     "the server's scoring capacity is in use: live sessions load {load:.2} of {capacity:.2} \
-     cores ({workers} workers x [service] admission_load {fraction}), and a session of \
-     profile {profile:?} adds about {adds:.2} ({frame_ms:.1} ms per frame at {rate_hz:.1} Hz, \
-     measured on its recent sessions)"
+     cores ({workers} workers x [service] admission_load {fraction}){}",
+    adds_text(*.adds, *.frame_ms, *.rate_hz, .profile)
 )]
 pub struct OverCapacity {
     /// The live sessions' load, cores.
@@ -99,12 +94,23 @@ pub struct OverCapacity {
     pub fraction: f64,
     /// The profile asked for.
     pub profile: String,
-    /// What the new session would add, cores.
+    /// What the new session would add, cores (0 when its rate was not said).
     pub adds: f64,
-    /// Its profile's time per frame, ms.
+    /// Its profile's measured time per frame, ms (0 when not measured).
     pub frame_ms: f64,
-    /// Its profile's image rate, Hz.
+    /// The rate the client said, Hz (0 when not said).
     pub rate_hz: f64,
+}
+
+fn adds_text(adds: f64, frame_ms: f64, rate_hz: f64, profile: &str) -> String {
+    if rate_hz > 0.0 {
+        format!(
+            ", and a session of profile {profile:?} adds about {adds:.2} ({frame_ms:.1} ms per \
+             frame measured, at the {rate_hz:.1} Hz it asks for)"
+        )
+    } else {
+        String::new()
+    }
 }
 
 /// The pool's capacity and the live sessions' load.
@@ -115,7 +121,8 @@ pub struct Capacity {
     /// The live sessions' load, millicores (each session's share in its
     /// [`SessionShare`]).
     load_millicores: AtomicI64,
-    profiles: Mutex<HashMap<String, ProfileCost>>,
+    /// Worker seconds per frame of each profile, from the frames of all its sessions.
+    profiles: Mutex<HashMap<String, Ewma>>,
 }
 
 /// A session's part of the pool's load, millicores.
@@ -148,27 +155,16 @@ impl Capacity {
         self.load_millicores.load(Ordering::Relaxed).max(0) as f64 * 1e-3
     }
 
-    /// Admits a live session of `profile`, or says why not.
-    pub fn admit(&self, profile: &str) -> Result<(), OverCapacity> {
-        if self.fraction <= 0.0 {
-            return Ok(());
-        }
-        let Some(cost) = lock(&self.profiles).get(profile).copied() else {
-            return Ok(());
-        };
-        let (Some(frame_s), Some(interval_s)) = (cost.frame_s.get(), cost.interval_s.get()) else {
-            return Ok(());
-        };
-        let adds = if interval_s > 0.0 {
-            (frame_s / interval_s).min(1.0)
-        } else {
-            1.0
-        };
+    /// Admits a live session of `profile` whose client sends `rate_hz` (if it says): its
+    /// share holds the estimated load until the session's own frames are measured. Or
+    /// says why not.
+    pub fn admit(&self, profile: &str, rate_hz: Option<f64>) -> Result<SessionShare, OverCapacity> {
         let (load, capacity) = (self.load_cores(), self.capacity_cores());
-        if load <= 0.0 || load + adds <= capacity {
-            return Ok(());
+        if self.fraction <= 0.0 || load <= 0.0 {
+            return Ok(SessionShare::default());
         }
-        Err(OverCapacity {
+        let frame_s = lock(&self.profiles).get(profile).and_then(|e| e.get());
+        let refused = |adds: f64, frame_s: f64, rate_hz: f64| OverCapacity {
             load,
             capacity,
             workers: self.workers,
@@ -176,8 +172,22 @@ impl Capacity {
             profile: profile.to_string(),
             adds,
             frame_ms: frame_s * 1e3,
-            rate_hz: 1.0 / interval_s,
-        })
+            rate_hz,
+        };
+        match (frame_s, rate_hz) {
+            (Some(frame_s), Some(rate)) => {
+                let adds = (frame_s * rate).min(1.0);
+                if load + adds > capacity {
+                    return Err(refused(adds, frame_s, rate));
+                }
+                let reserved = (adds * 1e3).round() as i64;
+                self.load_millicores.fetch_add(reserved, Ordering::Relaxed);
+                Ok(SessionShare(AtomicI64::new(reserved)))
+            }
+            // Nothing to estimate with: admitted while the measured load has room.
+            _ if load < capacity => Ok(SessionShare::default()),
+            _ => Err(refused(0.0, frame_s.unwrap_or(0.0), 0.0)),
+        }
     }
 
     /// A frame of a live session of `profile` took the worker `frame_s`; `load` is the
@@ -189,14 +199,10 @@ impl Capacity {
         load: &SessionLoad,
         frame_s: f64,
     ) {
-        {
-            let mut profiles = lock(&self.profiles);
-            let cost = profiles.entry(profile.to_string()).or_default();
-            cost.frame_s.add(frame_s);
-            if let Some(i) = load.interval_s.get() {
-                cost.interval_s.add(i);
-            }
-        }
+        lock(&self.profiles)
+            .entry(profile.to_string())
+            .or_default()
+            .add(frame_s);
         if let Some(cores) = load.cores() {
             let new = (cores * 1e3).round() as i64;
             let old = share.0.swap(new, Ordering::Relaxed);
@@ -228,60 +234,76 @@ mod tests {
     #[test]
     fn sessions_are_admitted_while_their_measured_load_fits() {
         let cap = Capacity::new(2, 0.8);
-        // Unknown profile: admitted, then measured.
-        assert!(cap.admit("p").is_ok());
-        let (a, b, c) = (
-            SessionShare::default(),
-            SessionShare::default(),
-            SessionShare::default(),
-        );
-        // 50 ms per frame at 10 Hz: half a core each.
+        let ten_hz = Some(10.0);
+        // An idle server admits anyone, and nothing is held before a measurement.
+        let a = cap.admit("p", ten_hz).unwrap();
+        assert_eq!(cap.load_cores(), 0.0);
+        // 50 ms per frame at 10 Hz: half a core.
         let load = measured(0.05, 0.1);
         cap.scored("p", &a, &load, 0.05);
         assert!((cap.load_cores() - 0.5).abs() < 1e-9);
-        assert!(cap.admit("p").is_ok());
-        cap.scored("p", &b, &load, 0.05);
+        // Sessions that say their rate hold their estimate at once, so a burst opening
+        // together stops where it fits: a third loads 1.5 of 1.6 cores, a fourth would
+        // load 2.0.
+        let b = cap.admit("p", ten_hz).unwrap();
         assert!((cap.load_cores() - 1.0).abs() < 1e-9);
-        // A third would load 1.5 of 1.6 cores: admitted; a fourth not.
-        assert!(cap.admit("p").is_ok());
+        let c = cap.admit("p", ten_hz).unwrap();
+        assert!((cap.load_cores() - 1.5).abs() < 1e-9);
+        // Measured, a session moves its share, it does not add to it.
+        cap.scored("p", &b, &load, 0.05);
         cap.scored("p", &c, &load, 0.05);
-        let err = cap.admit("p").unwrap_err();
+        assert!((cap.load_cores() - 1.5).abs() < 1e-9);
+        let err = cap.admit("p", ten_hz).unwrap_err();
         assert!(
             (err.load - 1.5).abs() < 1e-9 && (err.adds - 0.5).abs() < 1e-9,
             "{err}"
         );
         let text = err.to_string();
+        for part in [
+            "1.50 of 1.60 cores",
+            "50.0 ms per frame",
+            "10.0 Hz",
+            "admission_load 0.8",
+        ] {
+            assert!(text.contains(part), "{part}: {text}");
+        }
+        // At 2 Hz it fits; a session that does not say its rate is admitted while the
+        // measured load is under the capacity.
+        let d = cap.admit("p", Some(2.0)).unwrap();
+        assert!((cap.load_cores() - 1.6).abs() < 1e-9);
         assert!(
-            text.contains("1.50 of 1.60 cores") && text.contains("10.0 Hz"),
-            "{text}"
+            cap.admit("p", None)
+                .unwrap_err()
+                .to_string()
+                .ends_with("admission_load 0.8)")
         );
-        // Another profile has no measurement yet: admitted.
-        assert!(cap.admit("q").is_ok());
+        cap.release(&d);
+        assert!(cap.admit("p", None).is_ok());
+        // Another profile, never measured: admitted while there is room.
+        assert!(cap.admit("q", ten_hz).is_ok());
         // A session that closes gives its share back, once.
         cap.release(&c);
         cap.release(&c);
         assert!((cap.load_cores() - 1.0).abs() < 1e-9);
-        assert!(cap.admit("p").is_ok());
-        // Re-measured sessions move their share, not add to it.
+        // Re-measured sessions move their share.
         cap.scored("p", &a, &measured(0.01, 0.1), 0.01);
         assert!(
             (cap.load_cores() - 0.6).abs() < 1e-9,
             "{}",
             cap.load_cores()
         );
-        // One session loads at most a core, however fast it sends; an idle server
-        // admits anyone.
+        // One session loads at most a core, however fast it sends.
         let bursty = SessionShare::default();
-        let idle = Capacity::new(1, 0.5);
-        idle.scored("p", &bursty, &measured(0.05, 0.001), 0.05);
-        assert!((idle.load_cores() - 1.0).abs() < 1e-9);
-        assert!(idle.admit("p").unwrap_err().adds <= 1.0);
-        idle.release(&bursty);
-        assert!(idle.admit("p").is_ok());
+        let one = Capacity::new(1, 0.5);
+        one.scored("p", &bursty, &measured(0.05, 0.001), 0.05);
+        assert!((one.load_cores() - 1.0).abs() < 1e-9);
+        assert!(one.admit("p", Some(1000.0)).unwrap_err().adds <= 1.0);
+        one.release(&bursty);
+        assert!(one.admit("p", Some(1000.0)).is_ok());
         // admission_load = 0: never refused.
         let off = Capacity::new(2, 0.0);
         off.scored("p", &a, &measured(1.0, 0.1), 1.0);
-        assert!(off.admit("p").is_ok());
+        assert!(off.admit("p", ten_hz).is_ok());
     }
 
     #[test]

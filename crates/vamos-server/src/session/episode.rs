@@ -118,6 +118,7 @@ pub async fn score_episode(
             slot: Some(slot),
             request_id: String::new(),
             maps,
+            image_rate_hz: None,
         },
         tx.clone(),
     )?;

@@ -241,16 +241,6 @@ impl Hub {
                 max: self.config.max_sessions,
             });
         }
-        if !req.episode
-            && let Err(e) = self.capacity.admit(&profile.name)
-        {
-            self.metrics
-                .sessions_opened
-                .with_label_values(&[&profile.name, "refused"])
-                .inc();
-            tracing::warn!(profile = %profile.name, "session refused: {e}");
-            return Err(SessionError::OverCapacity(e));
-        }
         let resumable = !id.is_empty();
         let id = if resumable {
             id
@@ -268,6 +258,22 @@ impl Hub {
             .setup
             .calibrated_scorer(&seed_key, req.maps)
             .map_err(SessionError::scorer)?;
+        // Last, so a refusal leaves nothing to undo: a live session's place in the
+        // workers' capacity (episodes are paced by their queue instead).
+        let share = if req.episode {
+            Default::default()
+        } else {
+            let rate = req.image_rate_hz;
+            self.capacity.admit(&profile.name, rate).map_err(|e| {
+                self.metrics
+                    .sessions_opened
+                    .with_label_values(&[&profile.name, "refused"])
+                    .inc();
+                tracing::warn!(profile = %profile.name, "session refused: {e}");
+                SessionError::OverCapacity(e)
+            })?
+        };
+        self.metrics.load_cores.set(self.capacity.load_cores());
         let alarm_rule = profile.setup.profile.file.alarm_events;
         let record = !req.episode; // an uploaded episode is its own record
         let session = Arc::new(Session {
@@ -313,7 +319,7 @@ impl Hub {
             alarms: Mutex::new(super::alarms::AlarmTracker::new(alarm_rule)),
             live: Mutex::new(super::live::LiveView::default()),
             recorder: Mutex::new(None),
-            share: Default::default(),
+            share,
             profile: Mutex::new(profile),
         });
         sessions.insert(id.clone(), session.clone());

@@ -300,6 +300,8 @@ pub struct OpenRequest {
     /// Whether each streamed score carries the frame's anomaly map (the scorer keeps
     /// the flow predictor's error map for it).
     pub maps: bool,
+    /// The image rate the client says it will send, Hz (see [`super::capacity`]).
+    pub image_rate_hz: Option<f64>,
 }
 
 /// A session place held for an episode while its upload is read

@@ -16,10 +16,13 @@ pub enum Interpolation {
 
 /// Parameters of [`tvl1`](super::tvl1) and [`FlowEstimator`](super::FlowEstimator).
 ///
-/// `Default` holds OpenCV `DualTVL1`'s defaults; [`FlowParams::realtime`] is the fast
-/// preset. Intensities are in 0..=255 units (see [`GrayImage`](crate::GrayImage)).
+/// `Default` holds OpenCV `DualTVL1`'s defaults (the `default` preset, the values each
+/// field names); [`FlowParams::realtime`] is the fast preset and what vamos uses unless
+/// told otherwise: a settings file's `[vision.flow]` starts from it, so keys left out
+/// keep the realtime preset's values. Intensities are in 0..=255 units (see
+/// [`GrayImage`](crate::GrayImage)).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
-#[serde(default, deny_unknown_fields)]
+#[serde(default = "FlowParams::realtime", deny_unknown_fields)]
 pub struct FlowParams {
     /// Time step of the dual (Chambolle) update, dimensionless. Default 0.25.
     pub tau: f32,

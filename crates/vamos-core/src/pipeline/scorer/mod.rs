@@ -295,6 +295,12 @@ impl Scorer {
             None => None,
         };
         let processor = FrameProcessor::new(config.frames.clone(), flow, registration, network)?;
+        // Only the flow predictor reads the network input.
+        let processor = if predictor.is_some() {
+            processor
+        } else {
+            processor.without_network_input()
+        };
         let window = Window::new(config.temporal_window);
         let learned_depth = match &thresholds.depth {
             Some(d) => {

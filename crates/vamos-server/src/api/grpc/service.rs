@@ -163,6 +163,8 @@ impl Monitor for MonitorService {
                 slot: None,
                 request_id,
                 maps: open.anomaly_maps,
+                image_rate_hz: (open.image_rate_hz.is_finite() && open.image_rate_hz > 0.0)
+                    .then_some(open.image_rate_hz),
             },
             tx.clone(),
         )?;
