@@ -160,7 +160,7 @@ impl Capacity {
     /// says why not.
     pub fn admit(&self, profile: &str, rate_hz: Option<f64>) -> Result<SessionShare, OverCapacity> {
         let (load, capacity) = (self.load_cores(), self.capacity_cores());
-        if self.fraction <= 0.0 || load <= 0.0 {
+        if self.fraction <= 0.0 {
             return Ok(SessionShare::default());
         }
         let frame_s = lock(&self.profiles).get(profile).and_then(|e| e.get());
@@ -174,10 +174,12 @@ impl Capacity {
             frame_ms: frame_s * 1e3,
             rate_hz,
         };
+        // An idle server refuses no one.
+        let idle = load <= 0.0;
         match (frame_s, rate_hz) {
             (Some(frame_s), Some(rate)) => {
                 let adds = (frame_s * rate).min(1.0);
-                if load + adds > capacity {
+                if !idle && load + adds > capacity {
                     return Err(refused(adds, frame_s, rate));
                 }
                 let reserved = (adds * 1e3).round() as i64;
@@ -185,7 +187,7 @@ impl Capacity {
                 Ok(SessionShare(AtomicI64::new(reserved)))
             }
             // Nothing to estimate with: admitted while the measured load has room.
-            _ if load < capacity => Ok(SessionShare::default()),
+            _ if idle || load < capacity => Ok(SessionShare::default()),
             _ => Err(refused(0.0, frame_s.unwrap_or(0.0), 0.0)),
         }
     }
@@ -235,7 +237,7 @@ mod tests {
     fn sessions_are_admitted_while_their_measured_load_fits() {
         let cap = Capacity::new(2, 0.8);
         let ten_hz = Some(10.0);
-        // An idle server admits anyone, and nothing is held before a measurement.
+        // An idle server admits anyone; a profile never measured holds nothing.
         let a = cap.admit("p", ten_hz).unwrap();
         assert_eq!(cap.load_cores(), 0.0);
         // 50 ms per frame at 10 Hz: half a core.
@@ -292,6 +294,17 @@ mod tests {
             "{}",
             cap.load_cores()
         );
+        // On an idle server a burst of sessions of a measured profile holds its estimates
+        // from the first, so it stops where it fits.
+        let burst = Capacity::new(2, 0.8);
+        let m = SessionShare::default();
+        burst.scored("p", &m, &load, 0.05);
+        burst.release(&m);
+        assert_eq!(burst.load_cores(), 0.0);
+        let admitted: Vec<_> = (0..6)
+            .map_while(|_| burst.admit("p", ten_hz).ok())
+            .collect();
+        assert_eq!(admitted.len(), 3, "0.5 core each: 1.5 of 1.6 cores");
         // One session loads at most a core, however fast it sends.
         let bursty = SessionShare::default();
         let one = Capacity::new(1, 0.5);

@@ -253,27 +253,32 @@ impl Hub {
                     .map_or(0, |d| d.as_nanos() as u64 & 0xffff_ffff)
             )
         };
-        let seed_key = req.seed_key.unwrap_or_else(|| id.clone());
-        let scorer = profile
-            .setup
-            .calibrated_scorer(&seed_key, req.maps)
-            .map_err(SessionError::scorer)?;
-        // Last, so a refusal leaves nothing to undo: a live session's place in the
-        // workers' capacity (episodes are paced by their queue instead).
+        // A live session's place in the workers' capacity, before the scorer is built:
+        // a refusal costs the server nothing (episodes are paced by their queue instead).
         let share = if req.episode {
             Default::default()
         } else {
-            let rate = req.image_rate_hz;
-            self.capacity.admit(&profile.name, rate).map_err(|e| {
-                self.metrics
-                    .sessions_opened
-                    .with_label_values(&[&profile.name, "refused"])
-                    .inc();
-                tracing::warn!(profile = %profile.name, "session refused: {e}");
-                SessionError::OverCapacity(e)
-            })?
+            self.capacity
+                .admit(&profile.name, req.image_rate_hz)
+                .map_err(|e| {
+                    self.metrics
+                        .sessions_opened
+                        .with_label_values(&[&profile.name, "refused"])
+                        .inc();
+                    tracing::warn!(profile = %profile.name, "session refused: {e}");
+                    SessionError::OverCapacity(e)
+                })?
         };
         self.metrics.load_cores.set(self.capacity.load_cores());
+        let seed_key = req.seed_key.unwrap_or_else(|| id.clone());
+        let scorer = match profile.setup.calibrated_scorer(&seed_key, req.maps) {
+            Ok(s) => s,
+            Err(e) => {
+                self.capacity.release(&share);
+                self.metrics.load_cores.set(self.capacity.load_cores());
+                return Err(SessionError::scorer(e));
+            }
+        };
         let alarm_rule = profile.setup.profile.file.alarm_events;
         let record = !req.episode; // an uploaded episode is its own record
         let session = Arc::new(Session {
