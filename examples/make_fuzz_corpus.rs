@@ -380,6 +380,7 @@ fn stream_requests() -> Result<()> {
         task: "place_book".into(),
         session_id: "s1".into(),
         anomaly_maps: false,
+        image_rate_hz: 0.0,
     });
     let joint = |stamp_ns: i64, p: f64| {
         In::Joints(proto::JointState {
@@ -497,6 +498,7 @@ fn episode_requests(images: usize) -> Result<Vec<In>> {
         task: String::new(),
         session_id: String::new(),
         anomaly_maps: false,
+        image_rate_hz: 0.0,
     })];
     let mut seen = 0;
     for (_, m) in rec.messages {

@@ -299,7 +299,8 @@ async fn load(opts: LoadOptions) -> Result<()> {
                         .await
                         .errors
                         .push(format!("robot {robot}: {e:#}"));
-                    tokio::time::sleep(Duration::from_millis(200)).await;
+                    // A refused robot tries again a second later.
+                    tokio::time::sleep(Duration::from_secs(1)).await;
                 }
                 n += 1;
             }

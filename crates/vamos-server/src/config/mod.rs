@@ -125,10 +125,19 @@ impl Settings {
             let Some(rest) = key.strip_prefix("VAMOS_") else {
                 continue;
             };
-            if is_reserved_env(&key) || rest.is_empty() {
+            // Only `VAMOS_SECTION__KEY` names are settings: `VAMOS_SIM`, `VAMOS_TRAIN` and
+            // the like belong to scripts and tools.
+            if is_reserved_env(&key) || !rest.contains("__") {
                 continue;
             }
             let path: Vec<String> = rest.split("__").map(|s| s.to_ascii_lowercase()).collect();
+            // Checked alone, so a wrong one is named.
+            let mut one = figment::value::Dict::new();
+            insert_path(&mut one, &path, parse_env_value(&value));
+            Figment::from(Serialized::defaults(Settings::default()))
+                .merge(Serialized::defaults(one))
+                .extract::<Settings>()
+                .map_err(|e| ConfigError::Invalid(format!("environment variable {key}: {e}")))?;
             insert_path(&mut dict, &path, parse_env_value(&value));
         }
         fig = fig.merge(Serialized::defaults(dict));
@@ -215,6 +224,28 @@ mod tests {
         let realtime = vamos_vision::flow::FlowParams::realtime();
         assert_eq!(s.vision.flow.scale_step, realtime.scale_step);
         assert_eq!(s.vision.flow.finest_scale, realtime.finest_scale);
+    }
+
+    #[test]
+    fn only_section_key_variables_are_settings_and_a_wrong_one_is_named() {
+        let s = Settings::load_with_env(
+            None,
+            env(&[
+                ("VAMOS_SIM", "vamos-sim"),
+                ("VAMOS_TRAIN", "x"),
+                ("VAMOS_X", "1"),
+            ]),
+        )
+        .unwrap();
+        assert_eq!(s, Settings::default());
+        for (var, value) in [
+            ("VAMOS_SERVCE__WORKERS", "2"),
+            ("VAMOS_SERVICE__WORKRS", "2"),
+            ("VAMOS_SERVICE__WORKERS", "many"),
+        ] {
+            let err = Settings::load_with_env(None, env(&[(var, value)])).unwrap_err();
+            assert!(err.to_string().contains(var), "{var}: {err}");
+        }
     }
 
     #[test]

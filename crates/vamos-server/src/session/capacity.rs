@@ -20,7 +20,7 @@
 use super::state::lock;
 use std::collections::HashMap;
 use std::sync::Mutex;
-use std::sync::atomic::{AtomicI64, Ordering};
+use std::sync::atomic::{AtomicI64, AtomicU64, Ordering};
 use std::time::Instant;
 
 /// Weight of the newest sample in the moving averages (about the last 20 frames count).
@@ -80,7 +80,8 @@ impl SessionLoad {
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 #[error(
     "the server's scoring capacity is in use: live sessions load {load:.2} of {capacity:.2} \
-     cores ({workers} workers x [service] admission_load {fraction}){}",
+     cores ({workers} workers x [service] admission_load {fraction}; the server's CPU is \
+     {overhead:.2}x its workers' time){}",
     adds_text(*.adds, *.frame_ms, *.rate_hz, .profile)
 )]
 pub struct OverCapacity {
@@ -100,6 +101,8 @@ pub struct OverCapacity {
     pub frame_ms: f64,
     /// The rate the client said, Hz (0 when not said).
     pub rate_hz: f64,
+    /// The server's CPU time per second of worker time, included in `load` and `adds`.
+    pub overhead: f64,
 }
 
 fn adds_text(adds: f64, frame_ms: f64, rate_hz: f64, profile: &str) -> String {
@@ -123,6 +126,60 @@ pub struct Capacity {
     load_millicores: AtomicI64,
     /// Worker seconds per frame of each profile, from the frames of all its sessions.
     profiles: Mutex<HashMap<String, Ewma>>,
+    /// Worker time spent on frames of all sessions (episodes too), microseconds.
+    worked_us: AtomicU64,
+    /// The server's CPU time per second of worker time.
+    overhead: Mutex<Overhead>,
+    /// Held while a session is admitted, so two opening at once both see the other.
+    admitting: Mutex<()>,
+}
+
+/// How much CPU the whole server spends per second its workers score: the gRPC and HTTP
+/// threads, the kernels' own threads, the recordings' writer. Sampled every few seconds
+/// of wall time from the process's CPU time (`getrusage`) over the workers' time.
+#[derive(Debug, Default)]
+struct Overhead {
+    /// The last sample: when, process CPU seconds, worker microseconds.
+    last: Option<(Instant, f64, u64)>,
+    factor: Ewma,
+}
+
+/// Seconds between two samples of the overhead.
+const OVERHEAD_EVERY_S: f64 = 2.0;
+/// Worker seconds a sample needs to be counted (less is too little work to tell).
+const OVERHEAD_MIN_WORK_S: f64 = 0.5;
+
+impl Overhead {
+    /// A sample at `now`: the process has used `cpu_s` so far, the workers `worked_us`.
+    fn sample(&mut self, now: Instant, cpu_s: f64, worked_us: u64) {
+        let Some((t, cpu0, worked0)) = self.last else {
+            self.last = Some((now, cpu_s, worked_us));
+            return;
+        };
+        if now.duration_since(t).as_secs_f64() < OVERHEAD_EVERY_S {
+            return;
+        }
+        let worked_s = worked_us.saturating_sub(worked0) as f64 * 1e-6;
+        if worked_s >= OVERHEAD_MIN_WORK_S {
+            self.factor.add(((cpu_s - cpu0) / worked_s).clamp(1.0, 4.0));
+        }
+        self.last = Some((now, cpu_s, worked_us));
+    }
+
+    fn factor(&self) -> f64 {
+        self.factor.get().unwrap_or(1.0)
+    }
+}
+
+/// The process's CPU time so far, seconds (user + system).
+fn process_cpu_s() -> Option<f64> {
+    // SAFETY: getrusage writes the struct it is given and nothing else.
+    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
+    if unsafe { libc::getrusage(libc::RUSAGE_SELF, &mut usage) } != 0 {
+        return None;
+    }
+    let s = |t: libc::timeval| t.tv_sec as f64 + t.tv_usec as f64 * 1e-6;
+    Some(s(usage.ru_utime) + s(usage.ru_stime))
 }
 
 /// A session's part of the pool's load, millicores.
@@ -142,6 +199,26 @@ impl Capacity {
             },
             load_millicores: AtomicI64::new(0),
             profiles: Mutex::new(HashMap::new()),
+            worked_us: AtomicU64::new(0),
+            overhead: Mutex::new(Overhead::default()),
+            admitting: Mutex::new(()),
+        }
+    }
+
+    /// The server's CPU time per second of its workers' time (1 until measured).
+    pub fn overhead(&self) -> f64 {
+        lock(&self.overhead).factor()
+    }
+
+    /// A worker spent `seconds` on a frame (of any session, episodes too).
+    pub(super) fn worked(&self, seconds: f64) {
+        let us = (seconds.max(0.0) * 1e6) as u64;
+        let total = self.worked_us.fetch_add(us, Ordering::Relaxed) + us;
+        // One worker samples at a time; the others go on.
+        if let Ok(mut o) = self.overhead.try_lock()
+            && let Some(cpu) = process_cpu_s()
+        {
+            o.sample(Instant::now(), cpu, total);
         }
     }
 
@@ -150,8 +227,14 @@ impl Capacity {
         self.workers as f64 * self.fraction
     }
 
-    /// The live sessions' measured load, cores.
+    /// The live sessions' measured load, cores of the whole server's CPU: their workers'
+    /// time times the [overhead](Self::overhead).
     pub fn load_cores(&self) -> f64 {
+        self.worker_load() * self.overhead()
+    }
+
+    /// The live sessions' load in worker time, cores.
+    fn worker_load(&self) -> f64 {
         self.load_millicores.load(Ordering::Relaxed).max(0) as f64 * 1e-3
     }
 
@@ -159,7 +242,9 @@ impl Capacity {
     /// share holds the estimated load until the session's own frames are measured. Or
     /// says why not.
     pub fn admit(&self, profile: &str, rate_hz: Option<f64>) -> Result<SessionShare, OverCapacity> {
-        let (load, capacity) = (self.load_cores(), self.capacity_cores());
+        let _one_at_a_time = lock(&self.admitting);
+        let overhead = self.overhead();
+        let (load, capacity) = (self.worker_load() * overhead, self.capacity_cores());
         if self.fraction <= 0.0 {
             return Ok(SessionShare::default());
         }
@@ -173,16 +258,18 @@ impl Capacity {
             adds,
             frame_ms: frame_s * 1e3,
             rate_hz,
+            overhead,
         };
         // An idle server refuses no one.
         let idle = load <= 0.0;
         match (frame_s, rate_hz) {
             (Some(frame_s), Some(rate)) => {
-                let adds = (frame_s * rate).min(1.0);
+                let worker_adds = (frame_s * rate).min(1.0);
+                let adds = worker_adds * overhead;
                 if !idle && load + adds > capacity {
                     return Err(refused(adds, frame_s, rate));
                 }
-                let reserved = (adds * 1e3).round() as i64;
+                let reserved = (worker_adds * 1e3).round() as i64;
                 self.load_millicores.fetch_add(reserved, Ordering::Relaxed);
                 Ok(SessionShare(AtomicI64::new(reserved)))
             }
@@ -277,7 +364,7 @@ mod tests {
             cap.admit("p", None)
                 .unwrap_err()
                 .to_string()
-                .ends_with("admission_load 0.8)")
+                .ends_with("its workers' time)")
         );
         cap.release(&d);
         assert!(cap.admit("p", None).is_ok());
@@ -317,6 +404,36 @@ mod tests {
         let off = Capacity::new(2, 0.0);
         off.scored("p", &a, &measured(1.0, 0.1), 1.0);
         assert!(off.admit("p", ten_hz).is_ok());
+    }
+
+    #[test]
+    fn the_overhead_is_the_process_cpu_over_the_workers_time() {
+        let mut o = Overhead::default();
+        let t = Instant::now();
+        let at = |s: f64| t + Duration::from_secs_f64(s);
+        assert_eq!(o.factor(), 1.0);
+        o.sample(at(0.0), 10.0, 0);
+        // Too soon, then too little work: no figure.
+        o.sample(at(1.0), 11.0, 900_000);
+        o.sample(at(2.5), 11.0, 100_000);
+        assert_eq!(o.factor(), 1.0);
+        // 3 s of CPU for 2 s of scoring.
+        o.sample(at(5.0), 14.0, 2_100_000);
+        assert!((o.factor() - 1.5).abs() < 1e-9, "{}", o.factor());
+        // The load and the admission count it.
+        let cap = Capacity::new(2, 0.8);
+        let a = cap.admit("p", Some(10.0)).unwrap();
+        cap.scored("p", &a, &measured(0.05, 0.1), 0.05);
+        *lock(&cap.overhead) = o;
+        assert!((cap.load_cores() - 0.75).abs() < 1e-9);
+        let b = cap.admit("p", Some(10.0)).unwrap();
+        assert!((cap.load_cores() - 1.5).abs() < 1e-9);
+        let err = cap.admit("p", Some(10.0)).unwrap_err();
+        assert!((err.adds - 0.75).abs() < 1e-9, "{err}");
+        assert!(err.to_string().contains("1.50x its workers' time"), "{err}");
+        cap.release(&b);
+        // A real sample: the process has used some CPU.
+        assert!(process_cpu_s().is_some_and(|s| s > 0.0));
     }
 
     #[test]

@@ -184,9 +184,12 @@ impl Hub {
                     self.recover(&session, stamp, panic_message(panic.as_ref()));
                 }
             }
+            let seconds = taken.elapsed().as_secs_f64();
+            if scored {
+                self.capacity.worked(seconds);
+            }
             let mut st = lock(&session.state);
             if scored && !session.episode && !st.closed {
-                let seconds = taken.elapsed().as_secs_f64();
                 st.load.scored(seconds);
                 self.capacity
                     .scored(&session.profile_name, &session.share, &st.load, seconds);

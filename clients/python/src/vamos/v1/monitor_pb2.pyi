@@ -35,20 +35,22 @@ class StreamRequest(_message.Message):
     def __init__(self, open: _Optional[_Union[OpenSession, _Mapping]] = ..., image: _Optional[_Union[Image, _Mapping]] = ..., joints: _Optional[_Union[JointState, _Mapping]] = ..., phase: _Optional[_Union[PhaseMarker, _Mapping]] = ...) -> None: ...
 
 class OpenSession(_message.Message):
-    __slots__ = ("robot_id", "profile", "camera_info", "task", "session_id", "anomaly_maps")
+    __slots__ = ("robot_id", "profile", "camera_info", "task", "session_id", "anomaly_maps", "image_rate_hz")
     ROBOT_ID_FIELD_NUMBER: _ClassVar[int]
     PROFILE_FIELD_NUMBER: _ClassVar[int]
     CAMERA_INFO_FIELD_NUMBER: _ClassVar[int]
     TASK_FIELD_NUMBER: _ClassVar[int]
     SESSION_ID_FIELD_NUMBER: _ClassVar[int]
     ANOMALY_MAPS_FIELD_NUMBER: _ClassVar[int]
+    IMAGE_RATE_HZ_FIELD_NUMBER: _ClassVar[int]
     robot_id: str
     profile: str
     camera_info: CameraInfo
     task: str
     session_id: str
     anomaly_maps: bool
-    def __init__(self, robot_id: _Optional[str] = ..., profile: _Optional[str] = ..., camera_info: _Optional[_Union[CameraInfo, _Mapping]] = ..., task: _Optional[str] = ..., session_id: _Optional[str] = ..., anomaly_maps: _Optional[bool] = ...) -> None: ...
+    image_rate_hz: float
+    def __init__(self, robot_id: _Optional[str] = ..., profile: _Optional[str] = ..., camera_info: _Optional[_Union[CameraInfo, _Mapping]] = ..., task: _Optional[str] = ..., session_id: _Optional[str] = ..., anomaly_maps: _Optional[bool] = ..., image_rate_hz: _Optional[float] = ...) -> None: ...
 
 class CameraInfo(_message.Message):
     __slots__ = ("width", "height", "fx", "fy", "cx", "cy")
@@ -135,7 +137,7 @@ class StreamResponse(_message.Message):
     def __init__(self, score: _Optional[_Union[FrameScore, _Mapping]] = ..., event: _Optional[_Union[SessionEvent, _Mapping]] = ..., alarm: _Optional[_Union[AlarmEvent, _Mapping]] = ...) -> None: ...
 
 class FrameScore(_message.Message):
-    __slots__ = ("stamp_ns", "index", "frame", "score", "e_c", "e_b", "e_o", "anomaly", "detector", "warming_up", "latency_s", "compute_s", "e_r", "anomaly_map", "e_k")
+    __slots__ = ("stamp_ns", "index", "frame", "score", "e_c", "e_b", "e_o", "anomaly", "detector", "warming_up", "latency_s", "compute_s", "e_r", "anomaly_map", "e_k", "frames_lost")
     STAMP_NS_FIELD_NUMBER: _ClassVar[int]
     INDEX_FIELD_NUMBER: _ClassVar[int]
     FRAME_FIELD_NUMBER: _ClassVar[int]
@@ -151,6 +153,7 @@ class FrameScore(_message.Message):
     E_R_FIELD_NUMBER: _ClassVar[int]
     ANOMALY_MAP_FIELD_NUMBER: _ClassVar[int]
     E_K_FIELD_NUMBER: _ClassVar[int]
+    FRAMES_LOST_FIELD_NUMBER: _ClassVar[int]
     stamp_ns: int
     index: int
     frame: int
@@ -166,7 +169,8 @@ class FrameScore(_message.Message):
     e_r: float
     anomaly_map: bytes
     e_k: float
-    def __init__(self, stamp_ns: _Optional[int] = ..., index: _Optional[int] = ..., frame: _Optional[int] = ..., score: _Optional[float] = ..., e_c: _Optional[float] = ..., e_b: _Optional[float] = ..., e_o: _Optional[float] = ..., anomaly: _Optional[bool] = ..., detector: _Optional[_Union[Detector, str]] = ..., warming_up: _Optional[bool] = ..., latency_s: _Optional[float] = ..., compute_s: _Optional[float] = ..., e_r: _Optional[float] = ..., anomaly_map: _Optional[bytes] = ..., e_k: _Optional[float] = ...) -> None: ...
+    frames_lost: int
+    def __init__(self, stamp_ns: _Optional[int] = ..., index: _Optional[int] = ..., frame: _Optional[int] = ..., score: _Optional[float] = ..., e_c: _Optional[float] = ..., e_b: _Optional[float] = ..., e_o: _Optional[float] = ..., anomaly: _Optional[bool] = ..., detector: _Optional[_Union[Detector, str]] = ..., warming_up: _Optional[bool] = ..., latency_s: _Optional[float] = ..., compute_s: _Optional[float] = ..., e_r: _Optional[float] = ..., anomaly_map: _Optional[bytes] = ..., e_k: _Optional[float] = ..., frames_lost: _Optional[int] = ...) -> None: ...
 
 class AlarmComponents(_message.Message):
     __slots__ = ("stamp_ns", "score", "e_c", "e_b", "e_o", "e_r", "e_k")
