@@ -204,3 +204,66 @@ fn the_cli_prints_info_and_copies_a_bag() {
     assert!(!out.status.success());
     assert!(!String::from_utf8_lossy(&out.stderr).contains("panicked"));
 }
+
+/// `vamos episode copy --jpeg Q` re-encodes the images as JPEG files: the copy reads as
+/// the same frames (gray within JPEG's error) with the same joint states, and carries no
+/// diagnostics.
+#[test]
+fn copy_with_jpeg_re_encodes_the_images_and_keeps_the_frames() {
+    let source =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/sim/test/test_0000.mcap");
+    let dir = tempfile::tempdir().unwrap();
+    let copy = dir.path().join("jpeg.mcap");
+    let out = Command::new(env!("CARGO_BIN_EXE_vamos"))
+        .args(["episode", "copy", "--jpeg", "90"])
+        .arg(&source)
+        .arg(&copy)
+        .env_remove("VAMOS_CONFIG")
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let cfg = EpisodeConfig::default();
+    let (a, b) = (
+        McapEpisode::open(&source, &cfg).unwrap(),
+        McapEpisode::open(&copy, &cfg).unwrap(),
+    );
+    assert_eq!(b.info().chosen.image_schema, schema::COMPRESSED_IMAGE);
+    assert!(
+        b.info()
+            .topics
+            .iter()
+            .all(|t| !t.name.starts_with("/vamos/"))
+    );
+    let (fa, ea) = read_all(&a);
+    let (fb, eb) = read_all(&b);
+    assert!(ea.is_empty() && eb.is_empty(), "{ea:?} {eb:?}");
+    assert_eq!(fa.len(), fb.len());
+    for (x, y) in fa.iter().zip(&fb) {
+        assert_eq!(x.stamp_ns, y.stamp_ns);
+        assert_eq!(
+            x.joints.as_ref().map(|j| &j.positions),
+            y.joints.as_ref().map(|j| &j.positions)
+        );
+        let diff: f32 = x
+            .image
+            .data()
+            .iter()
+            .zip(y.image.data())
+            .map(|(p, q)| (p - q).abs())
+            .sum::<f32>()
+            / x.image.data().len() as f32;
+        assert!(diff < 3.0, "frame {}: mean gray difference {diff}", x.index);
+    }
+    // 8-bit images only, and quality within 1..=100.
+    let bad = Command::new(env!("CARGO_BIN_EXE_vamos"))
+        .args(["episode", "copy", "--jpeg", "0"])
+        .arg(&source)
+        .arg(dir.path().join("x.mcap"))
+        .output()
+        .unwrap();
+    assert!(!bad.status.success());
+}

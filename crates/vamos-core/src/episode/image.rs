@@ -400,58 +400,12 @@ impl<'a> EncodedImage<'a> {
         Ok((w, h, rgb))
     }
 
-    /// A YCbCr or gray JPEG decoded to its luma plane only. JFIF's Y is the BT.601 luma
-    /// of the RGB it decodes to, so this is [`gray_from_rgb`] of the colour decoding up to
-    /// rounding, without upsampling the chroma or converting colours (2.4 of 4.0 ms saved
-    /// on a 640x480 frame, `benches/README.md`). `None` for other colour spaces (CMYK).
-    fn jpeg_luma(&self, max_pixels: usize) -> Result<Option<GrayImage>, MessageError> {
-        use zune_core::bytestream::ZCursor;
-        use zune_core::colorspace::ColorSpace;
-        use zune_core::options::DecoderOptions;
-        let error = |e: zune_jpeg::errors::DecodeErrors| self.decode_error(e.to_string());
-        let options = DecoderOptions::default()
-            .set_strict_mode(false)
-            .set_max_width(MAX_IMAGE_SIDE)
-            .set_max_height(MAX_IMAGE_SIDE);
-        let mut probe = zune_jpeg::JpegDecoder::new_with_options(ZCursor::new(self.data), options);
-        probe.decode_headers().map_err(error)?;
-        if !matches!(
-            probe.input_colorspace(),
-            Some(ColorSpace::YCbCr | ColorSpace::Luma)
-        ) {
-            return Ok(None);
-        }
-        let mut decoder = zune_jpeg::JpegDecoder::new_with_options(
-            ZCursor::new(self.data),
-            options.jpeg_set_out_colorspace(ColorSpace::Luma),
-        );
-        let luma = decoder.decode().map_err(error)?;
-        let (w, h) = decoder
-            .dimensions()
-            .ok_or_else(|| self.decode_error("no image size after decoding".into()))?;
-        check_image_size(w, h, max_pixels)?;
-        if luma.len() != w * h {
-            return Err(
-                self.decode_error(format!("{} luma values for a {w}x{h} image", luma.len()))
-            );
-        }
-        let data = luma.iter().map(|&v| f32::from(v)).collect();
-        GrayImage::new(w, h, data)
-            .map(Some)
-            .map_err(|e| self.decode_error(e.to_string()))
-    }
-
     fn file_to_gray(
         &self,
         format: image::ImageFormat,
         size: CheckedSize,
         max_pixels: usize,
     ) -> Result<GrayImage, MessageError> {
-        if format == image::ImageFormat::Jpeg
-            && let Some(gray) = self.jpeg_luma(max_pixels)?
-        {
-            return Ok(gray);
-        }
         let mut reader = image::ImageReader::with_format(std::io::Cursor::new(self.data), format);
         let mut limits = image::Limits::default();
         // The header was checked; the limits hold the decoder to what it declared.
@@ -533,41 +487,6 @@ mod tests {
                 .to_depth(100)
                 .is_err()
         );
-    }
-
-    #[test]
-    fn a_colour_jpeg_decodes_to_its_luma_as_the_colour_decoding_would() {
-        let (w, h) = (64usize, 48usize);
-        let rgb: Vec<u8> = (0..w * h)
-            .flat_map(|i| {
-                let (x, y) = (i % w, i / w);
-                [(x * 4) as u8, (y * 5) as u8, ((x * y) % 251) as u8]
-            })
-            .collect();
-        let mut file = Vec::new();
-        image::codecs::jpeg::JpegEncoder::new_with_quality(&mut file, 90)
-            .encode(&rgb, w as u32, h as u32, image::ExtendedColorType::Rgb8)
-            .unwrap();
-        let jpeg = EncodedImage::compressed("jpeg", &file);
-        let luma = jpeg.to_gray(1 << 20).unwrap();
-        assert_eq!(luma.size(), (w, h));
-        let decoded = image::load_from_memory(&file).unwrap().to_rgb8();
-        let want = gray_from_rgb(decoded.as_raw(), w, h).unwrap();
-        let diffs: Vec<f32> = luma
-            .data()
-            .iter()
-            .zip(want.data())
-            .map(|(a, b)| (a - b).abs())
-            .collect();
-        let max = diffs.iter().copied().fold(0.0f32, f32::max);
-        let mean = diffs.iter().sum::<f32>() / diffs.len() as f32;
-        // Rounding, and clamping where the colour decoding leaves the RGB gamut (mean
-        // 0.18, max 3.4 here).
-        assert!(max <= 4.0 && mean < 0.5, "max {max}, mean {mean}");
-        // The size limit holds on this path too, and a broken file is an error.
-        assert!(jpeg.to_gray(w * h - 1).is_err());
-        let cut = EncodedImage::compressed("jpeg", &file[..20]);
-        assert!(cut.to_gray(1 << 20).is_err());
     }
 
     #[test]
