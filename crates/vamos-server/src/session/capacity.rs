@@ -78,12 +78,7 @@ impl SessionLoad {
 
 /// Why a session was not admitted.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
-#[error(
-    "the server's scoring capacity is in use: live sessions load {load:.2} of {capacity:.2} \
-     cores ({workers} workers x [service] admission_load {fraction}; the server's CPU is \
-     {overhead:.2}x its workers' time){}",
-    adds_text(*.adds, *.frame_ms, *.rate_hz, .profile)
-)]
+#[error("{}", refusal_text(self))]
 pub struct OverCapacity {
     /// The live sessions' load, cores.
     pub load: f64,
@@ -103,6 +98,29 @@ pub struct OverCapacity {
     pub rate_hz: f64,
     /// The server's CPU time per second of worker time, included in `load` and `adds`.
     pub overhead: f64,
+}
+
+fn refusal_text(e: &OverCapacity) -> String {
+    let worker_cores = e.frame_ms * 1e-3 * e.rate_hz;
+    if worker_cores > 1.0 {
+        return format!(
+            "a session of profile {:?} at {:.1} Hz needs {worker_cores:.2} cores ({:.1} ms per \
+             frame measured), more than the one worker that scores a session's frames in \
+             order: no server can keep it; send fewer images or use a lighter profile",
+            e.profile, e.rate_hz, e.frame_ms
+        );
+    }
+    format!(
+        "the server's scoring capacity is in use: live sessions load {:.2} of {:.2} cores \
+         ({} workers x [service] admission_load {}; the server's CPU is {:.2}x its workers' \
+         time){}",
+        e.load,
+        e.capacity,
+        e.workers,
+        e.fraction,
+        e.overhead,
+        adds_text(e.adds, e.frame_ms, e.rate_hz, &e.profile)
+    )
 }
 
 fn adds_text(adds: f64, frame_ms: f64, rate_hz: f64, profile: &str) -> String {
@@ -266,7 +284,8 @@ impl Capacity {
             (Some(frame_s), Some(rate)) => {
                 let worker_adds = (frame_s * rate).min(1.0);
                 let adds = worker_adds * overhead;
-                if !idle && load + adds > capacity {
+                // More than one worker's time: it could never keep up, even alone.
+                if frame_s * rate > 1.0 || (!idle && load + adds > capacity) {
                     return Err(refused(adds, frame_s, rate));
                 }
                 let reserved = (worker_adds * 1e3).round() as i64;
@@ -397,9 +416,18 @@ mod tests {
         let one = Capacity::new(1, 0.5);
         one.scored("p", &bursty, &measured(0.05, 0.001), 0.05);
         assert!((one.load_cores() - 1.0).abs() < 1e-9);
-        assert!(one.admit("p", Some(1000.0)).unwrap_err().adds <= 1.0);
+        assert!(one.admit("p", Some(15.0)).unwrap_err().adds <= 1.0);
         one.release(&bursty);
-        assert!(one.admit("p", Some(1000.0)).is_ok());
+        assert!(one.admit("p", Some(15.0)).is_ok());
+        // A rate no worker can hold (50 ms per frame at 30 Hz) is refused even on an
+        // idle server, and says so.
+        let never_measured = Capacity::new(2, 0.8);
+        assert!(never_measured.admit("p", Some(30.0)).is_ok());
+        let far = one.admit("p", Some(30.0)).unwrap_err().to_string();
+        assert!(
+            far.contains("needs 1.50 cores") && far.contains("no server can keep it"),
+            "{far}"
+        );
         // admission_load = 0: never refused.
         let off = Capacity::new(2, 0.0);
         off.scored("p", &a, &measured(1.0, 0.1), 1.0);
