@@ -10,8 +10,9 @@
 //! A client that says its image rate (`OpenSession.image_rate_hz`) is admitted when the
 //! live sessions' load plus its profile's measured time per frame at that rate fits, and
 //! holds that estimate until its own frames are measured: sessions opening together are
-//! admitted exactly as far as they fit, and the admitted ones keep their latency. A
-//! client that does not say is admitted while the load measured so far is under the
+//! admitted exactly as far as they fit, and the admitted ones keep their latency. A rate
+//! that needs more than one worker is refused even on an idle server (no server could
+//! keep it). A client that does not say is admitted while the load measured so far is under the
 //! capacity, and counts once measured. An idle server admits any session, and so does a
 //! profile no session has measured yet: a session that alone cannot keep up loses frames
 //! explicitly (`frames_lost`, `FRAMES_DROPPED`), never silently. Uploaded episodes are not
