@@ -148,21 +148,34 @@ fn garbage_and_missing_files_are_errors_not_panics() {
     ));
 }
 
-#[test]
-fn the_cli_prints_info_and_copies_a_bag() {
-    let bin = env!("CARGO_BIN_EXE_vamos");
-    let bag = fixtures().join("backwards.mcap");
-    let out = Command::new(bin)
-        .args(["episode", "inspect", "--frames"])
-        .arg(&bag)
+/// `vamos ARGS...` without a settings file from the environment.
+fn vamos_cli<S: AsRef<std::ffi::OsStr>>(args: impl IntoIterator<Item = S>) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_vamos"))
+        .args(args)
         .env_remove("VAMOS_CONFIG")
         .output()
-        .unwrap();
+        .unwrap()
+}
+
+/// Asserts that a `vamos` run succeeded, with its stderr as the message.
+fn assert_ran(out: &std::process::Output) {
     assert!(
         out.status.success(),
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
+}
+
+#[test]
+fn the_cli_prints_info_and_copies_a_bag() {
+    let bag = fixtures().join("backwards.mcap");
+    let out = vamos_cli([
+        "episode".as_ref(),
+        "inspect".as_ref(),
+        "--frames".as_ref(),
+        bag.as_os_str(),
+    ]);
+    assert_ran(&out);
     let v: Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(v["info"]["name"], "backwards");
     assert_eq!(v["info"]["image_messages"], 20);
@@ -175,18 +188,14 @@ fn the_cli_prints_info_and_copies_a_bag() {
 
     let dir = tempfile::tempdir().unwrap();
     let copy = dir.path().join("copy.mcap");
-    let out = Command::new(bin)
-        .args(["episode", "copy"])
-        .arg(fixtures().join("truncated.mcap"))
-        .arg(&copy)
-        .env_remove("VAMOS_CONFIG")
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let truncated = fixtures().join("truncated.mcap");
+    let out = vamos_cli([
+        "episode".as_ref(),
+        "copy".as_ref(),
+        truncated.as_os_str(),
+        copy.as_os_str(),
+    ]);
+    assert_ran(&out);
     let v: Value = serde_json::from_slice(&out.stdout).unwrap();
     assert!(v["damage"].as_str().unwrap().contains("truncated"));
     let n = v["frames"].as_u64().unwrap();
@@ -195,12 +204,8 @@ fn the_cli_prints_info_and_copies_a_bag() {
     assert_eq!(ep.info().image_messages, n);
     assert_eq!(ep.frames().filter(|f| f.is_ok()).count() as u64, n);
 
-    let out = Command::new(bin)
-        .args(["episode", "inspect"])
-        .arg(dir.path().join("nope.mcap"))
-        .env_remove("VAMOS_CONFIG")
-        .output()
-        .unwrap();
+    let nope = dir.path().join("nope.mcap");
+    let out = vamos_cli(["episode".as_ref(), "inspect".as_ref(), nope.as_os_str()]);
     assert!(!out.status.success());
     assert!(!String::from_utf8_lossy(&out.stderr).contains("panicked"));
 }
@@ -214,18 +219,17 @@ fn copy_with_jpeg_re_encodes_the_images_and_keeps_the_frames() {
         Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/sim/test/test_0000.mcap");
     let dir = tempfile::tempdir().unwrap();
     let copy = dir.path().join("jpeg.mcap");
-    let out = Command::new(env!("CARGO_BIN_EXE_vamos"))
-        .args(["episode", "copy", "--jpeg", "90"])
-        .arg(&source)
-        .arg(&copy)
-        .env_remove("VAMOS_CONFIG")
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let jpeg = |quality: &str, out: &Path| {
+        vamos_cli([
+            "episode".as_ref(),
+            "copy".as_ref(),
+            "--jpeg".as_ref(),
+            quality.as_ref(),
+            source.as_os_str(),
+            out.as_os_str(),
+        ])
+    };
+    assert_ran(&jpeg("90", &copy));
     let cfg = EpisodeConfig::default();
     let (a, b) = (
         McapEpisode::open(&source, &cfg).unwrap(),
@@ -259,11 +263,5 @@ fn copy_with_jpeg_re_encodes_the_images_and_keeps_the_frames() {
         assert!(diff < 3.0, "frame {}: mean gray difference {diff}", x.index);
     }
     // 8-bit images only, and quality within 1..=100.
-    let bad = Command::new(env!("CARGO_BIN_EXE_vamos"))
-        .args(["episode", "copy", "--jpeg", "0"])
-        .arg(&source)
-        .arg(dir.path().join("x.mcap"))
-        .output()
-        .unwrap();
-    assert!(!bad.status.success());
+    assert!(!jpeg("0", &dir.path().join("x.mcap")).status.success());
 }

@@ -169,13 +169,19 @@ const OVERHEAD_EVERY_S: f64 = 2.0;
 const OVERHEAD_MIN_WORK_S: f64 = 0.5;
 
 impl Overhead {
+    /// Whether a sample at `now` would be taken (the first, or one a period after the last).
+    fn due(&self, now: Instant) -> bool {
+        self.last
+            .is_none_or(|(t, _, _)| now.duration_since(t).as_secs_f64() >= OVERHEAD_EVERY_S)
+    }
+
     /// A sample at `now`: the process has used `cpu_s` so far, the workers `worked_us`.
     fn sample(&mut self, now: Instant, cpu_s: f64, worked_us: u64) {
-        let Some((t, cpu0, worked0)) = self.last else {
+        let Some((_, cpu0, worked0)) = self.last else {
             self.last = Some((now, cpu_s, worked_us));
             return;
         };
-        if now.duration_since(t).as_secs_f64() < OVERHEAD_EVERY_S {
+        if !self.due(now) {
             return;
         }
         let worked_s = worked_us.saturating_sub(worked0) as f64 * 1e-6;
@@ -233,11 +239,14 @@ impl Capacity {
     pub(super) fn worked(&self, seconds: f64) {
         let us = (seconds.max(0.0) * 1e6) as u64;
         let total = self.worked_us.fetch_add(us, Ordering::Relaxed) + us;
-        // One worker samples at a time; the others go on.
+        // One worker samples at a time, the others go on; the process's CPU time is read
+        // only when a sample is due, not on every frame.
+        let now = Instant::now();
         if let Ok(mut o) = self.overhead.try_lock()
+            && o.due(now)
             && let Some(cpu) = process_cpu_s()
         {
-            o.sample(Instant::now(), cpu, total);
+            o.sample(now, cpu, total);
         }
     }
 
