@@ -322,3 +322,138 @@ async fn a_false_alarm_joins_the_nominal_set_and_a_recalibration_clears_it() {
     assert_eq!(status, StatusCode::CONFLICT, "{e}");
     server.shutdown().await.unwrap();
 }
+
+/// A profile file is calibrated and recalibrated like a stored profile: the calibration
+/// lives in the data directory (the file's folder is not written), is in force after a
+/// restart, and gives way when the file's own calibration changes.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_profile_file_is_calibrated_and_recalibrated_in_the_data_directory() {
+    use crate::service::{fixture_setup, start as start_file};
+    let f = fixture_setup(4, true);
+    let server = start_file(&f).await;
+    let api = Api::new(&server);
+    let path = "/v1/profiles/sim-arm";
+    let p = api.get(path).await;
+    assert_eq!(
+        (&p["source"], &p["calibrated"]),
+        (&json!("file"), &json!(false))
+    );
+    assert!(p.get("calibration_source").is_none(), "{p}");
+
+    let train = fixture().join("train");
+    let (status, job) = api
+        .json(
+            Method::POST,
+            &format!("{path}/calibrate"),
+            json!({
+                "episodes": [train.join("train_0000.mcap")],
+                "holdout": [train.join("train_0001.mcap")],
+                "alpha": 0.5,
+            }),
+        )
+        .await;
+    assert_eq!(status, StatusCode::ACCEPTED, "{job}");
+    let job = wait_job(&api, job["job"].as_u64().unwrap()).await;
+    assert_eq!(job["state"], "succeeded", "{job}");
+    let p = api.get(path).await;
+    assert_eq!(p["calibration_source"], "store", "{p}");
+    let threshold = p["alarm_threshold"].as_f64().unwrap();
+    let profile_file = &f.setup.profile.path;
+    let beside = vamos::pipeline::Profile::calibration_path_for(profile_file);
+    assert!(!beside.exists(), "the profile file's folder is not written");
+    let kept = f
+        .settings
+        .service
+        .data_dir
+        .join("file-calibrations/sim-arm.json");
+    assert!(kept.is_file());
+
+    // A run that alarms, marked as a false alarm, recalibrated and applied.
+    let (messages, camera) = episode_messages(&episode("test_0001_external_push"));
+    let addr = server.grpc_addr;
+    let run = |session: &'static str| {
+        let messages = messages.clone();
+        async move {
+            let (tx, task, _) = open_session(addr, "sim-arm", session, camera).await;
+            send_all(&tx, &messages).await;
+            drop(tx);
+            let (scores, _, error) = task.await.unwrap();
+            assert!(error.is_none(), "{error:?}");
+            scores
+        }
+    };
+    assert!(
+        run("pushed").await.iter().any(|s| s.anomaly),
+        "the run alarms"
+    );
+    let alarms = api.get("/v1/alarms").await;
+    let id = alarms["alarms"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|a| a["session_id"] == "pushed")
+        .unwrap_or_else(|| panic!("no alarm of the run: {alarms}"))["id"]
+        .as_str()
+        .unwrap()
+        .to_string();
+    let (status, marked) = api
+        .json(
+            Method::POST,
+            &format!("/v1/alarms/{id}/false-alarm"),
+            json!({}),
+        )
+        .await;
+    assert_eq!(status, StatusCode::OK, "{marked}");
+    let deadline = std::time::Instant::now() + Duration::from_secs(30);
+    while api.get(&format!("{path}/nominal")).await["episodes"][0]["finished"] != true {
+        assert!(
+            std::time::Instant::now() < deadline,
+            "the recording never finished"
+        );
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    let (status, started) = api
+        .call(Method::POST, &format!("{path}/recalibrate"), None)
+        .await;
+    assert_eq!(status, StatusCode::ACCEPTED, "{started}");
+    let job_id = started["job"].as_u64().unwrap();
+    let job = wait_job(&api, job_id).await;
+    assert_eq!(job["state"], "succeeded", "{job}");
+    assert_eq!(job["proposal"]["current"]["alarm"], threshold, "{job}");
+    let proposed = job["proposal"]["proposed"]["alarm"].as_f64().unwrap();
+    assert!(proposed > threshold, "{job}");
+    let (status, applied) = api
+        .call(Method::POST, &format!("/v1/jobs/{job_id}/apply"), None)
+        .await;
+    assert_eq!(status, StatusCode::OK, "{applied}");
+    assert_eq!(
+        api.get(path).await["alarm_threshold"].as_f64(),
+        Some(proposed)
+    );
+    assert!(
+        run("again").await.iter().all(|s| !s.anomaly),
+        "no alarm after it"
+    );
+    assert!(!beside.exists());
+
+    // A restart keeps it in force.
+    server.shutdown().await.unwrap();
+    let server = start_file(&f).await;
+    let api = Api::new(&server);
+    let p = api.get(path).await;
+    assert_eq!(p["calibration_source"], "store", "{p}");
+    assert_eq!(p["alarm_threshold"].as_f64(), Some(proposed));
+    server.shutdown().await.unwrap();
+
+    // The file gets its own calibration (made elsewhere): the file's is in force again.
+    let mut own = job["calibration"].clone();
+    own["created_unix_s"] = json!(12345);
+    std::fs::write(&beside, own.to_string()).unwrap();
+    let setup = vamos::setup::Setup::load(&f.settings, profile_file).unwrap();
+    let server = Server::start(f.settings.clone(), ProfileCatalog::from_setups(vec![setup]))
+        .await
+        .unwrap();
+    let p = Api::new(&server).get(path).await;
+    assert_eq!(p["calibration_source"], "file", "{p}");
+    server.shutdown().await.unwrap();
+}

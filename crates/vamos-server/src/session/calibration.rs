@@ -216,7 +216,23 @@ pub struct Calibrator {
 }
 
 impl Calibrator {
-    /// Starts a job calibrating stored profile `name` (`episodes` and `holdout`: the
+    /// Saves `calibration` as profile `name`'s: a stored profile's in the data directory;
+    /// a profile file's in the data directory too, in force over the file's own
+    /// ([`ProfileCatalog::save_file_calibration`]: the file is not written). Blocking.
+    fn save<E: From<StoreError> + From<ProfileLookupError>>(
+        &self,
+        name: &str,
+        calibration: Calibration,
+    ) -> Result<(), E> {
+        if self.profiles.is_file(name) {
+            self.profiles.save_file_calibration(name, calibration)?;
+        } else {
+            self.store.save_calibration(name, calibration)?;
+        }
+        Ok(())
+    }
+
+    /// Starts a job calibrating profile `name` (stored or a file) (`episodes` and `holdout`: the
     /// inputs' names for the job's record). `keep` (uploaded episodes and their disk) is
     /// dropped when the job ends. Returns the job's id. Needs a tokio runtime.
     pub fn start<K: Send + 'static>(
@@ -276,8 +292,7 @@ impl Calibrator {
         if job.cancelled() {
             return Err(CalibrationFailed::Cancelled);
         }
-        self.store
-            .save_calibration(name, outcome.calibration.clone())?;
+        self.save::<CalibrationFailed>(name, outcome.calibration.clone())?;
         Ok((outcome.calibration, outcome.notes))
     }
 
@@ -399,8 +414,7 @@ impl Calibrator {
                 id,
             });
         }
-        self.store
-            .save_calibration(&job.profile, calibration.clone())?;
+        self.save::<RecalibrationRefused>(&job.profile, calibration.clone())?;
         self.profiles.invalidate_profile(&job.profile);
         let applied = crate::store::now_s();
         let job = self.store.update_job(id, |j| {

@@ -9,9 +9,14 @@
 //! the profile, its model (new version, active version, delete) or its robot
 //! ([`ProfileCatalog::invalidate_profile`], [`ProfileCatalog::invalidate_model`],
 //! [`ProfileCatalog::invalidate_robot`]).
+//!
+//! A profile file's calibration made by the service (a calibration job, an applied
+//! recalibration) is kept in the data directory ([`FileCalibration`]) and replaces the
+//! file's own calibration while the file still has the calibration it replaced; the
+//! file itself is never written.
 
 use crate::config::Settings;
-use crate::store::{Store, StoreError, StoreErrorKind};
+use crate::store::{FileCalibration, Store, StoreError, StoreErrorKind};
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex, MutexGuard};
 use vamos_core::setup::{Setup, SetupError};
@@ -25,6 +30,9 @@ pub struct LoadedProfile {
     /// The model as a metric label and in listings (`name@version` for stored models,
     /// the file stem for files; `none` without a model).
     pub model_label: String,
+    /// A profile file whose calibration in force is the data directory's (made by the
+    /// service), not the file's own.
+    pub calibration_stored: bool,
 }
 
 /// Why a profile cannot be used.
@@ -56,7 +64,11 @@ pub enum ProfileLookupError {
 
 /// Where sessions find their profiles.
 pub struct ProfileCatalog {
+    /// The profile files, as read.
     files: HashMap<String, Arc<LoadedProfile>>,
+    /// Profile files with their calibration from the data directory (these win over
+    /// `files`).
+    recalibrated: Mutex<HashMap<String, Arc<LoadedProfile>>>,
     stored: Option<Arc<StoredProfiles>>,
 }
 
@@ -139,6 +151,7 @@ impl StoredProfiles {
             name: name.into(),
             setup,
             model_label,
+            calibration_stored: false,
         });
         let mut cache = self.cache();
         if cache.generation == generation {
@@ -180,8 +193,34 @@ fn loaded_file(setup: Setup) -> (String, Arc<LoadedProfile>) {
             name,
             setup,
             model_label,
+            calibration_stored: false,
         }),
     )
+}
+
+/// Profile file `base` with `stored` as its calibration, unless the file's own
+/// calibration is no longer the one `stored` replaced (then `None`: the file's wins).
+fn with_stored_calibration(
+    base: &LoadedProfile,
+    stored: &FileCalibration,
+) -> Option<Arc<LoadedProfile>> {
+    let own = base
+        .setup
+        .profile
+        .calibration
+        .as_ref()
+        .map(|c| c.created_unix_s);
+    if own != stored.replaces_unix_s {
+        return None;
+    }
+    let mut setup = base.setup.clone();
+    setup.profile.calibration = Some(stored.calibration.clone());
+    Some(Arc::new(LoadedProfile {
+        name: base.name.clone(),
+        setup,
+        model_label: base.model_label.clone(),
+        calibration_stored: true,
+    }))
 }
 
 impl ProfileCatalog {
@@ -200,6 +239,7 @@ impl ProfileCatalog {
         }
         Ok(Self {
             files,
+            recalibrated: Mutex::default(),
             stored: None,
         })
     }
@@ -208,13 +248,35 @@ impl ProfileCatalog {
     pub fn from_setups(setups: Vec<Setup>) -> Self {
         Self {
             files: setups.into_iter().map(loaded_file).collect(),
+            recalibrated: Mutex::default(),
             stored: None,
         }
     }
 
-    /// This catalog, also serving the profiles of `store` (loaded with `settings`).
-    /// `crate::service::Server::start` attaches the data directory it opened.
+    /// This catalog, also serving the profiles of `store` (loaded with `settings`), and
+    /// the profile files' calibrations kept there. `crate::service::Server::start`
+    /// attaches the data directory it opened.
     pub fn with_store(mut self, store: Store, settings: Settings) -> Self {
+        let mut recalibrated = HashMap::new();
+        for (name, base) in &self.files {
+            match store.file_calibration(name) {
+                Ok(None) => {}
+                Ok(Some(stored)) => match with_stored_calibration(base, &stored) {
+                    Some(loaded) => {
+                        tracing::info!(profile = %name, "the profile file's calibration made by the service is in force (data directory)");
+                        recalibrated.insert(name.clone(), loaded);
+                    }
+                    None => tracing::warn!(
+                        profile = %name,
+                        "the profile file's own calibration changed since the service calibrated it: the file's is in force"
+                    ),
+                },
+                Err(e) => {
+                    tracing::warn!(profile = %name, "the calibration the service made for this profile file is not used: {e}")
+                }
+            }
+        }
+        self.recalibrated = Mutex::new(recalibrated);
         self.stored = Some(Arc::new(StoredProfiles {
             store,
             settings,
@@ -225,15 +287,58 @@ impl ProfileCatalog {
     }
 
     /// Whether `name` is a profile file (those take priority over stored profiles and
-    /// cannot be changed through the API).
+    /// cannot be changed through the API; the service can calibrate them, see the module docs).
     pub fn is_file(&self, name: &str) -> bool {
         self.files.contains_key(name)
     }
 
+    fn recalibrated(&self) -> MutexGuard<'_, HashMap<String, Arc<LoadedProfile>>> {
+        self.recalibrated.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// Profile file `name` as in force: with the calibration the service made, if any.
+    fn file(&self, name: &str) -> Option<Arc<LoadedProfile>> {
+        let base = self.files.get(name)?;
+        Some(self.recalibrated().get(name).unwrap_or(base).clone())
+    }
+
+    /// Puts `calibration` in force for profile file `name` (sessions opened from now on
+    /// use it) and keeps it in the data directory; the file is not written. Blocking.
+    pub fn save_file_calibration(
+        &self,
+        name: &str,
+        calibration: vamos_core::pipeline::Calibration,
+    ) -> Result<(), ProfileLookupError> {
+        let (Some(base), Some(stored)) = (self.files.get(name), &self.stored) else {
+            return Err(ProfileLookupError::NotFound { name: name.into() });
+        };
+        let kept = FileCalibration {
+            profile_path: base.setup.profile.path.clone(),
+            replaces_unix_s: base
+                .setup
+                .profile
+                .calibration
+                .as_ref()
+                .map(|c| c.created_unix_s),
+            calibration,
+        };
+        stored
+            .store
+            .save_file_calibration(name, &kept)
+            .map_err(|e| ProfileLookupError::Store {
+                name: name.into(),
+                source: Box::new(e),
+            })?;
+        if let Some(loaded) = with_stored_calibration(base, &kept) {
+            self.recalibrated().insert(name.into(), loaded);
+        }
+        Ok(())
+    }
+
     /// The profile `name`, if a file or already loaded: never blocks on loading.
     pub fn get_cached(&self, name: &str) -> Option<Arc<LoadedProfile>> {
-        if let Some(p) = self.files.get(name) {
-            return Some(p.clone());
+        if let Some(p) = self.file(name) {
+            return Some(p);
         }
         self.stored.as_ref().and_then(|s| s.cached(name))
     }
@@ -241,8 +346,8 @@ impl ProfileCatalog {
     /// The profile `name`; a stored profile not loaded yet is loaded here (blocking: from
     /// async code use [`Self::get_async`]).
     pub fn get(&self, name: &str) -> Result<Arc<LoadedProfile>, ProfileLookupError> {
-        if let Some(p) = self.files.get(name) {
-            return Ok(p.clone());
+        if let Some(p) = self.file(name) {
+            return Ok(p);
         }
         match &self.stored {
             Some(s) => s.load(name),
@@ -273,7 +378,7 @@ impl ProfileCatalog {
 
     /// The profiles loaded now: the files, and the stored profiles in the cache.
     pub fn loaded(&self) -> Vec<Arc<LoadedProfile>> {
-        let mut out: Vec<_> = self.files.values().cloned().collect();
+        let mut out: Vec<_> = self.files.keys().filter_map(|n| self.file(n)).collect();
         if let Some(s) = &self.stored {
             out.extend(s.cache().entries.values().map(|e| e.loaded.clone()));
         }

@@ -17,6 +17,9 @@
 //! <dir>/profiles/<name>/profile.json       the ProfileSpec and timestamps
 //! <dir>/profiles/<name>/calibration.json   the profile's Calibration, once saved
 //! <dir>/jobs/<id>.json                     a background job's record (calibrations)
+//! <dir>/alarms/<id>.json                   an alarm marked as false (the nominal set)
+//! <dir>/file-calibrations/<name>.json      a server profile file's calibration made by the
+//!                                          service (it replaces the file's own)
 //! ```
 //!
 //! Every metadata file (`*.json`) is an envelope `{"format": "vamos-store/1", "sha256":
@@ -59,6 +62,7 @@
 
 mod alarms;
 mod error;
+mod file_calibrations;
 mod files;
 mod jobs;
 mod mirror;
@@ -77,6 +81,7 @@ pub use alarms::{
     AlarmComponents, AlarmRecord, AlarmThresholds, FalseAlarmMark, KEPT_MARKED_ALARMS, now_s,
 };
 pub use error::{StoreError, StoreErrorKind};
+pub use file_calibrations::FileCalibration;
 pub use jobs::{JobInfo, JobState, KEPT_JOBS, Proposal, ProposalEpisode};
 pub use mirror::{MirrorChange, StoredFile};
 pub use types::{

@@ -41,7 +41,7 @@ fn check_overrides(o: &ThresholdOverrides) -> Result<(), StoreError> {
 }
 
 /// Refuses a calibration with a non-finite number where JSON could not keep it.
-fn check_calibration(c: &Calibration) -> Result<(), StoreError> {
+pub(super) fn check_calibration(c: &Calibration) -> Result<(), StoreError> {
     let mut values = vec![
         ("thresholds.e_c", c.thresholds.e_c),
         ("thresholds.e_b", c.thresholds.e_b),

@@ -5,7 +5,6 @@ use super::body::{
     BROKEN_MULTIPART, DRAIN_LIMIT_BYTES, blocking, content_length, drain, json_body, json_bytes,
 };
 use super::errors::ApiError;
-use super::profiles::refuse_file_profile;
 use crate::api::state::Shared;
 use crate::session::SessionError;
 use crate::session::budget::UploadTicket;
@@ -252,10 +251,13 @@ pub(super) async fn start_calibration(
     headers: HeaderMap,
     body: Body,
 ) -> Result<Response, ApiError> {
-    refuse_file_profile(&s, &name)?;
-    let store = s.store.clone();
-    let n = name.clone();
-    blocking(move || store.profile(&n)).await?;
+    // A profile file's calibration is kept in the data directory (the file is not
+    // written); a stored profile must exist.
+    if !s.profiles.is_file(&name) {
+        let store = s.store.clone();
+        let n = name.clone();
+        blocking(move || store.profile(&n)).await?;
+    }
     let content_type = headers
         .get(header::CONTENT_TYPE)
         .and_then(|v| v.to_str().ok())
@@ -359,7 +361,6 @@ pub(super) async fn start_recalibration(
     State(s): State<Arc<Shared>>,
     Path(name): Path<String>,
 ) -> Result<Response, ApiError> {
-    refuse_file_profile(&s, &name)?;
     let calibrator = s.calibrator();
     let dir = s.hub.recordings_dir();
     let handle = tokio::runtime::Handle::current();

@@ -566,8 +566,9 @@ fn operation(method: &str, path: &str, g: &mut SchemaGenerator) -> Option<Op> {
         }
         ("POST", "/v1/profiles/{name}/calibrate") => Op::new(
             "Start a calibration job over nominal episodes: paths on the server (JSON: files \
-             or folders of .mcap) or uploaded with the request (multipart/form-data); stored \
-             profiles only",
+             or folders of .mcap) or uploaded with the request (multipart/form-data). A \
+             profile file's calibration is kept in the data directory, in force over the \
+             file's own (the file is not written)",
         )
         .json_body::<CalibrationRequest>(
             g,
@@ -591,7 +592,7 @@ fn operation(method: &str, path: &str, g: &mut SchemaGenerator) -> Option<Op> {
         .ok::<JobStarted>(g, 202, "Started")
         .error(
             409,
-            "Not calibrated, no finished episode in its nominal set, or a profile file",
+            "Not calibrated, or no finished episode in its nominal set",
         )
         .error(429, "max_jobs jobs are running")
         .errors(&[404]),

@@ -20,8 +20,9 @@ use vamos_core::pipeline::Calibration;
 #[derive(Debug, Clone, Copy, Serialize, schemars::JsonSchema)]
 #[serde(rename_all = "lowercase")]
 pub enum ProfileSource {
-    /// A profile file of the server's settings (read only through the API; it shadows a
-    /// stored profile of the same name).
+    /// A profile file of the server's settings (read only through the API, except its
+    /// calibration, which the service keeps in the data directory; it shadows a stored
+    /// profile of the same name).
     File,
     /// The data directory.
     Store,
@@ -40,6 +41,11 @@ pub struct ProfileView {
     pub robot: bool,
     /// It has a calibration.
     pub calibrated: bool,
+    /// Where the calibration in force is kept: `file` (beside a profile file) or `store`
+    /// (the data directory: a stored profile's, or one the service made for a profile
+    /// file, which replaces the file's own). `null`: not calibrated.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub calibration_source: Option<ProfileSource>,
     /// The fused-score alarm threshold in force (`null`: no alarms).
     pub alarm_threshold: Option<f64>,
     /// The stored profile (stored profiles only). In `GET /v1/profiles` its thresholds'
@@ -67,6 +73,13 @@ pub(super) fn file_profile_view(p: &LoadedProfile) -> ProfileView {
         model: p.model_label.clone(),
         robot: p.setup.robot.is_some(),
         calibrated: p.setup.profile.calibration.is_some(),
+        calibration_source: p.setup.profile.calibration.as_ref().map(|_| {
+            if p.calibration_stored {
+                ProfileSource::Store
+            } else {
+                ProfileSource::File
+            }
+        }),
         alarm_threshold: finite(p.setup.profile.alarm_threshold()),
         profile: None,
         load_error: None,
@@ -124,6 +137,7 @@ pub(super) fn stored_profile_view(
         model,
         robot: info.spec.robot.is_some(),
         calibrated: info.calibration.is_some(),
+        calibration_source: info.calibration.as_ref().map(|_| ProfileSource::Store),
         alarm_threshold: info.alarm_threshold,
         profile: Some(profile),
         load_error: None,
