@@ -14,7 +14,8 @@
 # simply the largest held-out maximum); VARIANTS [all four]; DEVICE [auto]
 # (vamos-train's --device: cuda trains the paper-size network in minutes).
 # On a 2-core CPU machine the defaults of 2026-12-02 (VAL=6 ALPHA=0.2, the defaults until
-# 2026-12-06; the README's benchmark tables) took about 100 minutes, most of it training.
+# 2026-12-06; the benchmark tables of docs/detection-history.md) took about 100 minutes,
+# most of it training.
 # Episodes are seeded per split and index: VAL=20 adds 14 validation episodes and leaves
 # the first 6 and every training and test episode as they were.
 # Results: OUT_DIR/eval.json, OUT_DIR/ablation.md, OUT_DIR/plots/.

@@ -1,5 +1,5 @@
 #!/bin/sh
-# The detectors beyond the paper, without a flow predictor (README "Beyond the paper"):
+# The detectors beyond the paper, without a flow predictor (docs/detection-history.md):
 # calibrate and evaluate one profile per row of the table on a simulated dataset made by
 # scripts/benchmark.sh (or `vamos-sim generate --seed 7 --width 320 --height 240`).
 #

@@ -198,7 +198,7 @@ fn write_frame(
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
-    /// The profile (TOML; see README "Profiles").
+    /// The profile (TOML; see README "Detection: profiles").
     #[arg(long)]
     pub profile: PathBuf,
     /// Episodes: .mcap files or folders of them.

@@ -1,5 +1,6 @@
-"""What `vamos bridge` adds to a frame's latency, measured on the wire (README, "On a ROS 2
-graph"; benches/README.md "The ROS 2 bridge").
+"""What `vamos bridge` adds to a frame's latency, measured on the wire
+(docs/service-reference.md, "ROS 2: depth, and the bridge on the wire"; benches/README.md
+"The ROS 2 bridge").
 
 Cyclone DDS publishes the fixture bag's images, scaled up to WIDTH x HEIGHT rgb8 (camera
 info scaled with them), and its joint states; each image waits for the previous one's

@@ -59,7 +59,8 @@ pub struct KinematicsParams {
     /// `effort = true`: efforts are the median of the last this many processed frames'
     /// (1, the default: as read), for robots whose effort readings are noisy enough that
     /// one sample should not count as a load. Measured on two simulated robots, smoothing
-    /// over 3 frames lost more than it gained (README, "Joint efforts in `e_k`").
+    /// over 3 frames lost more than it gained (docs/detection-history.md, "Joint efforts
+    /// in `e_k`").
     pub effort_window: usize,
 }
 

@@ -3,7 +3,8 @@
 //! `GET /v2/models/{name}/versions/{version}/ready`. The health and model-readiness routes
 //! are in `health.rs`.
 //!
-//! How vamos maps onto a KServe "model" (README, "Model serving conventions"):
+//! How vamos maps onto a KServe "model" (docs/service-reference.md, "Model serving
+//! conventions"):
 //! - a **profile** (what a robot session opens) is a model without versions, platform
 //!   `vamos_profile`: its inputs are what a robot streams (an encoded camera image and the
 //!   joint positions), its outputs what it gets back (the fused score and the alarm);
