@@ -66,7 +66,7 @@ def test_replay_and_batch_scoring_equal_offline_scoring(server: Server, tmp_path
         assert summary.dropped == 0 and not summary.message_errors
         assert summary.images_sent == read_episode(EPISODE).images
         assert summary.events[0].kind == "opened"
-        assert len(seen) == len(summary.scores) + len(summary.events)
+        assert len(seen) == len(summary.scores) + len(summary.events) + len(summary.alarms)
         _same(summary.scores, offline)
         _same(client.score_episode(EPISODE, "sim-arm"), offline)
         # A file cut short: the frames before the damage, then EpisodeDamaged.

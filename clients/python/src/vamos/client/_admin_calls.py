@@ -33,7 +33,8 @@ class Call(Generic[T]):
     """One request. The body is at most one of ``json``, ``file`` (streamed from disk),
     ``content`` (bytes or an iterable of bytes with ``length``), or the multipart
     ``files`` + ``fields``. ``post`` turns the parsed JSON (``None`` for an empty answer;
-    the bytes with ``raw``) into the method's result."""
+    the bytes with ``raw``) into the method's result. ``hints`` add a sentence to the
+    error of a status (what the caller can do about a 403 or 404 of this call)."""
 
     method: str
     path: str
@@ -46,6 +47,7 @@ class Call(Generic[T]):
     fields: Sequence[tuple[str, str]] = ()
     headers: dict[str, str] = field(default_factory=dict)
     raw: bool = False
+    hints: dict[int, str] = field(default_factory=dict)
 
 
 def q(segment: str) -> str:
@@ -69,6 +71,14 @@ def _octets(method: str, path: str, file: Path, post: Callable[[Any], T] = _same
 
 def _list(key: str) -> Callable[[Any], list[Json]]:
     return lambda body: list(body[key])
+
+
+def _id(what: str, value: str) -> str:
+    """A non-empty id (an empty one would name another route)."""
+    text = str(value).strip()
+    if not text:
+        raise ValueError(f"{what} must not be empty")
+    return text
 
 
 def healthy() -> Call[bool]:
@@ -206,3 +216,57 @@ def reload_session(session_id: str) -> Call[Json]:
 def score_episode(episode: Path, profile: str, name: Optional[str]) -> Call[Json]:
     query = urllib.parse.urlencode({"profile": profile, "name": episode.stem if name is None else name})
     return _octets("POST", f"/v1/episodes:score?{query}", episode)
+
+
+#: Who may do what with alarms (the server's roles: viewer < robot < admin).
+_ALARM_HINTS = {
+    401: "alarms need a viewer, robot or admin token",
+    404: "a robot token sees only the alarms of its own sessions (or its robots'); admin and viewer "
+         "tokens see every alarm",
+}
+
+
+def alarms(session: Optional[str], profile: Optional[str], marked: bool) -> Call[list[Json]]:
+    """``GET /v1/alarms``: the recent alarms, newest first, or with ``marked`` the stored
+    false alarms, oldest mark first; of one session and/or profile when given."""
+    query = {k: v for k, v in (("session", session), ("profile", profile)) if v is not None}
+    if marked:
+        query["marked"] = "true"
+    path = "/v1/alarms" + (f"?{urllib.parse.urlencode(query)}" if query else "")
+    return Call("GET", path, _list("alarms"), hints=_ALARM_HINTS)
+
+
+def alarm(alarm_id: str) -> Call[Json]:
+    return Call("GET", f"/v1/alarms/{q(_id('alarm_id', alarm_id))}", hints=_ALARM_HINTS)
+
+
+def alarm_thumbnail(alarm_id: str) -> Call[bytes]:
+    return Call("GET", f"/v1/alarms/{q(_id('alarm_id', alarm_id))}/thumbnail", lambda b: bytes(b), raw=True,
+                headers={"Accept": "image/png"}, hints=_ALARM_HINTS)
+
+
+def mark_false_alarm(alarm_id: str, note: str) -> Call[Json]:
+    """``POST /v1/alarms/{id}/false-alarm`` with ``{"note": ...}``."""
+    if not isinstance(note, str):
+        raise TypeError(f"note must be a string, got {type(note).__name__}")
+    return Call("POST", f"/v1/alarms/{q(_id('alarm_id', alarm_id))}/false-alarm", json={"note": note},
+                hints={401: "marking a false alarm needs a robot or admin token",
+                       403: "marking a false alarm needs a robot or admin token (a viewer's is refused)",
+                       404: _ALARM_HINTS[404],
+                       409: "an alarm is marked once; the first mark stays"})
+
+
+def nominal(profile: str) -> Call[list[Json]]:
+    """``GET /v1/profiles/{name}/nominal``: the recordings kept by false-alarm marks."""
+    return Call("GET", f"/v1/profiles/{q(_id('profile', profile))}/nominal", _list("episodes"))
+
+
+def recalibrate(profile: str) -> Call[int]:
+    """``POST /v1/profiles/{name}/recalibrate``: a job id."""
+    return Call("POST", f"/v1/profiles/{q(_id('profile', profile))}/recalibrate", lambda b: int(b["job"]),
+                hints={403: "recalibration needs an admin token"})
+
+
+def apply_job(job_id: int) -> Call[Json]:
+    """``POST /v1/jobs/{id}/apply``: the job, its proposal applied."""
+    return Call("POST", f"/v1/jobs/{int(job_id)}/apply", hints={403: "applying a proposal needs an admin token"})

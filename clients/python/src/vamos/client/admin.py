@@ -1,6 +1,7 @@
 """The REST administration clients (models, robots, profiles, thresholds, calibration
-jobs, sessions) over httpx: :class:`AdminClient` (blocking) and :class:`AsyncAdminClient`
-(asyncio), the same methods with the same arguments.
+jobs, alarms and false alarms, recalibration, sessions) over httpx: :class:`AdminClient`
+(blocking) and :class:`AsyncAdminClient` (asyncio), the same methods with the same
+arguments.
 
 Each endpoint is described once, as a :class:`_Call` built by a function of
 :mod:`vamos.client._admin_calls`; the two clients only differ in how they send it. Uploads
@@ -34,13 +35,16 @@ _CHUNK = 1 << 20
 
 
 class ApiError(VamosError):
-    """The server answered with an error status; ``status`` is the HTTP status and
-    ``message`` the server's ``{"error": ...}`` text."""
+    """The server answered with an error status; ``status`` is the HTTP status,
+    ``message`` the server's ``{"error": ...}`` text and ``hint`` what the client adds
+    for this call (who may call it, ...; empty when nothing)."""
 
-    def __init__(self, status: int, message: str, method: str = "", path: str = "") -> None:
-        super().__init__(f"{method} {path}: HTTP {status}: {message}".strip())
+    def __init__(self, status: int, message: str, method: str = "", path: str = "", hint: str = "") -> None:
+        text = f"{method} {path}: HTTP {status}: {message}".strip()
+        super().__init__(f"{text} ({hint})" if hint else text)
         self.status = status
         self.message = message
+        self.hint = hint
 
 
 class BadRequest(ApiError):
@@ -52,15 +56,19 @@ class Unauthorized(ApiError):
 
 
 class Forbidden(ApiError):
-    """403: the token's role may not do this (a robot token on an admin route)."""
+    """403: the token's role may not do this (a robot token on an admin route, a viewer
+    token marking a false alarm)."""
 
 
 class NotFound(ApiError):
-    """404: no such model, robot, profile, session or job."""
+    """404: no such model, robot, profile, session, job or alarm (an alarm of another
+    robot's session is unknown to a robot token)."""
 
 
 class Conflict(ApiError):
-    """409: in use (a model version a profile needs, a profile file...)."""
+    """409: in use or not possible now (a model version a profile needs, a profile file
+    of the server's settings, an alarm marked already, a recalibration without a
+    calibration or a nominal set...)."""
 
 
 class PayloadTooLarge(ApiError):
@@ -87,19 +95,19 @@ _BY_STATUS: dict[int, type[ApiError]] = {400: BadRequest, 401: Unauthorized, 403
                                          409: Conflict, 413: PayloadTooLarge, 429: TooManyRequests}
 
 
-def _raise(status: int, body: bytes, method: str, path: str) -> None:
+def _raise(status: int, body: bytes, method: str, path: str, hint: str = "") -> None:
     try:
         message = json.loads(body)["error"]
     except Exception:
         message = body.decode(errors="replace")[:500]
     cls = _BY_STATUS.get(status, ServerError if status >= 500 else ApiError)
-    raise cls(status, str(message), method, path)
+    raise cls(status, str(message), method, path, hint)
 
 
 def _result(call: Call[T], status: int, body: bytes) -> T:
     """The value of a finished call, or the :class:`ApiError` of its status."""
     if status >= 400:
-        _raise(status, body, call.method, call.path)
+        _raise(status, body, call.method, call.path, call.hints.get(status, ""))
     if call.raw:
         return call.post(body)
     return call.post(None if status == 204 or not body else json.loads(body))
@@ -156,9 +164,9 @@ class _Base:
 
 class AdminClient(_Base):
     """``vamos serve``'s REST API, blocking. ``base_url`` is the REST address
-    (``http://127.0.0.1:8080``); ``token`` an admin token (a robot token may read and
-    score only); ``ca_file`` a PEM CA for a TLS server. Usable as a context manager
-    (closes its connection pool)."""
+    (``http://127.0.0.1:8080``); ``token`` an admin token (a robot token may read, score
+    and mark its own sessions' false alarms; a viewer token may read alarms); ``ca_file``
+    a PEM CA for a TLS server. Usable as a context manager (closes its connection pool)."""
 
     def __init__(self, base_url: str = "http://127.0.0.1:8080", *, token: Optional[str] = None,
                  timeout: float = 300.0, ca_file: Optional[str] = None) -> None:
@@ -313,6 +321,71 @@ class AdminClient(_Base):
         """Cancels a running job (True) or removes a finished job's record (False)."""
         return self._send(calls.cancel_job(job_id))
 
+    # Alarms, false alarms and recalibration.
+    def alarms(self, *, session: Optional[str] = None, profile: Optional[str] = None,
+               marked: bool = False) -> list[Json]:
+        """``GET /v1/alarms``: the server's recent alarms, newest first (``marked``: the
+        stored false alarms instead, oldest mark first), of one ``session`` and/or
+        ``profile`` when given. Each is a dict: ``id``, ``session_id``, ``robot_id``,
+        ``profile``, ``model``, ``started_unix_s``, ``start_frame``, ``end_frame``,
+        ``end_stamp_ns``, ``frames_flagged``, ``detector``, ``detectors``,
+        ``thresholds``, ``start``, ``peak``, and once marked ``false_alarm`` (``by_role``,
+        ``marked_unix_s``, ``note``) and ``recording``. Any token may list (viewer,
+        robot, admin); a robot token sees only its own sessions' alarms."""
+        return self._send(calls.alarms(session, profile, marked))
+
+    def alarm(self, alarm_id: str) -> Json:
+        """One alarm (a recent one, else a stored false alarm); :class:`NotFound` for an
+        unknown id."""
+        return self._send(calls.alarm(alarm_id))
+
+    def alarm_thumbnail(self, alarm_id: str) -> bytes:
+        """The frame at the alarm's start, a gray PNG (:meth:`AnomalyMap.from_png
+        <vamos.client.AnomalyMap.from_png>` decodes it)."""
+        return self._send(calls.alarm_thumbnail(alarm_id))
+
+    def mark_false_alarm(self, alarm_id: str, note: str = "") -> Json:
+        """Marks an alarm as a false alarm (``POST /v1/alarms/{id}/false-alarm``) with an
+        optional ``note`` (at most 500 characters); returns the alarm with its
+        ``false_alarm`` mark. The server stores it, and the session's recording joins the
+        profile's nominal set (:meth:`nominal`), which :meth:`recalibrate` learns from.
+        Needs a robot token that opened the session (or whose robots it is) or an admin
+        token: :class:`Forbidden` for a viewer's, :class:`NotFound` for an alarm the
+        token cannot see, :class:`Conflict` when it is marked already."""
+        return self._send(calls.mark_false_alarm(alarm_id, note))
+
+    def nominal(self, profile: str) -> list[Json]:
+        """``GET /v1/profiles/{name}/nominal``: the profile's nominal set, the kept
+        recordings of sessions with an alarm marked as false (``session_id``,
+        ``recording``, ``bytes``, ``finished``, ``alarms``, ...), oldest mark first."""
+        return self._send(calls.nominal(profile))
+
+    def recalibrate(self, profile: str) -> int:
+        """Starts a recalibration of a stored, calibrated profile from its nominal set
+        and returns the job's id; follow it with :meth:`wait_job` (its record then has the
+        ``proposal``: thresholds now and proposed, each episode's largest score before
+        and after) and apply it with :meth:`apply_job`. Admin token. :class:`Conflict`
+        when the server cannot start one (a profile file of the server's settings, a
+        profile not calibrated, no finished episode in the nominal set),
+        :class:`NotFound` for an unknown profile, :class:`TooManyRequests` when the job
+        slots are taken."""
+        return self._send(calls.recalibrate(profile))
+
+    def apply_job(self, job_id: int) -> Json:
+        """Applies a finished recalibration's proposal to its profile; returns the job.
+        :class:`Conflict` when it is not a finished recalibration, was applied already, or
+        the profile was calibrated again since."""
+        return self._send(calls.apply_job(job_id))
+
+    def recalibrate_and_wait(self, profile: str, *, apply: bool = False, timeout: float = 3600.0,
+                             poll_s: float = 0.5) -> Json:
+        """:meth:`recalibrate`, then :meth:`wait_job` (:class:`JobFailed`,
+        :class:`TimeoutError`), then with ``apply`` :meth:`apply_job`; returns the job's
+        record (with its ``proposal``)."""
+        job = self.recalibrate(profile)
+        record = self.wait_job(job, timeout=timeout, poll_s=poll_s)
+        return self.apply_job(job) if apply else record
+
     # The data directory and the fleet.
     def store_status(self) -> Json:
         """``GET /v1/store``: ``{"data_dir", "read_only", "problems", "shared_store"}``;
@@ -465,6 +538,34 @@ class AsyncAdminClient(_Base):
 
     async def cancel_job(self, job_id: int) -> bool:
         return await self._send(calls.cancel_job(job_id))
+
+    async def alarms(self, *, session: Optional[str] = None, profile: Optional[str] = None,
+                     marked: bool = False) -> list[Json]:
+        return await self._send(calls.alarms(session, profile, marked))
+
+    async def alarm(self, alarm_id: str) -> Json:
+        return await self._send(calls.alarm(alarm_id))
+
+    async def alarm_thumbnail(self, alarm_id: str) -> bytes:
+        return await self._send(calls.alarm_thumbnail(alarm_id))
+
+    async def mark_false_alarm(self, alarm_id: str, note: str = "") -> Json:
+        return await self._send(calls.mark_false_alarm(alarm_id, note))
+
+    async def nominal(self, profile: str) -> list[Json]:
+        return await self._send(calls.nominal(profile))
+
+    async def recalibrate(self, profile: str) -> int:
+        return await self._send(calls.recalibrate(profile))
+
+    async def apply_job(self, job_id: int) -> Json:
+        return await self._send(calls.apply_job(job_id))
+
+    async def recalibrate_and_wait(self, profile: str, *, apply: bool = False, timeout: float = 3600.0,
+                                   poll_s: float = 0.5) -> Json:
+        job = await self.recalibrate(profile)
+        record = await self.wait_job(job, timeout=timeout, poll_s=poll_s)
+        return await self.apply_job(job) if apply else record
 
     async def store_status(self) -> Json:
         return await self._send(calls.store_status())

@@ -20,7 +20,8 @@ _END = object()
 
 class AsyncSession:
     """One streamed task execution (asyncio): ``await send_*``, ``async for`` over the
-    answers, ``await finish()`` when done."""
+    updates (:data:`vamos.client.Update`: scores, events and alarm events, in stream
+    order), ``await finish()`` when done."""
 
     def __init__(self, call: Any, queue: "asyncio.Queue[Any]", opened: SessionEvent) -> None:
         self._call = call
@@ -97,9 +98,12 @@ class AsyncMonitorClient:
         await self.close()
 
     async def open_session(self, profile: str, *, robot_id: str = "python", session_id: str = "",
-                           task: str = "", camera_info: Optional[CameraInfo] = None) -> AsyncSession:
+                           task: str = "", camera_info: Optional[CameraInfo] = None, anomaly_maps: bool = False,
+                           image_rate_hz: float = 0.0) -> AsyncSession:
+        """:meth:`vamos.client.MonitorClient.open_session` (the same arguments, among them
+        ``anomaly_maps``); raises :class:`SessionError` when the server refuses it."""
         queue: "asyncio.Queue[Any]" = asyncio.Queue()
-        first_msg = open_message(profile, robot_id, session_id, task, camera_info)
+        first_msg = open_message(profile, robot_id, session_id, task, camera_info, anomaly_maps, image_rate_hz)
 
         async def requests() -> AsyncIterator[Any]:
             yield first_msg

@@ -14,11 +14,14 @@ from vamos.v1 import monitor_pb2 as pb
 from vamos.v1 import monitor_pb2_grpc as pb_grpc
 
 from . import _convert
-from ._types import CameraInfo, EpisodeDamaged, FrameScore, SessionError, SessionEvent, SessionSummary
+from ._types import AlarmEvent, CameraInfo, EpisodeDamaged, FrameScore, SessionError, SessionEvent, SessionSummary
 from .episode import Recording, read_episode
 
-Update = Union[FrameScore, SessionEvent]
-"""What a session yields: a score or an event."""
+Update = Union[FrameScore, SessionEvent, AlarmEvent]
+"""What a session yields, in the order the server sent it: a :class:`FrameScore` per
+processed frame, a :class:`SessionEvent` (opened, frames dropped, ...), or an
+:class:`AlarmEvent` (an alarm started or ended, right after the score of the frame that
+caused it). Code that wants only scores tests ``isinstance(u, FrameScore)``."""
 
 _END = object()
 
@@ -55,25 +58,34 @@ def make_channel(server: str, root_certificates: Optional[bytes], max_message_by
 
 
 def open_message(profile: str, robot_id: str, session_id: str, task: str,
-                 camera: Optional[CameraInfo]) -> Any:
+                 camera: Optional[CameraInfo], anomaly_maps: bool = False, image_rate_hz: float = 0.0) -> Any:
+    """The ``StreamRequest`` that opens a session; refuses a negative or non-finite rate."""
+    rate = float(image_rate_hz)
+    if not (rate >= 0 and rate != float("inf")):
+        raise ValueError(f"image_rate_hz must be 0 (not said) or a positive rate, got {image_rate_hz}")
     return pb.StreamRequest(open=pb.OpenSession(
         robot_id=robot_id, profile=profile, task=task, session_id=session_id,
-        camera_info=camera.to_proto(pb) if camera is not None else None))
+        camera_info=camera.to_proto(pb) if camera is not None else None,
+        anomaly_maps=bool(anomaly_maps), image_rate_hz=rate))
 
 
 def to_update(r: Any) -> Optional[Update]:
+    """The typed value of a ``StreamResponse`` (None for a kind this client does not know)."""
     kind = r.WhichOneof("message")
     if kind == "score":
         return FrameScore.from_proto(r.score)
     if kind == "event":
         return SessionEvent.from_proto(r.event)
+    if kind == "alarm":
+        return AlarmEvent.from_proto(r.alarm)
     return None
 
 
 class Session:
     """One streamed task execution. Send images, joint states and phase markers in any
-    order; iterate over the session for scores and events; :meth:`finish` when done
-    (the server scores what it holds, then the iteration ends).
+    order; iterate over the session for its updates (:data:`Update`: scores, events and
+    alarm events, in stream order); :meth:`finish` when done (the server scores what it
+    holds, then the iteration ends).
 
     Not thread-safe for sending from several threads at once; iterating from another
     thread than the sender is fine (and usual)."""
@@ -222,11 +234,17 @@ class MonitorClient:
         self.close()
 
     def open_session(self, profile: str, *, robot_id: str = "python", session_id: str = "",
-                     task: str = "", camera_info: Optional[CameraInfo] = None) -> Session:
+                     task: str = "", camera_info: Optional[CameraInfo] = None, anomaly_maps: bool = False,
+                     image_rate_hz: float = 0.0) -> Session:
         """Opens a session on ``profile``; raises :class:`SessionError` when the server
-        refuses it (``NOT_FOUND`` profile, ``RESOURCE_EXHAUSTED``, ``UNAUTHENTICATED``...)."""
+        refuses it (``NOT_FOUND`` profile, ``RESOURCE_EXHAUSTED``, ``UNAUTHENTICATED``...).
+
+        ``anomaly_maps``: every score that has one carries the frame's anomaly map
+        (:attr:`FrameScore.anomaly_map`, decoded by :meth:`FrameScore.anomaly_map_array`);
+        a few hundred bytes per score. ``image_rate_hz``: the rate images will come at (0:
+        not said), which the server admits the session by."""
         return Session(self._stub, self._metadata,
-                       open_message(profile, robot_id, session_id, task, camera_info),
+                       open_message(profile, robot_id, session_id, task, camera_info, anomaly_maps, image_rate_hz),
                        self._timeout)
 
     def iter_score_episode(self, path: "str | Path", profile: str, *, name: Optional[str] = None,
@@ -270,7 +288,7 @@ class MonitorClient:
 
     def replay(self, episode: "str | Path | Recording", profile: str, *, rate: Optional[float] = 1.0,
                window: int = 4, robot_id: str = "vamos-client", session_id: Optional[str] = None,
-               task: str = "", reconnects: int = 3,
+               task: str = "", reconnects: int = 3, anomaly_maps: bool = False,
                on_update: Optional[Callable[[Update], None]] = None) -> SessionSummary:
         """Streams a recorded episode as a live robot and collects every answer.
 
@@ -280,7 +298,9 @@ class MonitorClient:
         episode's file stem, which also makes the scores equal to ``vamos score``'s. When
         the stream breaks, the session is resumed up to ``reconnects`` times. A bag's depth
         images go along when ``episode`` is read with them (``read_episode(path,
-        depth_topic=...)``)."""
+        depth_topic=...)``). ``anomaly_maps``: the scores carry their anomaly maps (see
+        :meth:`open_session`). ``on_update`` sees every update as it arrives (scores,
+        events and alarm events); the summary keeps them by type."""
         if rate is not None and not (rate > 0 and rate != float("inf")):
             raise ValueError(f"rate must be positive, got {rate}")
         if window < 1:
@@ -300,7 +320,7 @@ class MonitorClient:
                 pending.remove(stamp)
 
         session = self.open_session(profile, robot_id=robot_id, session_id=sid, task=task,
-                                    camera_info=rec.camera)
+                                    camera_info=rec.camera, anomaly_maps=anomaly_maps)
         summary.session_id = session.session_id
 
         def opened(event: Optional[SessionEvent]) -> None:
@@ -321,6 +341,8 @@ class MonitorClient:
                         if isinstance(u, FrameScore):
                             summary.scores.append(u)
                             answered(u.stamp_ns)
+                        elif isinstance(u, AlarmEvent):
+                            summary.alarms.append(u)
                         else:
                             summary.events.append(u)
                             if u.kind == "frames_dropped":
