@@ -60,6 +60,10 @@ enum Command {
     /// per episode; with --out the per-frame scores (JSON lines) and, with --mcap, a bag of
     /// the images plus score topics for Foxglove or `ros2 bag play`.
     Score(cli::score::Args),
+    /// Write a Foxglove layout for a profile's scored bags (`vamos score --mcap`): the
+    /// bag's camera, the anomaly map, the fused score and one plot per detector the
+    /// profile runs.
+    Layout(cli::layout::Args),
     /// Calibrate a profile's thresholds on nominal episodes: e_c and e_b maxima (the
     /// paper) and a split-conformal threshold on the fused score from held-out episodes.
     Calibrate(cli::calibrate::Args),
@@ -187,6 +191,7 @@ fn run(cli: Cli) -> Result<()> {
         Command::Bridge(args) => cli::bridge::run(args),
         Command::Loadgen(args) => cli::loadgen::run(args),
         Command::Score(args) => cli::score::run(&settings, args),
+        Command::Layout(args) => cli::layout::run(&settings, args),
         Command::Calibrate(args) => cli::calibrate::run(&settings, args),
         Command::Eval(args) => cli::eval::run(&settings, args),
         Command::Config => cli::config::run(&settings),

@@ -25,7 +25,7 @@ pub struct Args {
     pub raw: Option<PathBuf>,
     /// Parameter preset: `default` (OpenCV DualTVL1's defaults), `realtime`,
     /// `realtime-hq` or `balanced`; without it the settings' `[vision.flow]` apply.
-    #[arg(long)]
+    #[arg(long, value_parser = clap::builder::PossibleValuesParser::new(vamos::vision::flow::PRESET_NAMES))]
     pub preset: Option<String>,
     /// Worker threads (0 = one per core; default from the settings).
     #[arg(long)]

@@ -12,6 +12,7 @@ pub mod eval;
 pub mod export;
 pub mod flow;
 pub mod health;
+pub mod layout;
 pub mod loadgen;
 pub mod model;
 pub mod profile;

@@ -19,8 +19,8 @@ pub struct CompletionsArgs {
 /// Flags of `vamos man`.
 #[derive(clap::Args, Debug)]
 pub struct ManArgs {
-    /// Write `vamos.1` and one `vamos-<command>.1` per sub-command into this existing
-    /// folder (e.g. `/usr/local/share/man/man1`) instead of printing `vamos.1` to stdout.
+    /// Write `vamos.1` and one `vamos-<command>.1` per sub-command, nested ones too
+    /// (`vamos-profile-init.1`), into this existing folder (e.g. `/usr/local/share/man/man1`) instead of printing `vamos.1` to stdout.
     #[arg(long)]
     pub dir: Option<PathBuf>,
 }
@@ -53,10 +53,15 @@ pub fn man(cmd: clap::Command, args: &ManArgs, out: &mut dyn Write) -> Result<Ve
     let mut cmd = cmd;
     cmd.build();
     let name = cmd.get_name().to_string();
-    for sub in cmd.get_subcommands().filter(|s| s.get_name() != "help") {
-        // The page's title names the full command (`vamos-score`).
-        page(sub.clone(), format!("{name}-{}", sub.get_name()))?;
+    // Every command at every depth; a page's title names the full command
+    // (`vamos-score`, `vamos-profile-init`).
+    let mut queue: Vec<(clap::Command, String)> = vec![(cmd, name)];
+    while let Some((cmd, title)) = queue.pop() {
+        for sub in cmd.get_subcommands().filter(|s| s.get_name() != "help") {
+            queue.push((sub.clone(), format!("{title}-{}", sub.get_name())));
+        }
+        page(cmd, title)?;
     }
-    page(cmd, name)?;
+    written.sort();
     Ok(written)
 }

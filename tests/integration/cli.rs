@@ -262,6 +262,13 @@ fn completions_and_man_pages_come_from_the_cli_definition() {
     assert!(render.contains("vamos\\-render") || render.contains("vamos-render"));
     assert!(render.contains("episode"), "{render}");
     assert!(dir.path().join("vamos.1").is_file());
+    // Nested commands have their pages too, named by the whole command.
+    let init = std::fs::read_to_string(dir.path().join("vamos-profile-init.1")).unwrap();
+    assert!(init.contains("episode"), "{init}");
+    assert!(dir.path().join("vamos-robot-inspect.1").is_file());
+    // A free-string option with fixed values is completed with them.
+    let out = vamos(&["completions", "bash"], &[]);
+    assert!(text(&out.stdout).contains("realtime-hq"), "flow --preset values");
     let out = vamos(
         &["man", "--dir", dir.path().join("none").to_str().unwrap()],
         &[],
@@ -347,4 +354,13 @@ fn profile_init_writes_a_working_profile_from_a_bag() {
     );
     assert_clean_failure(&out, "\"wrist_cam\" is not a link");
     assert!(text(&out.stderr).contains("head_camera_optical_frame"));
+}
+
+/// Log lines to a pipe or a file are plain text: no terminal colour codes.
+#[test]
+fn logs_written_to_a_pipe_carry_no_colour_codes() {
+    let out = vamos(&["--log-level", "debug", "model", "runtime"], &[]);
+    let err = text(&out.stderr);
+    assert!(err.contains("onnxruntime") || err.contains("ONNX Runtime"), "{err}");
+    assert!(!err.contains('\u{1b}'), "colour codes in piped logs: {err:?}");
 }

@@ -118,6 +118,26 @@ async fn kserve_v2_server_and_model_metadata() {
         .await;
     assert_eq!(status, StatusCode::NOT_FOUND);
 
+    // Readiness answers for the names metadata describes, and only those (a model label
+    // such as `tiny@1` is not a KServe model name).
+    for (name, expected) in [
+        ("arm-store", StatusCode::OK),
+        ("tiny", StatusCode::OK),
+        ("tiny@1", StatusCode::NOT_FOUND),
+        ("nothing", StatusCode::NOT_FOUND),
+    ] {
+        let ready = http
+            .get(format!("{base}/v2/models/{name}/ready"))
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(ready.status(), expected, "{name} ready");
+        let (status, _) = api
+            .call(Method::GET, &format!("/v2/models/{name}"), None)
+            .await;
+        assert_eq!(status, expected, "{name} metadata");
+    }
+
     // Unknown names are 404 with an error message.
     let (status, e) = api.call(Method::GET, "/v2/models/nothing", None).await;
     assert_eq!(status, StatusCode::NOT_FOUND);

@@ -297,7 +297,7 @@ def _topics(path: Path) -> "dict[str, list[Any]]":
     return out
 
 
-def _check_scored_bag(path: Path) -> None:
+def _check_scored_bag(path: Path, server: Server) -> None:
     topics = _topics(path)
     source = _topics(EPISODE)
     # The input's context, as recorded.
@@ -318,10 +318,16 @@ def _check_scored_bag(path: Path) -> None:
         assert schema == "sensor_msgs/msg/Image" and m.encoding == "mono8"
         assert len(m.data) == m.width * m.height and m.step == m.width
     assert any(max(m.data) > 0 for _, m in maps)
-    # Every topic the Foxglove layout of deploy/ shows is in the bag.
-    layout = (ROOT / "deploy" / "foxglove" / "scored-bag.json").read_text()
-    named = set(re.findall(r'"(/[a-z_]+/[a-z_]+)(?:\.[a-z_]+)?"', layout))
-    assert {"/camera/image_raw", "/vamos/anomaly_map", "/vamos/score"} <= named, named
+    # Every topic the profile's Foxglove layout (`vamos layout`) shows is in the bag: the
+    # camera, the map, and the detectors the profile runs (no e_k: it is not calibrated).
+    import subprocess
+
+    made = subprocess.run([str(server.bin), "layout", "--profile", str(server.profile), str(path)],
+                          capture_output=True, text=True, env=server.env)
+    assert made.returncode == 0, made.stderr
+    named = set(re.findall(r'"(/[a-z_]+/[a-z_]+)(?:\.[a-z_]+)?"', made.stdout))
+    assert {"/camera/image_raw", "/vamos/anomaly_map", "/vamos/score", "/vamos/e_o", "/vamos/e_r"} <= named, named
+    assert "/vamos/e_k" not in named, named
     assert named <= set(topics), sorted(named - set(topics))
 
 
@@ -337,7 +343,7 @@ def test_scored_bags_carry_the_map_the_context_and_the_thresholds(tmp_path: Path
                               "--out", str(out), "--mcap", "--no-progress"],
                              capture_output=True, text=True, env=server.env)
         assert run.returncode == 0, run.stderr
-        _check_scored_bag(out / f"{EPISODE.stem}.scored.mcap")
+        _check_scored_bag(out / f"{EPISODE.stem}.scored.mcap", server)
         # The REST-scored bag.
         req = urllib.request.Request(f"{server.rest}/v1/episodes:score?profile=sim-arm&name={EPISODE.stem}",
                                      data=EPISODE.read_bytes(), method="POST")
@@ -346,7 +352,7 @@ def test_scored_bags_carry_the_map_the_context_and_the_thresholds(tmp_path: Path
         with urllib.request.urlopen(req, timeout=120) as r:
             assert r.status == 200
             (tmp_path / "rest.mcap").write_bytes(r.read())
-        _check_scored_bag(tmp_path / "rest.mcap")
+        _check_scored_bag(tmp_path / "rest.mcap", server)
     finally:
         server.stop()
 

@@ -206,7 +206,13 @@ pub fn init(config: &LogConfig) -> Result<Telemetry, TelemetryError> {
             reason: e.to_string(),
         })
     };
-    let lines = tracing_subscriber::fmt::layer().with_writer(std::io::stderr);
+    // Colours only for a terminal: a file or a pipe (a service manager's journal, a
+    // redirect) gets plain text. `NO_COLOR` (no-color.org) turns them off everywhere.
+    let ansi = std::io::IsTerminal::is_terminal(&std::io::stderr())
+        && std::env::var_os("NO_COLOR").is_none_or(|v| v.is_empty());
+    let lines = tracing_subscriber::fmt::layer()
+        .with_ansi(ansi)
+        .with_writer(std::io::stderr);
     let lines: BoxedLayer = match config.format {
         LogFormat::Human => lines.with_filter(filter()?).boxed(),
         LogFormat::Json => lines

@@ -4,6 +4,7 @@
 
 mod calibrate;
 mod inputs;
+mod layout;
 mod model;
 
 use serde_json::Value;

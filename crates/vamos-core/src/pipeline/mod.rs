@@ -111,6 +111,20 @@ impl Default for DetectorSwitches {
     }
 }
 
+impl DetectorSwitches {
+    /// The switches in force for a profile with or without a robot and a flow model: the
+    /// camera, body and kinematic detectors need a robot, the flow detector a model.
+    pub fn in_force(&self, robot: bool, flow_model: bool) -> DetectorSwitches {
+        DetectorSwitches {
+            camera: self.camera && robot,
+            body: self.body && robot,
+            flow: self.flow && flow_model,
+            scene: self.scene,
+            kinematics: self.kinematics && robot,
+        }
+    }
+}
+
 /// Largest `temporal_window`, frames.
 pub const MAX_TEMPORAL_WINDOW: usize = 64;
 

@@ -358,13 +358,9 @@ impl Scorer {
     /// The detector switches actually in force (flow needs a model, camera and body a
     /// robot).
     pub fn active(&self) -> DetectorSwitches {
-        DetectorSwitches {
-            camera: self.config.detectors.camera && self.body.is_some(),
-            body: self.config.detectors.body && self.body.is_some(),
-            flow: self.predictor.is_some(),
-            scene: self.config.detectors.scene,
-            kinematics: self.config.detectors.kinematics && self.body.is_some(),
-        }
+        self.config
+            .detectors
+            .in_force(self.body.is_some(), self.predictor.is_some())
     }
 
     /// The predictor's temporal parameters, if there is a model.

@@ -68,36 +68,40 @@ pub(super) async fn openapi() -> Response {
         .into_response()
 }
 
-/// KServe-v2-style model readiness: `name` is a profile or model (`name@version` label)
-/// that a loaded profile uses, or a stored model whose active version has no problem
-/// (every stored version was loaded with ONNX Runtime when it was uploaded, and its
-/// checksum verified when the data directory was opened).
+/// KServe-v2 model readiness, for the names `GET /v2/models/{name}` describes: a profile
+/// is ready when it loads (robot, camera and model: a stored profile not loaded yet is
+/// loaded here, as the first session would), a stored model when its active version has no
+/// problem (every stored version was loaded with ONNX Runtime when it was uploaded, and
+/// its checksum verified when the data directory was opened). 200 when ready, 503 for a
+/// known name that is not, 404 for an unknown one.
 pub(super) async fn model_ready(
     State(s): State<Arc<Shared>>,
     Path(name): Path<String>,
 ) -> Response {
-    let loaded = s.profiles.loaded().iter().any(|p| {
-        p.setup.model.is_some()
-            && (p.name == name
-                || p.model_label == name
-                || p.model_label.split('@').next() == Some(&name))
-    });
-    let stored = s.store.model(&name).ok().is_some_and(|m| {
-        m.active.is_some_and(|v| {
-            m.versions
-                .iter()
-                .any(|x| x.version == v && x.problem.is_none())
-        })
-    });
-    let status = if loaded || stored {
-        StatusCode::OK
+    let (known, ready) = if super::kserve::is_profile(&s, &name).await {
+        (true, s.profiles.get_async(&name).await.is_ok())
     } else {
-        StatusCode::NOT_FOUND
+        match s.store.model(&name) {
+            Ok(m) => (
+                true,
+                m.active.is_some_and(|v| {
+                    m.versions
+                        .iter()
+                        .any(|x| x.version == v && x.problem.is_none())
+                }),
+            ),
+            Err(_) => (false, false),
+        }
+    };
+    let status = match (known, ready) {
+        (_, true) => StatusCode::OK,
+        (true, false) => StatusCode::SERVICE_UNAVAILABLE,
+        (false, _) => StatusCode::NOT_FOUND,
     };
     let ready = ModelReady {
         name,
         version: None,
-        ready: loaded || stored,
+        ready,
     };
     (status, Json(ready)).into_response()
 }

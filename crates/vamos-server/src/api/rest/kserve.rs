@@ -131,7 +131,7 @@ fn bundle_metadata(model: &ModelInfo, version: Option<&ModelVersionInfo>) -> Mod
 }
 
 /// Whether `name` is a profile: a profile file of the configuration or a stored one.
-async fn is_profile(s: &Arc<Shared>, name: &str) -> bool {
+pub(super) async fn is_profile(s: &Arc<Shared>, name: &str) -> bool {
     if s.profiles.is_file(name) {
         return true;
     }

@@ -404,8 +404,9 @@ fn operation(method: &str, path: &str, g: &mut SchemaGenerator) -> Option<Op> {
             .ok::<Health>(g, 200, "Ready")
             .ok::<Health>(g, 503, "Not ready"),
         ("GET", "/v2/models/{name}/ready") => Op::new(
-            "KServe v2 model readiness: a loaded profile uses the model (by profile name, \
-             model name or name@version), or a stored model's active version is served",
+            "KServe v2 model readiness, for the names /v2/models/{name} describes: a profile \
+             that loads (a stored one is loaded here, as the first session would), or a \
+             stored model whose active version is served",
         )
         .ok::<ModelReady>(g, 200, "Ready")
         .ok::<ModelReady>(g, 404, "Not ready"),
