@@ -457,3 +457,43 @@ async fn a_profile_file_is_calibrated_and_recalibrated_in_the_data_directory() {
     assert_eq!(p["calibration_source"], "file", "{p}");
     server.shutdown().await.unwrap();
 }
+
+/// A calibration job's decoding is charged to the server's memory budget: while the budget
+/// is spent, its frames wait for room and, after the wait, are left out, which the job's
+/// notes say; once there is room again the job goes on and succeeds.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_calibration_job_decodes_within_the_memory_budget() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut settings = settings(dir.path());
+    settings.service.memory_budget_mb = 64;
+    let server = start(&settings).await;
+    let api = Api::new(&server);
+    stored_profile(&api).await;
+    // Something else holds the whole budget.
+    let budget = server.shared.hub.budget().clone();
+    let held = budget.charge(budget.limit()).unwrap();
+    let train = fixture().join("train");
+    let (status, job) = api
+        .json(
+            Method::POST,
+            "/v1/profiles/arm-store/calibrate",
+            json!({ "episodes": [train.join("train_0000.mcap"), train.join("train_0001.mcap")] }),
+        )
+        .await;
+    assert_eq!(status, StatusCode::ACCEPTED, "{job}");
+    let id = job["job"].as_u64().unwrap();
+    // The first frame waits for room (10 s) and is then left out.
+    tokio::time::sleep(Duration::from_secs(3)).await;
+    assert_eq!(api.get(&format!("/v1/jobs/{id}")).await["state"], "running");
+    tokio::time::sleep(Duration::from_secs(9)).await;
+    drop(held);
+    let job = wait_job(&api, id).await;
+    assert_eq!(job["state"], "succeeded", "{job}");
+    let notes = job["notes"].to_string();
+    assert!(
+        notes.contains("train_0000: 1 frame(s) left out") && notes.contains("memory_budget_mb"),
+        "{job}"
+    );
+    assert_eq!(budget.used(), 0, "every charge given back");
+    server.shutdown().await.unwrap();
+}

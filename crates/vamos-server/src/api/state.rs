@@ -74,6 +74,7 @@ impl Shared {
             profiles: self.profiles.clone(),
             store: self.store.clone(),
             jobs: self.jobs.clone(),
+            budget: self.hub.budget().clone(),
         }
     }
 }

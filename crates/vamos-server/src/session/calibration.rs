@@ -3,6 +3,7 @@
 //! another, the calibration saved to the data directory. The job's record says how it
 //! ended ([`super::jobs`]).
 
+use super::budget::{ByteBudget, DECODE_WAIT, DecodeRoom};
 use super::jobs::{JobError, JobHandle, Jobs};
 use super::profiles::{LoadedProfile, ProfileCatalog, ProfileLookupError};
 use crate::store::{JobInfo, JobState, Proposal, ProposalEpisode, Store, StoreError};
@@ -213,6 +214,8 @@ pub struct Calibrator {
     pub store: Store,
     /// The job records.
     pub jobs: Arc<Jobs>,
+    /// The server's memory budget: each image a job decodes is charged to it first.
+    pub budget: Arc<ByteBudget>,
 }
 
 impl Calibrator {
@@ -281,14 +284,21 @@ impl Calibrator {
             return Err(CalibrationFailed::NoTraining);
         }
         let model_sha256 = setup.model.as_ref().map(|m| m.sha256().to_string());
-        let outcome = calibrate(
+        let mut refused = Vec::new();
+        let mut outcome = calibrate(
             &training,
             &holdout,
             req.alpha,
             model_sha256,
             &setup.config,
-            |episodes, thresholds| score_all(&profile, episodes, None, thresholds, job),
+            |episodes, thresholds| {
+                let scores = score_all(&profile, episodes, None, thresholds, &self.budget, job)?;
+                refused.extend(refused_frames(&scores));
+                Ok::<_, CalibrationFailed>(scores)
+            },
         )?;
+        refused.dedup();
+        outcome.notes.extend(refused);
         if job.cancelled() {
             return Err(CalibrationFailed::Cancelled);
         }
@@ -352,6 +362,7 @@ impl Calibrator {
             episodes,
             Some(sessions),
             setup.profile.thresholds(),
+            &self.budget,
             job,
         )?;
         let revision = revise(current, &setup.config, setup.model.is_some(), &scores);
@@ -364,6 +375,7 @@ impl Calibrator {
             setup.model.is_some(),
         );
         let mut notes = revision.notes;
+        notes.extend(refused_frames(&scores));
         if setup.profile.file.thresholds.alarm.is_some() {
             notes.push(
                 "the profile's own alarm threshold ([thresholds] alarm) stays in force".into(),
@@ -427,14 +439,34 @@ impl Calibrator {
     }
 }
 
+/// A note per episode with frames left out (refused by the memory budget, or bad
+/// frames), so that a calibration says what it did not see.
+fn refused_frames(scores: &[EpisodeScores]) -> Vec<String> {
+    scores
+        .iter()
+        .filter_map(|e| {
+            let first = e.frame_errors.first()?;
+            Some(format!(
+                "episode {}: {} frame(s) left out (first: {})",
+                e.name,
+                e.frame_errors.len(),
+                first.message
+            ))
+        })
+        .collect()
+}
+
 /// Scores `episodes` with `profile` (no alarm threshold) and `thresholds`, one after
 /// another, the predictor's sampling seeded with each one's name or its entry of
-/// `seeds`; stops before the next one once `job` is cancelled.
+/// `seeds`; each image's decoding is charged to `budget` first (waiting for room up to
+/// [`DECODE_WAIT`], then the frame is left out); stops before the next one once `job` is
+/// cancelled.
 fn score_all(
     profile: &LoadedProfile,
     episodes: &[PathBuf],
     seeds: Option<&[String]>,
     thresholds: vamos_core::eval::Thresholds,
+    budget: &Arc<ByteBudget>,
     job: &JobHandle,
 ) -> Result<Vec<EpisodeScores>, CalibrationFailed> {
     let setup = &profile.setup;
@@ -449,7 +481,9 @@ fn score_all(
                 path: path.clone(),
                 source: e,
             };
-            let episode = McapEpisode::open(path, &setup.episode).map_err(|e| failed(e.into()))?;
+            let episode = McapEpisode::open(path, &setup.episode)
+                .map_err(|e| failed(e.into()))?
+                .with_decode_budget(DecodeRoom::new(budget.clone(), DECODE_WAIT));
             let seed = seeds
                 .and_then(|s| s.get(i))
                 .map_or(episode.name(), String::as_str);
