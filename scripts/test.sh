@@ -13,8 +13,9 @@
 #     ROS 2 tests: the Python ROS 2 package's (clients/ros2/vamos_bridge: no ROS needed, see
 #     its README) and `vamos bridge` on the wire against Eclipse Cyclone DDS
 #     (clients/ros2/dds_wire); then, from a second virtual environment (.venv-ros) with
-#     ROS 2's own wheels, a real rclpy node on Fast DDS against `vamos bridge`
-#     (clients/ros2/rclpy_wire).
+#     ROS 2's own wheels, vamos_msgs and vamos_bridge built by colcon, and a real rclpy
+#     node on Fast DDS against `vamos bridge` and the vamos_bridge node, reading the
+#     generated vamos_msgs types (clients/ros2/rclpy_wire).
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 
@@ -58,4 +59,16 @@ if [ ! -x .venv-ros/bin/python ]; then
 fi
 .venv-ros/bin/python -m pip install --quiet --upgrade pip
 .venv-ros/bin/python -m pip install --quiet -r clients/ros2/rclpy_wire/requirements.txt
-VAMOS_BIN="$PWD/target/release/vamos" .venv-ros/bin/python -m pytest clients/ros2/rclpy_wire -q -p no:cacheprovider
+# The Python bridge node's client (grpcio, protobuf... from PyPI).
+.venv-ros/bin/python -m pip install --quiet ./clients/python
+# vamos_msgs and vamos_bridge built by colcon against those wheels (~30 s; needs g++ and
+# the Python headers), then the tests with the workspace sourced: rclpy reads vamos_msgs
+# through the generated types, and the vamos_bridge node runs as colcon installed it.
+clients/ros2/tools/colcon_build.sh .venv-ros target/ros2_ws vamos_msgs vamos_bridge
+(
+    set +u  # colcon's setup.sh reads variables that may be unset
+    . target/ros2_ws/install/setup.sh
+    set -u
+    REQUIRE_VAMOS_MSGS=1 VAMOS_BIN="$PWD/target/release/vamos" \
+        .venv-ros/bin/python -m pytest clients/ros2/rclpy_wire -q -p no:cacheprovider
+)

@@ -50,9 +50,10 @@ enum Command {
     /// every answer as a JSON line (scores and session events); a summary goes to stderr.
     Stream(cli::stream::Args),
     /// Join a ROS 2 graph (no ROS installation needed) as a node that streams a robot's
-    /// camera and joint states to a running server and publishes stamped scores and
-    /// diagnostics; stops on SIGTERM or Ctrl-C after the last scores.
-    Bridge(cli::bridge::Args),
+    /// camera and joint states to a running server and publishes stamped scores, alarm
+    /// events, anomaly maps (when asked for) and diagnostics; stops on SIGTERM or Ctrl-C
+    /// after the last scores.
+    Bridge(Box<cli::bridge::Args>),
     /// Replay episodes as N robots streaming to a running server; prints the achieved
     /// rate, score latency percentiles, drops and the server's CPU and memory (JSON).
     Loadgen(cli::loadgen::Args),
@@ -188,7 +189,7 @@ fn run(cli: Cli) -> Result<()> {
         Command::Serve(args) => cli::serve::run(settings, args),
         Command::Health(args) => cli::health::run(args),
         Command::Stream(args) => cli::stream::run(&settings, args),
-        Command::Bridge(args) => cli::bridge::run(args),
+        Command::Bridge(args) => cli::bridge::run(*args),
         Command::Loadgen(args) => cli::loadgen::run(args),
         Command::Score(args) => cli::score::run(&settings, args),
         Command::Layout(args) => cli::layout::run(&settings, args),

@@ -72,6 +72,18 @@ pub struct Args {
     /// std_msgs/Bool anomaly output (unstamped).
     #[arg(long, default_value = "vamos/anomaly")]
     pub anomaly_topic: String,
+    /// vamos_msgs/AlarmEvent output: each alarm's start and end, stamped with the image
+    /// at which it happened (reliable, transient-local, keep last 10).
+    #[arg(long, default_value = "vamos/alarm")]
+    pub alarm_topic: String,
+    /// Ask the server for each frame's anomaly map and publish it on --anomaly-map-topic
+    /// (off by default: maps cost bandwidth).
+    #[arg(long)]
+    pub anomaly_maps: bool,
+    /// sensor_msgs/Image output of the anomaly maps (mono8, 0 = nominal), stamped with
+    /// the scored image's header; with --anomaly-maps only.
+    #[arg(long, default_value = "vamos/anomaly_map", requires = "anomaly_maps")]
+    pub anomaly_map_topic: String,
     /// Period of diagnostic_msgs/DiagnosticArray on /diagnostics, seconds.
     #[arg(long, default_value_t = 1.0, value_parser = positive_seconds)]
     pub diagnostics_period: f64,
@@ -142,16 +154,21 @@ pub fn run(args: Args) -> Result<()> {
         frame_score_topic: args.frame_score_topic,
         score_topic: args.score_topic,
         anomaly_topic: args.anomaly_topic,
+        alarm_topic: args.alarm_topic,
+        anomaly_maps: args.anomaly_maps,
+        anomaly_map_topic: args.anomaly_map_topic,
         diagnostics_period: Duration::from_secs_f64(args.diagnostics_period),
     };
     let report = super::async_runtime()?
         .block_on(vamos::ros2::run(options, vamos::service::wait_for_signal()))?;
     eprintln!(
-        "vamos bridge: session {}, {} images sent, {} scores published, {} dropped, {} refused, \
-         {} reconnects",
+        "vamos bridge: session {}, {} images sent, {} scores published, {} alarm events \
+         published, {} anomaly maps published, {} dropped, {} refused, {} reconnects",
         report.session_id,
         report.images_sent,
         report.scores_published,
+        report.alarm_events_published,
+        report.anomaly_maps_published,
         report.dropped,
         report.refused,
         report.reconnects

@@ -16,70 +16,29 @@ own virtual environment (`.venv-ros`, clients/ros2/rclpy_wire/requirements.txt).
 from __future__ import annotations
 
 import math
-import os
-import random
 import signal
 import subprocess
 import sys
 import time
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Iterator
 
 import pytest
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[2]
 sys.path.insert(0, str(ROOT / "clients" / "python" / "tests"))
+sys.path.insert(0, str(HERE))
 
+from _ros import EPISODE, read_episode, ros_context  # noqa: E402
 from _server import ROBOT, Server, vamos_bin  # noqa: E402
-
-EPISODE = ROOT / "tests" / "fixtures" / "sim" / "test" / "test_0000.mcap"
 
 
 @pytest.fixture
-def ros() -> Any:
-    """rclpy on Fast DDS in a domain of its own (parallel runs on one host do not meet)."""
-    os.environ["RMW_IMPLEMENTATION"] = "rmw_fastrtps_cpp"
-    rclpy = pytest.importorskip("rclpy")
-    domain = random.randint(100, 200)
-    context = rclpy.context.Context()
-    rclpy.init(context=context, domain_id=domain)
-    try:
-        yield rclpy, context, domain
-    finally:
-        rclpy.shutdown(context=context)
-
-
-def read_episode(path: Path) -> list[tuple[str, Any]]:
-    """The bag's camera, camera info and joint state messages in log-time order, as rclpy
-    messages."""
-    from builtin_interfaces.msg import Time
-    from mcap.reader import make_reader
-    from mcap_ros2.decoder import DecoderFactory
-    from sensor_msgs.msg import CameraInfo, Image, JointState, RegionOfInterest
-    from std_msgs.msg import Header
-
-    def header(m: Any) -> Header:
-        return Header(stamp=Time(sec=m.header.stamp.sec, nanosec=m.header.stamp.nanosec),
-                      frame_id=m.header.frame_id)
-
-    out: list[tuple[str, Any]] = []
-    with path.open("rb") as f:
-        for _s, channel, _m, m in make_reader(f, decoder_factories=[DecoderFactory()]).iter_decoded_messages():
-            if channel.topic == "/camera/image_raw":
-                out.append(("image", Image(header=header(m), height=m.height, width=m.width, encoding=m.encoding,
-                                           is_bigendian=m.is_bigendian, step=m.step, data=bytes(m.data))))
-            elif channel.topic == "/camera/camera_info":
-                roi = RegionOfInterest(x_offset=m.roi.x_offset, y_offset=m.roi.y_offset, height=m.roi.height,
-                                       width=m.roi.width, do_rectify=m.roi.do_rectify)
-                out.append(("camera_info", CameraInfo(
-                    header=header(m), height=m.height, width=m.width, distortion_model=m.distortion_model,
-                    d=list(m.d), k=list(m.k), r=list(m.r), p=list(m.p), binning_x=m.binning_x,
-                    binning_y=m.binning_y, roi=roi)))
-            elif channel.topic == "/joint_states":
-                out.append(("joints", JointState(header=header(m), name=list(m.name), position=list(m.position),
-                                                 velocity=list(m.velocity), effort=list(m.effort))))
-    return out
+def ros() -> Iterator[Any]:
+    """rclpy on Fast DDS in a domain of its own."""
+    with ros_context() as r:
+        yield r
 
 
 def test_a_ros2_node_on_fast_dds_gets_the_scores_vamos_score_gives(ros: Any, tmp_path: Path) -> None:
@@ -133,6 +92,8 @@ def test_a_ros2_node_on_fast_dds_gets_the_scores_vamos_score_gives(ros: Any, tmp
         topics = dict(node.get_topic_names_and_types())
         assert topics["/robot1/vamos/score"] == ["std_msgs/msg/Float64"], topics
         assert topics["/diagnostics"] == ["diagnostic_msgs/msg/DiagnosticArray"], topics
+        # Anomaly maps are off unless asked for: no map topic.
+        assert "/robot1/vamos/anomaly_map" not in topics, topics
 
         messages = read_episode(EPISODE)
         images = [m for kind, m in messages if kind == "image"]
@@ -140,7 +101,7 @@ def test_a_ros2_node_on_fast_dds_gets_the_scores_vamos_score_gives(ros: Any, tmp
         for kind, m in messages:
             if kind == "image":
                 # A robot within the server's queue: at most three images ahead of the scores.
-                wait_for("scores", lambda: len(scores) >= sent - 3)
+                wait_for("scores", lambda n=sent: len(scores) >= n - 3)
                 image_pub.publish(m)
                 other_pub.publish(m)
                 sent += 1
@@ -167,7 +128,7 @@ def test_a_ros2_node_on_fast_dds_gets_the_scores_vamos_score_gives(ros: Any, tmp
     # One score per image of robot1 (robot2's never entered the session), in image order,
     # equal to the offline scores.
     assert len(scores) == len(reference) == len(images), (len(scores), len(reference), len(images))
-    for have, want in zip(scores, reference):
+    for have, want in zip(scores, reference, strict=True):
         assert math.isclose(have, want["score"], rel_tol=1e-9, abs_tol=1e-12), (have, want)
     assert anomalies == [bool(r["anomaly"]) for r in reference]
     mine = [st for st in statuses if st.hardware_id == "robot1"]

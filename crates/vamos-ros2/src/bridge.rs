@@ -6,8 +6,16 @@
 //! same session id, which the server resumes, at the next image after the stream broke.
 //! Subscriptions use the sensor-data QoS camera drivers publish with (best effort, keep
 //! last): they match reliable publishers too, and a bridge that falls behind drops the
-//! oldest images, never the newest. Scores and diagnostics are published reliable, keep
-//! last 10 (the ROS 2 default).
+//! oldest images, never the newest. Scores, anomaly maps and diagnostics are published
+//! reliable, keep last 10 (the ROS 2 default). Alarm events are published reliable and
+//! transient-local, keep last 10: an alarm is two messages (start, end), rare next to the
+//! scores, so a subscriber that joins late (an operator's console started after an
+//! alarm) still gets the last five alarms' edges, and transient-local publishers match
+//! volatile subscriptions too.
+//!
+//! Anomaly maps (`anomaly_maps`, off by default: they cost bandwidth) are asked of the
+//! server only when on, and each is published as a `mono8` `sensor_msgs/Image` with the
+//! scored image's header.
 //!
 //! With a depth topic, each colour image goes to the server with the depth image nearest
 //! its stamp within `max_depth_gap_ms`, after waiting for it at most twice that gap
@@ -20,7 +28,8 @@ use crate::status::BridgeState;
 use futures_util::stream::{self, BoxStream, StreamExt};
 use ros2_client::{
     Context, ContextOptions, Name, Node, NodeName, NodeOptions, Publisher, QosProfile,
-    Subscription, qos::History,
+    Subscription,
+    qos::{Durability, History},
 };
 use std::collections::{HashMap, VecDeque};
 use std::future::Future;
@@ -75,6 +84,14 @@ pub struct BridgeOptions {
     pub score_topic: String,
     /// `std_msgs/Bool` anomaly output.
     pub anomaly_topic: String,
+    /// `vamos_msgs/AlarmEvent` output: each alarm's start and end.
+    pub alarm_topic: String,
+    /// Ask the server for each frame's anomaly map and publish it on
+    /// `anomaly_map_topic` (off by default).
+    pub anomaly_maps: bool,
+    /// `sensor_msgs/Image` (`mono8`, 0 = nominal) output of the anomaly maps, stamped
+    /// with the scored image's header.
+    pub anomaly_map_topic: String,
     /// Period of `diagnostic_msgs/DiagnosticArray` on `/diagnostics`.
     pub diagnostics_period: Duration,
 }
@@ -102,6 +119,9 @@ impl BridgeOptions {
             frame_score_topic: "vamos/frame_score".into(),
             score_topic: "vamos/score".into(),
             anomaly_topic: "vamos/anomaly".into(),
+            alarm_topic: "vamos/alarm".into(),
+            anomaly_maps: false,
+            anomaly_map_topic: "vamos/anomaly_map".into(),
             diagnostics_period: Duration::from_secs(1),
         }
     }
@@ -134,6 +154,10 @@ pub struct BridgeReport {
     pub refused: u64,
     /// Images the server dropped under backpressure.
     pub dropped: u64,
+    /// Alarm events (starts and ends) published.
+    pub alarm_events_published: u64,
+    /// Anomaly maps published.
+    pub anomaly_maps_published: u64,
     /// The last session id.
     pub session_id: String,
 }
@@ -181,6 +205,7 @@ impl BridgeOptions {
         let namespace = names::normalise_namespace(&self.namespace)?;
         let resolve = |t: &str| names::resolve_topic(t, &namespace, &self.node_name);
         let mut topics = vec![
+            ("alarm_topic".to_string(), resolve(&self.alarm_topic)?),
             ("anomaly_topic".to_string(), resolve(&self.anomaly_topic)?),
             (
                 "camera_info_topic".to_string(),
@@ -195,6 +220,12 @@ impl BridgeOptions {
         ];
         if let Some(t) = self.depth_topic() {
             topics.push(("depth_topic".to_string(), resolve(t)?));
+        }
+        if self.anomaly_maps {
+            topics.push((
+                "anomaly_map_topic".to_string(),
+                resolve(&self.anomaly_map_topic)?,
+            ));
         }
         for (i, t) in self.joint_states_topics.iter().enumerate() {
             topics.push((format!("joint_states_topics[{i}]"), resolve(t)?));
@@ -220,6 +251,24 @@ impl BridgeOptions {
 impl BridgeOptions {
     /// The largest depth gap, ms: farther apart, a depth image is of another moment.
     pub const MAX_DEPTH_GAP_MS: f64 = 1000.0;
+
+    /// The message that opens the session: anomaly maps are asked for only when they are
+    /// published.
+    pub fn open_session(
+        &self,
+        resolved: &Resolved,
+        camera: Option<proto::CameraInfo>,
+    ) -> proto::OpenSession {
+        proto::OpenSession {
+            robot_id: resolved.robot_id.clone(),
+            profile: self.profile.clone(),
+            camera_info: camera,
+            task: self.task.clone(),
+            session_id: resolved.session_id.clone(),
+            anomaly_maps: self.anomaly_maps,
+            image_rate_hz: 0.0,
+        }
+    }
 
     /// The depth topic, when one is set (an empty name is none).
     pub fn depth_topic(&self) -> Option<&str> {
@@ -263,6 +312,9 @@ struct FrameIds {
     by_stamp: HashMap<i64, String>,
     order: VecDeque<i64>,
     latest: String,
+    /// The frame id of the last score's image (an alarm event follows the score of the
+    /// frame that started or ended it).
+    last_scored: String,
 }
 
 impl FrameIds {
@@ -281,9 +333,12 @@ impl FrameIds {
     }
 
     fn pop(&mut self, stamp: i64) -> String {
-        self.by_stamp
+        let frame_id = self
+            .by_stamp
             .remove(&stamp)
-            .unwrap_or_else(|| self.latest.clone())
+            .unwrap_or_else(|| self.latest.clone());
+        self.last_scored.clone_from(&frame_id);
+        frame_id
     }
 }
 
@@ -292,7 +347,17 @@ struct Outputs {
     frame_score: Publisher<msg::FrameScore>,
     score: Publisher<msg::Float64>,
     anomaly: Publisher<msg::Bool>,
+    alarm: Publisher<msg::AlarmEvent>,
+    anomaly_map: Option<Publisher<msg::Image>>,
     diagnostics: Publisher<msg::DiagnosticArray>,
+}
+
+/// What the bridge published, by kind.
+#[derive(Default)]
+struct Published {
+    scores: u64,
+    alarm_events: u64,
+    anomaly_maps: u64,
 }
 
 /// An answer of the session numbered `.0`; `None`: its stream ended cleanly.
@@ -354,15 +419,7 @@ impl Link {
             }
         };
         let mut session: Session = client
-            .open(proto::OpenSession {
-                robot_id: self.resolved.robot_id.clone(),
-                profile: self.options.profile.clone(),
-                camera_info: self.camera,
-                task: self.options.task.clone(),
-                session_id: self.resolved.session_id.clone(),
-                anomaly_maps: false,
-                image_rate_hz: 0.0,
-            })
+            .open(self.options.open_session(&self.resolved, self.camera))
             .await?;
         let sender = session.take_sender().ok_or(ClientError::Closed)?;
         while let Some(j) = self.early_joints.pop_front() {
@@ -519,6 +576,20 @@ pub async fn run(
         make_topic(topic("frame_score_topic"), types::frame_score(), &reliable)?;
     let score_topic = make_topic(topic("score_topic"), types::float64(), &reliable)?;
     let anomaly_topic = make_topic(topic("anomaly_topic"), types::bool(), &reliable)?;
+    let alarm_topic = make_topic(
+        topic("alarm_topic"),
+        types::alarm_event(),
+        &reliable.clone().durability(Durability::TransientLocal),
+    )?;
+    let anomaly_map_topic = if options.anomaly_maps {
+        Some(make_topic(
+            topic("anomaly_map_topic"),
+            types::image(),
+            &reliable,
+        )?)
+    } else {
+        None
+    };
     let diagnostics_topic = make_topic("/diagnostics", types::diagnostic_array(), &reliable)?;
 
     let out = Outputs {
@@ -531,6 +602,13 @@ pub async fn run(
         anomaly: node
             .create_publisher(&anomaly_topic, None)
             .map_err(dds("publisher"))?,
+        alarm: node
+            .create_publisher(&alarm_topic, None)
+            .map_err(dds("publisher"))?,
+        anomaly_map: match &anomaly_map_topic {
+            Some(t) => Some(node.create_publisher(t, None).map_err(dds("publisher"))?),
+            None => None,
+        },
         diagnostics: node
             .create_publisher(&diagnostics_topic, None)
             .map_err(dds("publisher"))?,
@@ -641,7 +719,7 @@ pub async fn run(
     };
     let mut pairer = options.depth_pairer();
     let mut frame_ids = FrameIds::default();
-    let mut scores_published = 0u64;
+    let mut published = Published::default();
     let mut diagnostics = tokio::time::interval(options.diagnostics_period);
     diagnostics.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     tracing::info!(
@@ -669,7 +747,7 @@ pub async fn run(
     );
 
     let publish_answer =
-        |link: &mut Link, frame_ids: &mut FrameIds, scores_published: &mut u64, answer: Answer| {
+        |link: &mut Link, frame_ids: &mut FrameIds, published: &mut Published, answer: Answer| {
             let (generation, answer) = answer;
             match answer {
                 Some(Ok(Update::Score(s))) => {
@@ -678,6 +756,17 @@ pub async fn run(
                     match msg::FrameScore::from_proto(&s, frame_id, &link.state.session_id) {
                         Some(m) => {
                             let (score, anomaly) = (m.score, m.anomaly);
+                            if let Some(maps) = &out.anomaly_map
+                                && !s.anomaly_map.is_empty()
+                            {
+                                match msg::Image::anomaly_map(&s.anomaly_map, m.header.clone()) {
+                                    Ok(map) => match maps.publish(map) {
+                                        Ok(()) => published.anomaly_maps += 1,
+                                        Err(e) => tracing::warn!("publishing an anomaly map: {e}"),
+                                    },
+                                    Err(e) => tracing::warn!("{e}"),
+                                }
+                            }
                             let results = [
                                 out.frame_score.publish(m).err().map(|e| e.to_string()),
                                 out.score
@@ -692,7 +781,7 @@ pub async fn run(
                             if let Some(e) = results.into_iter().flatten().next() {
                                 tracing::warn!("publishing a score: {e}");
                             } else {
-                                *scores_published += 1;
+                                published.scores += 1;
                             }
                         }
                         None => tracing::warn!(
@@ -708,7 +797,30 @@ pub async fn run(
                     }
                 }
                 Some(Ok(Update::Alarm(a))) => {
-                    tracing::info!("alarm {} {:?}", a.alarm_id, a.detectors);
+                    let frame_id = frame_ids.last_scored.clone();
+                    match msg::AlarmEvent::from_proto(&a, frame_id, &link.resolved.robot_id) {
+                        Some(m) => {
+                            tracing::info!(
+                                "alarm {} {} (detector {:?}, start frame {})",
+                                m.alarm_id,
+                                if m.edge == msg::AlarmEvent::STARTED {
+                                    "started"
+                                } else {
+                                    "ended"
+                                },
+                                m.detector,
+                                m.start_frame
+                            );
+                            match out.alarm.publish(m) {
+                                Ok(()) => published.alarm_events += 1,
+                                Err(e) => tracing::warn!("publishing an alarm event: {e}"),
+                            }
+                        }
+                        None => tracing::warn!(
+                            "alarm event {} not published: no edge, or a stamp outside ROS time",
+                            a.alarm_id
+                        ),
+                    }
                 }
                 Some(Ok(Update::Sent { .. })) => {}
                 Some(Err(e)) if generation == link.generation => link.lost(e.to_string()),
@@ -757,7 +869,7 @@ pub async fn run(
             biased;
             () = &mut shutdown => break,
             Some(answer) = answers.recv() => {
-                publish_answer(&mut link, &mut frame_ids, &mut scores_published, answer);
+                publish_answer(&mut link, &mut frame_ids, &mut published, answer);
             }
             _ = diagnostics.tick() => {
                 publish_diagnostics(&link);
@@ -817,7 +929,7 @@ pub async fn run(
         let current = link.generation;
         while let Ok(Some(answer)) = tokio::time::timeout_at(deadline, answers.recv()).await {
             let ended = answer.0 == current && !matches!(answer.1, Some(Ok(_)));
-            publish_answer(&mut link, &mut frame_ids, &mut scores_published, answer);
+            publish_answer(&mut link, &mut frame_ids, &mut published, answer);
             if ended {
                 break;
             }
@@ -829,10 +941,12 @@ pub async fn run(
     spin.abort();
     Ok(BridgeReport {
         images_sent: link.state.images_sent,
-        scores_published,
+        scores_published: published.scores,
         reconnects: link.state.reconnects,
         refused: link.state.refused,
         dropped: link.state.dropped,
+        alarm_events_published: published.alarm_events,
+        anomaly_maps_published: published.anomaly_maps,
         session_id: link.state.session_id,
     })
 }
@@ -855,6 +969,18 @@ mod tests {
         assert_eq!(get("image_topic"), "/robot1/camera/image_raw");
         assert_eq!(get("frame_score_topic"), "/robot1/vamos/frame_score");
         assert_eq!(get("joint_states_topics[1]"), "/gripper/joint_states");
+        assert_eq!(get("alarm_topic"), "/robot1/vamos/alarm");
+        assert!(
+            r.topics.iter().all(|(k, _)| k != "anomaly_map_topic"),
+            "no map topic unless maps are asked for"
+        );
+        o.anomaly_maps = true;
+        let r = o.resolve("abcd").unwrap();
+        let get = |k: &str| r.topics.iter().find(|(key, _)| key == k).unwrap().1.clone();
+        assert_eq!(get("anomaly_map_topic"), "/robot1/vamos/anomaly_map");
+        o.anomaly_map_topic = "vamos//map".into();
+        assert!(matches!(o.resolve("x"), Err(BridgeError::Name(_))));
+        o.anomaly_map_topic = "vamos/anomaly_map".into();
         o.profile.clear();
         assert!(o.resolve("x").unwrap_err().to_string().contains("profile"));
         let mut o = BridgeOptions::new("http://h", "arm");
@@ -910,6 +1036,28 @@ mod tests {
     }
 
     #[test]
+    fn anomaly_maps_are_asked_of_the_server_only_when_published() {
+        let mut o = BridgeOptions::new("http://h", "arm");
+        o.namespace = "/robot1".into();
+        o.task = "pick".into();
+        let r = o.resolve("abcd").unwrap();
+        let open = o.open_session(&r, None);
+        assert!(!open.anomaly_maps, "off by default");
+        assert_eq!(
+            (
+                open.robot_id.as_str(),
+                open.session_id.as_str(),
+                open.profile.as_str(),
+                open.task.as_str()
+            ),
+            ("robot1", "robot1-abcd", "arm", "pick")
+        );
+        o.anomaly_maps = true;
+        let r = o.resolve("abcd").unwrap();
+        assert!(o.open_session(&r, None).anomaly_maps);
+    }
+
+    #[test]
     fn frame_ids_are_kept_by_stamp_and_bounded() {
         let mut f = FrameIds::default();
         for i in 0..300 {
@@ -919,5 +1067,9 @@ mod tests {
         assert_eq!(f.pop(299), "f299");
         assert_eq!(f.pop(10), "f299", "forgotten stamps get the latest frame");
         assert_eq!(f.pop(100), "f100");
+        assert_eq!(
+            f.last_scored, "f100",
+            "an alarm event takes the last score's frame"
+        );
     }
 }

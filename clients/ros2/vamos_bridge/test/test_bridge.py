@@ -55,11 +55,19 @@ class Recorder:
 
     def __init__(self) -> None:
         self.scores: list[dict[str, Any]] = []
+        self.alarms: list[dict[str, Any]] = []
+        self.maps: list[dict[str, Any]] = []
         self.logs: list[tuple[str, str]] = []
         self.done = threading.Event()
 
     def score(self, fields: dict[str, Any]) -> None:
         self.scores.append(fields)
+
+    def alarm(self, fields: dict[str, Any]) -> None:
+        self.alarms.append(fields)
+
+    def anomaly_map(self, fields: dict[str, Any]) -> None:
+        self.maps.append(fields)
 
     def log(self, level: str, text: str) -> None:
         self.logs.append((level, text))
@@ -146,7 +154,7 @@ def test_the_session_opens_at_the_first_image_and_reconnects_under_its_id() -> N
 
     params = Params.from_values({"profile": "p", "task": "shelf"}, "/robot1", "vamos_bridge", suffix="abc")
     client, out = FakeClient(refuse_first=True), Recorder()
-    bridge = Bridge(params, client, CallbackOutputs(out.score, out.log), reopen_after_s=0.2)
+    bridge = Bridge(params, client, CallbackOutputs(out.score, out.log, out.alarm, out.anomaly_map), reopen_after_s=0.2)
     bridge.on_camera_info(NS(width=0, height=0, k=[0.0] * 9))  # uncalibrated: ignored, logged
     bridge.on_camera_info(NS(width=160, height=120, k=[100.0, 0, 80, 0, 100, 60, 0, 0, 1]))
     bridge.on_joint_state(joints(1))
@@ -159,7 +167,7 @@ def test_the_session_opens_at_the_first_image_and_reconnects_under_its_id() -> N
     bridge.on_image(image(10**9 + 5, "cam_left"))
     (s,) = client.sessions
     assert client.opens[-1] == {"profile": "p", "robot_id": "robot1", "session_id": "robot1-abc", "task": "shelf",
-                                "camera_info": bridge.camera}
+                                "camera_info": bridge.camera, "anomaly_maps": False}
     # The early joint states first, then the image.
     assert [m.WhichOneof("message") for m in s.sent] == ["joints", "joints", "image"]
     wait_for(lambda: len(out.scores) == 1)
@@ -184,6 +192,63 @@ def test_the_session_opens_at_the_first_image_and_reconnects_under_its_id() -> N
     assert any("stream ended" in w for w in warnings) and any("image ignored" in w for w in warnings)
     values = dict(bridge.diagnostic()[2])
     assert values["image_topic"] == "/robot1/camera/image_raw" and values["robot_id"] == "robot1"
+
+
+def test_alarm_events_and_anomaly_maps_go_out_stamped_like_their_frames() -> None:
+    from test_convert import an_alarm, gray_png
+
+    params = Params.from_values({"profile": "p", "anomaly_maps": True}, "/robot1", "vamos_bridge", suffix="m")
+    assert params.resolved["alarm_topic"] == "/robot1/vamos/alarm"
+    assert params.resolved["anomaly_map_topic"] == "/robot1/vamos/anomaly_map"
+    client, out = FakeClient(), Recorder()
+    bridge = Bridge(params, client, CallbackOutputs(out.score, out.log, out.alarm, out.anomaly_map))
+    bridge.on_image(image(1_200_000_001, "cam_left"))
+    (s,) = client.sessions
+    assert client.opens[-1]["anomaly_maps"] is True, "maps are asked for"
+    wait_for(lambda: len(out.scores) == 1)
+    assert out.maps == [], "a score without a map publishes none"
+    # The server's answers to the next image: its score with a map, then an alarm that
+    # started at it, an alarm event of an unknown edge, and a map that is not a PNG.
+    bridge.on_image(image(1_300_000_000, "cam_right"))
+    wait_for(lambda: len(out.scores) == 2)
+    stamp = 1_400_000_000
+    bridge.frame_ids.remember(stamp, "cam_right")
+    with s.cond:
+        s.answers += [FrameScore(stamp_ns=stamp, index=2, frame=2, score=3.0, e_c=None, e_b=None, e_o=3.0,
+                                 anomaly=True, detector="flow", warming_up=False,
+                                 anomaly_map=gray_png(2, 1, b"\x00\xff")),
+                      an_alarm(), an_alarm("unknown"),
+                      FrameScore(stamp_ns=stamp + 1, index=3, frame=3, score=3.0, e_c=None, e_b=None, e_o=3.0,
+                                 anomaly=True, detector="flow", warming_up=False, anomaly_map=b"garbage")]
+        s.cond.notify_all()
+    wait_for(lambda: len(out.scores) == 4)
+    (m,) = out.maps
+    assert (m["header"], m["width"], m["height"], m["encoding"], m["data"]) == (
+        (Stamp(1, 400_000_000), "cam_right"), 2, 1, "mono8", b"\x00\xff")
+    (a,) = out.alarms
+    # The alarm's own stamp (its start frame's), the frame id of the score before it.
+    assert a["header"] == (Stamp(1, 200_000_001), "cam_right")
+    assert (a["edge"], a["alarm_id"], a["robot_id"], a["detector"]) == (1, "a7", "robot1", "flow")
+    warnings = [text for level, text in out.logs if level == "warning"]
+    assert any("alarm event not published" in w for w in warnings), warnings
+    assert any("anomaly map of frame 3 not published" in w for w in warnings), warnings
+    assert any("alarm a7 started" in text for level, text in out.logs if level == "info"), out.logs
+    bridge.close()
+    # Without anomaly_maps none are asked for, and none published.
+    params = Params.from_values({"profile": "p"}, "/robot1", "vamos_bridge", suffix="n")
+    assert "anomaly_map_topic" not in params.resolved
+    client, out = FakeClient(), Recorder()
+    bridge = Bridge(params, client, CallbackOutputs(out.score, out.log, out.alarm, out.anomaly_map))
+    bridge.on_image(image(1))
+    assert client.opens[-1]["anomaly_maps"] is False
+    with client.sessions[0].cond:
+        client.sessions[0].answers.append(FrameScore(
+            stamp_ns=2, index=1, frame=1, score=0.0, e_c=None, e_b=None, e_o=0.0, anomaly=False, detector=None,
+            warming_up=False, anomaly_map=gray_png(1, 1, b"\x01")))
+        client.sessions[0].cond.notify_all()
+    wait_for(lambda: len(out.scores) == 2)
+    bridge.close()
+    assert out.maps == []
 
 
 def real_server() -> Any:
@@ -260,7 +325,7 @@ def test_images_go_with_the_depth_image_nearest_their_stamp() -> None:
                                 suffix="d")
     assert params.resolved["depth_topic"] == "/robot1/camera/depth/image_raw"
     client, out = FakeClient(), Recorder()
-    bridge = Bridge(params, client, CallbackOutputs(out.score, out.log))
+    bridge = Bridge(params, client, CallbackOutputs(out.score, out.log, out.alarm, out.anomaly_map))
     bridge.WITHOUT_DEPTH_WARNING = 3
     # A depth image at or after the image's stamp first, then the image: out at once,
     # with it.
@@ -306,7 +371,7 @@ def test_images_go_with_the_depth_image_nearest_their_stamp() -> None:
 def test_without_a_depth_topic_images_go_at_once_and_depth_images_are_ignored() -> None:
     params = Params.from_values({"profile": "p"}, "/robot1", "vamos_bridge", suffix="n")
     client, out = FakeClient(), Recorder()
-    bridge = Bridge(params, client, CallbackOutputs(out.score, out.log))
+    bridge = Bridge(params, client, CallbackOutputs(out.score, out.log, out.alarm, out.anomaly_map))
     bridge.on_depth(depth(1))
     bridge.on_image(image(1))
     bridge.release_due()

@@ -10,10 +10,14 @@ from types import SimpleNamespace as NS
 
 import pytest
 
-from vamos.client import FrameScore
+from vamos.client import AlarmComponents, AlarmEvent, AlarmThresholds, FrameScore
 from vamos_bridge.convert import (
+    ALARM_ENDED,
+    ALARM_STARTED,
     FrameIds,
     Stamp,
+    alarm_event_fields,
+    anomaly_map_fields,
     camera_info,
     depth_image,
     frame_score_fields,
@@ -24,7 +28,8 @@ from vamos_bridge.convert import (
     with_depth,
 )
 
-MSG = Path(__file__).resolve().parents[2] / "vamos_msgs" / "msg" / "FrameScore.msg"
+MSGS = Path(__file__).resolve().parents[2] / "vamos_msgs" / "msg"
+MSG = MSGS / "FrameScore.msg"
 
 
 def header(sec: int, nanosec: int, frame_id: str = "camera") -> NS:
@@ -145,3 +150,96 @@ def test_frame_score_fields_are_the_message_definition() -> None:
     quiet = FrameScore(stamp_ns=0, index=0, frame=0, score=0.0, e_c=None, e_b=None, e_o=None, anomaly=False,
                        detector=None, warming_up=True)
     assert frame_score_fields(quiet, "", "s")["detector"] == ""
+
+
+def definition(name: str) -> tuple[dict[str, str], dict[str, int]]:
+    """``(fields, constants)`` of ``vamos_msgs/msg/<name>.msg``: field name -> type, in order."""
+    fields: dict[str, str] = {}
+    constants: dict[str, int] = {}
+    for line in (MSGS / f"{name}.msg").read_text().splitlines():
+        line = line.split("#", 1)[0].strip()
+        if not line:
+            continue
+        kind, rest = line.split(maxsplit=1)
+        if "=" in rest:
+            key, value = (x.strip() for x in rest.split("=", 1))
+            constants[key] = int(value)
+        else:
+            fields[rest] = kind
+    return fields, constants
+
+
+def gray_png(width: int, height: int, pixels: bytes) -> bytes:
+    """An 8-bit gray PNG of ``pixels`` (filter 0 on every row)."""
+    import struct
+    import zlib
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    rows = b"".join(b"\x00" + pixels[y * width:(y + 1) * width] for y in range(height))
+    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0))
+            + chunk(b"IDAT", zlib.compress(rows)) + chunk(b"IEND", b""))
+
+
+def an_alarm(edge: str = "started") -> AlarmEvent:
+    return AlarmEvent(
+        edge=edge, alarm_id="a7", session_id="arm-1-abc", detector="flow", detectors=("flow", "scene"),
+        start_frame=12, end_frame=20 if edge == "ended" else None,
+        end_stamp_ns=3_000_000_007 if edge == "ended" else None, frames_flagged=5,
+        thresholds=AlarmThresholds(alarm=1.0, e_o=1.0, e_r=2.5),
+        start=AlarmComponents(stamp_ns=1_200_000_001, score=1.5, e_c=0.2, e_o=1.5),
+        peak=AlarmComponents(stamp_ns=1_500_000_000, score=4.0, e_o=4.0, e_r=1.0))
+
+
+def test_alarm_event_fields_are_the_message_definition() -> None:
+    fields, constants = definition("AlarmEvent")
+    frame_fields, _ = definition("AlarmFrame")
+    assert constants == {"STARTED": ALARM_STARTED, "ENDED": ALARM_ENDED} == {"STARTED": 1, "ENDED": 2}
+    got = alarm_event_fields(an_alarm(), "camera_optical", "arm-1")
+    assert list(got) == list(fields)
+    python_type = {"float64": float, "uint8": int, "string": str, "uint64": int, "string[]": list}
+    for name, kind in fields.items():
+        if kind == "std_msgs/Header":
+            assert got[name] == (Stamp(1, 200_000_001), "camera_optical"), "stamped with its start frame"
+        elif kind == "AlarmFrame":
+            assert list(got[name]) == list(frame_fields), name
+            assert type(got[name]["stamp"]) is Stamp
+            assert all(type(got[name][k]) is float for k in frame_fields if k != "stamp")
+        else:
+            assert type(got[name]) is python_type[kind], name
+    assert (got["edge"], got["alarm_id"], got["session_id"], got["robot_id"]) == (1, "a7", "arm-1-abc", "arm-1")
+    assert (got["detector"], got["detectors"]) == ("flow", ["flow", "scene"])
+    assert (got["start_frame"], got["end_frame"], got["frames_flagged"]) == (12, 0, 5)
+    assert (got["alarm_threshold"], got["e_o_threshold"], got["e_r_threshold"]) == (1.0, 1.0, 2.5)
+    assert math.isnan(got["e_c_threshold"]) and math.isnan(got["e_b_threshold"]) and math.isnan(got["e_k_threshold"])
+    assert got["start"]["stamp"] == Stamp(1, 200_000_001) and got["start"]["score"] == 1.5
+    assert got["start"]["e_c"] == 0.2 and math.isnan(got["start"]["e_b"])
+    assert got["peak"]["stamp"] == Stamp(1, 500_000_000) and got["peak"]["e_r"] == 1.0
+
+
+def test_an_ended_alarm_is_stamped_at_its_end_and_an_unknown_edge_is_refused() -> None:
+    got = alarm_event_fields(an_alarm("ended"), "cam", "arm-1")
+    assert (got["edge"], got["end_frame"], got["header"]) == (ALARM_ENDED, 20, (Stamp(3, 7), "cam"))
+    with pytest.raises(ValueError, match="neither a start nor an end"):
+        alarm_event_fields(an_alarm("unknown"), "cam", "arm-1")
+
+
+def test_an_anomaly_map_becomes_the_fields_of_a_mono8_image() -> None:
+    pixels = bytes([0, 128, 255, 10, 20, 30])
+    score = FrameScore(stamp_ns=5_000_000_002, index=0, frame=0, score=0.0, e_c=None, e_b=None, e_o=0.1,
+                       anomaly=False, detector=None, warming_up=False, anomaly_map=gray_png(3, 2, pixels))
+    got = anomaly_map_fields(score, "camera_optical")
+    assert got is not None
+    # sensor_msgs/Image's fields, in order.
+    assert list(got) == ["header", "height", "width", "encoding", "is_bigendian", "step", "data"]
+    assert got["header"] == (Stamp(5, 2), "camera_optical")
+    assert (got["height"], got["width"], got["encoding"], got["is_bigendian"], got["step"]) == (2, 3, "mono8", 0, 3)
+    assert got["data"] == pixels
+    no_map = FrameScore(stamp_ns=1, index=0, frame=0, score=0.0, e_c=None, e_b=None, e_o=None, anomaly=False,
+                        detector=None, warming_up=True)
+    assert anomaly_map_fields(no_map, "c") is None
+    bad = FrameScore(stamp_ns=1, index=0, frame=0, score=0.0, e_c=None, e_b=None, e_o=None, anomaly=False,
+                     detector=None, warming_up=True, anomaly_map=b"not a png")
+    with pytest.raises(ValueError):
+        anomaly_map_fields(bad, "c")

@@ -36,6 +36,8 @@ def test_two_robots_on_one_graph_do_not_collide() -> None:
     b = Params.from_values({"profile": "p"}, "/robot2", "vamos_bridge", suffix="y")
     assert set(a.resolved.values()).isdisjoint(b.resolved.values())
     assert a.resolved["frame_score_topic"] == "/robot1/vamos/frame_score"
+    assert a.resolved["alarm_topic"] == "/robot1/vamos/alarm"
+    assert "anomaly_map_topic" not in a.resolved, "maps are off by default"
     assert b.resolved["joint_states_topics[0]"] == "/robot2/joint_states"
     assert (a.robot_id, a.session_id, b.robot_id, b.session_id) == ("robot1", "robot1-x", "robot2", "robot2-y")
     # In the root namespace the names are the old bridge's absolute ones.

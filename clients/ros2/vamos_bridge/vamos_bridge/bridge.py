@@ -4,7 +4,10 @@
 keeps the session (opened at the first image, so the camera info has arrived; joint
 states that came before are sent right after; reopened under the same ``session_id``,
 which the server resumes, at the next image after the stream broke), and hands every
-score to :class:`Outputs` as the fields of a stamped ``vamos_msgs/FrameScore``.
+score to :class:`Outputs` as the fields of a stamped ``vamos_msgs/FrameScore``, every
+alarm's start and end as those of a ``vamos_msgs/AlarmEvent`` and, with
+``anomaly_maps``, every anomaly map as those of a ``mono8`` ``sensor_msgs/Image`` (the
+server is asked for maps only then).
 :class:`BridgeState` is its bookkeeping and the diagnostics it implies. With a
 ``depth_topic``, each image goes with the depth image nearest its stamp within
 ``max_depth_gap_ms``, waiting for it at most twice that (:mod:`vamos_bridge.depth` has the
@@ -20,10 +23,10 @@ import time
 from dataclasses import dataclass, field
 from typing import Any, Callable, Optional, Protocol
 
-from vamos.client import CameraInfo, FrameScore, SessionError, SessionEvent
+from vamos.client import AlarmEvent, CameraInfo, FrameScore, SessionError, SessionEvent
 
-from .convert import (FrameIds, camera_info, depth_image, frame_score_fields, image_request, joints_request,
-                      stamp_ns, with_depth)
+from .convert import (FrameIds, alarm_event_fields, anomaly_map_fields, camera_info, depth_image,
+                      frame_score_fields, image_request, joints_request, stamp_ns, with_depth)
 from .depth import DepthPairer
 from .params import Params
 
@@ -110,19 +113,34 @@ class Outputs(Protocol):
     def score(self, fields: dict[str, Any]) -> None:
         """One scored frame: the fields of a ``vamos_msgs/FrameScore``."""
 
+    def alarm(self, fields: dict[str, Any]) -> None:
+        """An alarm started or ended: the fields of a ``vamos_msgs/AlarmEvent``."""
+
+    def anomaly_map(self, fields: dict[str, Any]) -> None:
+        """A frame's anomaly map (with ``anomaly_maps``): the fields of a ``mono8``
+        ``sensor_msgs/Image``."""
+
     def log(self, level: str, text: str) -> None:
         """``level``: ``info`` or ``warning``."""
 
 
 @dataclass(frozen=True)
 class CallbackOutputs:
-    """:class:`Outputs` from two callables (the node's publishing and logging methods)."""
+    """:class:`Outputs` from callables (the node's publishing and logging methods)."""
 
     on_score: Callable[[dict[str, Any]], None]
     on_log: Callable[[str, str], None]
+    on_alarm: Callable[[dict[str, Any]], None]
+    on_anomaly_map: Callable[[dict[str, Any]], None]
 
     def score(self, fields: dict[str, Any]) -> None:
         self.on_score(fields)
+
+    def alarm(self, fields: dict[str, Any]) -> None:
+        self.on_alarm(fields)
+
+    def anomaly_map(self, fields: dict[str, Any]) -> None:
+        self.on_anomaly_map(fields)
 
     def log(self, level: str, text: str) -> None:
         self.on_log(level, text)
@@ -168,7 +186,7 @@ class Bridge:
             p = self.params
             try:
                 s = self.client.open_session(p.profile, robot_id=p.robot_id, session_id=p.session_id, task=p.task,
-                                             camera_info=self.camera)
+                                             camera_info=self.camera, anomaly_maps=p.anomaly_maps)
             except SessionError as e:
                 self.state.connected = False
                 self.state.last_error = str(e)
@@ -185,11 +203,25 @@ class Bridge:
             return s
 
     def _read(self, s: Any) -> None:
+        # An alarm event follows the score of the frame that started or ended it: it takes
+        # that image's frame id.
+        last_frame_id = ""
         try:
             for u in s:
                 self.state.on_update(u)
                 if isinstance(u, FrameScore):
-                    self.out.score(frame_score_fields(u, self.frame_ids.pop(u.stamp_ns), self.state.session_id))
+                    last_frame_id = self.frame_ids.pop(u.stamp_ns)
+                    self.out.score(frame_score_fields(u, last_frame_id, self.state.session_id))
+                    if self.params.anomaly_maps:
+                        self._publish_map(u, last_frame_id)
+                elif isinstance(u, AlarmEvent):
+                    try:
+                        fields = alarm_event_fields(u, last_frame_id, self.params.robot_id)
+                    except ValueError as e:
+                        self.out.log("warning", f"alarm event not published: {e}")
+                        continue
+                    self.out.log("info", u.detail)
+                    self.out.alarm(fields)
         except SessionError as e:
             self.state.last_error = str(e)
             self.out.log("warning", f"stream ended: {e}; reconnecting at the next image")
@@ -198,6 +230,15 @@ class Bridge:
                 self._session = None
                 self.state.connected = False
                 self.state.reconnects += 1
+
+    def _publish_map(self, score: FrameScore, frame_id: str) -> None:
+        try:
+            fields = anomaly_map_fields(score, frame_id)
+        except ValueError as e:
+            self.out.log("warning", f"anomaly map of frame {score.frame} not published: {e}")
+            return
+        if fields is not None:
+            self.out.anomaly_map(fields)
 
     def on_camera_info(self, msg: Any) -> None:
         """The first usable camera info is kept (sent when the session opens)."""

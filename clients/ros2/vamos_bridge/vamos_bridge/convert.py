@@ -2,6 +2,10 @@
 messages are duck-typed (anything with the fields of ``sensor_msgs`` messages), and
 outgoing messages are described as plain values the node copies into the real types.
 
+Alarm events (``vamos_msgs/AlarmEvent``) are stamped with the image at which the alarm
+started or ended, and anomaly maps (``sensor_msgs/Image``, ``mono8``) with their score's
+image, so both line up with the images and scores like the scores do.
+
 Stamps: a vamos score carries the stamp of the image it scored (``stamp_ns``, the
 image's ``header.stamp`` in nanoseconds); :func:`stamp_from_ns` turns it back into a
 ``builtin_interfaces/Time`` so a ``vamos_msgs/FrameScore`` has the image's header and can
@@ -13,7 +17,7 @@ from __future__ import annotations
 import math
 from typing import Any, NamedTuple, Optional
 
-from vamos.client import CameraInfo, FrameScore
+from vamos.client import AlarmComponents, AlarmEvent, CameraInfo, FrameScore
 from vamos.client import _convert
 from vamos.v1 import monitor_pb2 as pb
 
@@ -132,4 +136,72 @@ def frame_score_fields(score: FrameScore, frame_id: str, session_id: str) -> dic
         "frame": int(score.frame),
         "latency_s": float(score.latency_s),
         "session_id": session_id,
+    }
+
+
+#: ``vamos_msgs/AlarmEvent`` edge constants (msg/AlarmEvent.msg).
+ALARM_STARTED, ALARM_ENDED = 1, 2
+
+
+def _alarm_frame_fields(c: AlarmComponents) -> dict[str, Any]:
+    """The fields of a ``vamos_msgs/AlarmFrame``: ``stamp`` as a :class:`Stamp`, values
+    not defined as NaN."""
+    return {
+        "stamp": stamp_from_ns(c.stamp_ns),
+        "score": _nan_if_none(c.score),
+        "e_c": _nan_if_none(c.e_c),
+        "e_b": _nan_if_none(c.e_b),
+        "e_o": _nan_if_none(c.e_o),
+        "e_r": _nan_if_none(c.e_r),
+        "e_k": _nan_if_none(c.e_k),
+    }
+
+
+def alarm_event_fields(alarm: AlarmEvent, frame_id: str, robot_id: str) -> dict[str, Any]:
+    """The fields of a ``vamos_msgs/AlarmEvent`` (msg/AlarmEvent.msg) for ``alarm`` of
+    robot ``robot_id``: ``header`` as ``(Stamp, frame_id)`` with the stamp of the image at
+    which it started or ended, ``start`` and ``peak`` as the fields of an ``AlarmFrame``,
+    thresholds and values not defined as NaN, ``end_frame`` 0 while it is on.
+    :class:`ValueError` for an edge that is neither a start nor an end, or a stamp
+    outside ``builtin_interfaces/Time``."""
+    if not (alarm.started or alarm.ended):
+        raise ValueError(f"alarm {alarm.alarm_id}: edge {alarm.edge!r} is neither a start nor an end")
+    t = alarm.thresholds
+    return {
+        "header": (stamp_from_ns(alarm.stamp_ns), frame_id),
+        "edge": ALARM_STARTED if alarm.started else ALARM_ENDED,
+        "alarm_id": alarm.alarm_id,
+        "session_id": alarm.session_id,
+        "robot_id": robot_id,
+        "detector": alarm.detector or "",
+        "detectors": list(alarm.detectors),
+        "start_frame": int(alarm.start_frame),
+        "end_frame": int(alarm.end_frame or 0),
+        "frames_flagged": int(alarm.frames_flagged),
+        "alarm_threshold": _nan_if_none(t.alarm),
+        "e_c_threshold": _nan_if_none(t.e_c),
+        "e_b_threshold": _nan_if_none(t.e_b),
+        "e_o_threshold": _nan_if_none(t.e_o),
+        "e_r_threshold": _nan_if_none(t.e_r),
+        "e_k_threshold": _nan_if_none(t.e_k),
+        "start": _alarm_frame_fields(alarm.start),
+        "peak": _alarm_frame_fields(alarm.peak),
+    }
+
+
+def anomaly_map_fields(score: FrameScore, frame_id: str) -> Optional[dict[str, Any]]:
+    """The fields of a ``sensor_msgs/Image`` (``mono8``, packed rows, 0 = nominal) of the
+    anomaly map ``score`` carries, with its image's header; None when it has none.
+    :class:`ValueError` when the map is not the server's 8-bit gray PNG."""
+    m = score.anomaly_map_image()
+    if m is None:
+        return None
+    return {
+        "header": (stamp_from_ns(score.stamp_ns), frame_id),
+        "height": m.height,
+        "width": m.width,
+        "encoding": "mono8",
+        "is_bigendian": 0,
+        "step": m.width,
+        "data": bytes(m.pixels),
     }

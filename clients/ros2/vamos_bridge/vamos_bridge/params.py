@@ -32,6 +32,9 @@ PARAMETERS: dict[str, tuple[Any, str]] = {
     "frame_score_topic": ("vamos/frame_score", "vamos_msgs/FrameScore, stamped with the image's header"),
     "score_topic": ("vamos/score", "std_msgs/Float64 score (unstamped; for plots)"),
     "anomaly_topic": ("vamos/anomaly", "std_msgs/Bool anomaly flag (unstamped)"),
+    "alarm_topic": ("vamos/alarm", "vamos_msgs/AlarmEvent: each alarm's start and end, stamped with its image"),
+    "anomaly_maps": (False, "true: ask vamos for each frame's anomaly map and publish it (costs bandwidth)"),
+    "anomaly_map_topic": ("vamos/anomaly_map", "sensor_msgs/Image mono8 anomaly maps (with anomaly_maps)"),
     "diagnostics_period_s": (1.0, "period of the diagnostic_msgs/DiagnosticArray on /diagnostics, s"),
 }
 
@@ -105,6 +108,9 @@ class Params:
     frame_score_topic: str
     score_topic: str
     anomaly_topic: str
+    alarm_topic: str
+    anomaly_maps: bool
+    anomaly_map_topic: str
     diagnostics_period_s: float
     resolved: dict[str, str] = field(default_factory=dict)
 
@@ -130,9 +136,11 @@ class Params:
         if not 0 < float(v["max_depth_gap_ms"]) <= MAX_DEPTH_GAP_MS:
             raise ParameterError(f"parameter `max_depth_gap_ms` must be > 0 and at most {MAX_DEPTH_GAP_MS:g}")
         topics = {k: v[k] for k in ("image_topic", "camera_info_topic", "frame_score_topic", "score_topic",
-                                    "anomaly_topic")}
+                                    "anomaly_topic", "alarm_topic")}
         if v["depth_topic"]:
             topics["depth_topic"] = v["depth_topic"]
+        if v["anomaly_maps"]:
+            topics["anomaly_map_topic"] = v["anomaly_map_topic"]
         topics.update({f"joint_states_topics[{i}]": t for i, t in enumerate(v["joint_states_topics"])})
         resolved = {k: resolve_topic(t, namespace, node_name) for k, t in topics.items()}
         robot_id = v["robot_id"] or default_robot_id(namespace, node_name)
@@ -143,5 +151,6 @@ class Params:
                    max_depth_gap_ms=float(v["max_depth_gap_ms"]),
                    camera_info_topic=v["camera_info_topic"], joint_states_topics=tuple(v["joint_states_topics"]),
                    frame_score_topic=v["frame_score_topic"], score_topic=v["score_topic"],
-                   anomaly_topic=v["anomaly_topic"], diagnostics_period_s=float(v["diagnostics_period_s"]),
+                   anomaly_topic=v["anomaly_topic"], alarm_topic=v["alarm_topic"], anomaly_maps=v["anomaly_maps"],
+                   anomaly_map_topic=v["anomaly_map_topic"], diagnostics_period_s=float(v["diagnostics_period_s"]),
                    resolved=resolved)
