@@ -58,8 +58,10 @@ pub fn run(settings: &Settings, opts: Args) -> Result<()> {
             )
         },
     )?;
+    // The notes (a conformal threshold that falls back to the training maximum, with
+    // the numbers; learned depth; ...) on stderr: stdout is the calibration file's JSON.
     for note in &outcome.notes {
-        eprintln!("{note}");
+        eprintln!("note: {note}");
     }
     let calibration = outcome.calibration;
     let path = setup.profile.save_calibration(calibration.clone())?;

@@ -21,6 +21,10 @@ pub struct Args {
     /// URDF file, robot package folder, or .zip / .tar.gz package archive.
     #[arg(long)]
     pub robot: PathBuf,
+    /// Where the robot's `package://NAME/...` meshes are: a ROS package folder or a
+    /// folder holding packages (as a profile's `robot_packages`); repeat for several.
+    #[arg(long = "packages", value_name = "DIR")]
+    pub packages: Vec<PathBuf>,
     /// JSON object of joint name -> position at time t (or --episode and --frame).
     #[arg(long, required_unless_present = "episode")]
     pub joints: Option<PathBuf>,
@@ -77,8 +81,11 @@ pub fn render(
         (Some(bag), Some(n)) => Some(recorded_frame(bag, n, episode_cfg)?),
         _ => None,
     };
-    let robot = Robot::load(&opts.robot, robot_cfg)
+    let robot = Robot::load_with_packages(&opts.robot, &opts.packages, robot_cfg)
         .with_context(|| format!("cannot load robot {}", opts.robot.display()))?;
+    for w in robot.warnings() {
+        tracing::warn!(robot = %opts.robot.display(), "{w}");
+    }
     let spec: CameraSpec = read_json(&opts.camera, "a camera description")?;
     let mut k = spec.intrinsics()?;
     if opts.width.is_some() || opts.height.is_some() {

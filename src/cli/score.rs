@@ -250,6 +250,10 @@ pub fn score(
             setup.profile.path.display()
         );
     }
+    let rule = alarm_rule(&setup);
+    if rule.fallback {
+        eprintln!("note: {}", rule.why);
+    }
     let episodes = expand_episodes(episodes)?;
     let output = out.map(|dir| OutputOptions { dir, mcap });
     let results = setup.score_all(
@@ -264,7 +268,16 @@ pub fn score(
             )
         },
     )?;
+    let mut not_run: Vec<(String, usize)> = Vec::new();
     for r in &results {
+        let off = detectors_not_run(&setup, r);
+        for d in &off {
+            let line = format!("{} did not run: {}", d.detector, d.reason);
+            match not_run.iter_mut().find(|(l, _)| *l == line) {
+                Some((_, n)) => *n += 1,
+                None => not_run.push((line, 1)),
+            }
+        }
         let alarms = r.frames.iter().filter(|f| f.anomaly).count();
         let first_alarm_ns = r.frames.iter().find(|f| f.anomaly).map(|f| f.stamp_ns);
         let max_score = r.frames.iter().map(|f| f.score).fold(f64::NAN, f64::max);
@@ -288,8 +301,158 @@ pub fn score(
                 "no_joint_states": r.no_joint_states,
                 "joint_gaps": r.joint_gaps,
                 "mean_frame_ms": mean_ms,
+                "alarm_rule": rule,
+                "detectors_not_run": off,
             })
         );
     }
+    for (line, n) in not_run {
+        eprintln!("note: {line} ({n} of {} episodes)", results.len());
+    }
     Ok(())
+}
+
+/// Which threshold on the fused score sets the anomaly flag, and why (`alarm_rule` of the
+/// score summary).
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct AlarmRuleInForce {
+    /// `conformal` (the calibration's split-conformal threshold), `max` (the training
+    /// maximum of the fused score), `manual` (the profile's `[thresholds] alarm`) or
+    /// `none` (not calibrated: no alarms).
+    pub rule: &'static str,
+    /// The threshold (`None`: no alarms).
+    pub threshold: Option<f64>,
+    /// True when the profile asks for the conformal threshold and the training maximum
+    /// stands in for it.
+    pub fallback: bool,
+    /// Why this rule.
+    pub why: String,
+}
+
+/// The alarm rule in force for `setup`'s profile (see [`AlarmRuleInForce`]).
+pub fn alarm_rule(setup: &Setup) -> AlarmRuleInForce {
+    use vamos::pipeline::AlarmRule;
+    let profile = &setup.profile;
+    let threshold = Some(profile.alarm_threshold()).filter(|t| t.is_finite());
+    let rule = |rule, fallback, why: String| AlarmRuleInForce {
+        rule,
+        threshold,
+        fallback,
+        why,
+    };
+    if profile.file.thresholds.alarm.is_some() {
+        return rule(
+            "manual",
+            false,
+            "the profile's [thresholds] alarm replaces the calibrated threshold".into(),
+        );
+    }
+    let Some(cal) = &profile.calibration else {
+        return rule(
+            "none",
+            false,
+            "the profile is not calibrated (`vamos calibrate`): no alarms".into(),
+        );
+    };
+    match (profile.file.alarm, &cal.conformal) {
+        (AlarmRule::Max, _) => rule(
+            "max",
+            false,
+            "alarm = \"max\": the training maximum of the fused score".into(),
+        ),
+        (AlarmRule::Conformal, Some(c)) => rule(
+            "conformal",
+            false,
+            format!(
+                "the split-conformal threshold at alpha {} over {} held-out episodes",
+                c.alpha, c.n
+            ),
+        ),
+        (AlarmRule::Conformal, None) => {
+            let n = cal.calibration_episodes.len();
+            let held = if n == 0 {
+                "it was calibrated without held-out episodes".to_string()
+            } else {
+                format!(
+                    "its {n} held-out episode{} too few",
+                    if n == 1 { " was" } else { "s were" }
+                )
+            };
+            rule(
+                "max",
+                true,
+                format!(
+                    "the profile asks for the conformal threshold, but its calibration has \
+                     none ({held}; at alpha 0.1, `vamos calibrate`'s default, it needs at \
+                     least {}): alarms use the training maximum of the fused score instead; \
+                     calibrate with more held-out nominal runs (`vamos calibrate --holdout`)",
+                    vamos::eval::conformal_episodes_needed(0.1)
+                ),
+            )
+        }
+    }
+}
+
+/// A detector switched on in the profile that gave no value on an episode, and why.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct NotRun {
+    /// `e_c`, `e_b`, `e_o`, `e_r` or `e_k`.
+    pub detector: &'static str,
+    /// Why it could not run.
+    pub reason: String,
+}
+
+/// The detectors `setup`'s pipeline switches on that gave no value on any frame of `r`,
+/// each with the first reason that applies (no robot, no model, no joint states, no
+/// calibrated nominal states, the body never in view, a model still warming up). Empty
+/// for an episode without frames.
+pub fn detectors_not_run(setup: &Setup, r: &EpisodeScores) -> Vec<NotRun> {
+    if r.frames.is_empty() {
+        return Vec::new();
+    }
+    /// A detector's name, whether the profile switches it on, and its value in a frame.
+    type Detector = (&'static str, bool, fn(&FrameScore) -> Option<f64>);
+    let on = setup.config.detectors;
+    let list: [Detector; 5] = [
+        ("e_c", on.camera, |f| f.e_c),
+        ("e_b", on.body, |f| f.e_b),
+        ("e_o", on.flow, |f| f.e_o),
+        ("e_r", on.scene, |f| f.e_r),
+        ("e_k", on.kinematics, |f| f.e_k),
+    ];
+    let mut out = Vec::new();
+    for (detector, switched_on, value) in list {
+        if !switched_on || r.frames.iter().any(|f| value(f).is_some()) {
+            continue;
+        }
+        let needs_robot = matches!(detector, "e_c" | "e_b" | "e_k");
+        let reason = if needs_robot && setup.robot.is_none() {
+            "the profile has no robot (`robot` and `camera`): it needs the robot's joint \
+             states and body"
+                .to_string()
+        } else if detector == "e_o" && setup.model.is_none() {
+            "the profile has no flow model (`model`)".to_string()
+        } else if needs_robot && r.no_joint_states {
+            "the episode has no joint states (sensor_msgs/msg/JointState)".to_string()
+        } else if detector == "e_k" && setup.profile.calibration.is_none() {
+            "the profile is not calibrated: e_k compares the robot's state with the \
+             calibration's nominal states (`vamos calibrate`)"
+                .to_string()
+        } else if detector == "e_k" && setup.profile.thresholds().kinematics.is_none() {
+            "the calibration has no nominal robot states (made without joint states or \
+             before e_k): calibrate again"
+                .to_string()
+        } else if detector == "e_b" && r.frames.iter().all(|f| f.body_pixels == 0) {
+            "the robot's body was never in view (no body pixels: its meshes are missing or \
+             the camera does not see it)"
+                .to_string()
+        } else if detector == "e_o" && r.frames.iter().all(|f| f.warming_up) {
+            "the episode is shorter than the flow model's history (every frame warming up)"
+                .to_string()
+        } else {
+            "no frame of the episode gave a value".to_string()
+        };
+        out.push(NotRun { detector, reason });
+    }
+    out
 }

@@ -268,7 +268,10 @@ fn completions_and_man_pages_come_from_the_cli_definition() {
     assert!(dir.path().join("vamos-robot-inspect.1").is_file());
     // A free-string option with fixed values is completed with them.
     let out = vamos(&["completions", "bash"], &[]);
-    assert!(text(&out.stdout).contains("realtime-hq"), "flow --preset values");
+    assert!(
+        text(&out.stdout).contains("realtime-hq"),
+        "flow --preset values"
+    );
     let out = vamos(
         &["man", "--dir", dir.path().join("none").to_str().unwrap()],
         &[],
@@ -361,6 +364,12 @@ fn profile_init_writes_a_working_profile_from_a_bag() {
 fn logs_written_to_a_pipe_carry_no_colour_codes() {
     let out = vamos(&["--log-level", "debug", "model", "runtime"], &[]);
     let err = text(&out.stderr);
-    assert!(err.contains("onnxruntime") || err.contains("ONNX Runtime"), "{err}");
-    assert!(!err.contains('\u{1b}'), "colour codes in piped logs: {err:?}");
+    assert!(
+        err.contains("onnxruntime") || err.contains("ONNX Runtime"),
+        "{err}"
+    );
+    assert!(
+        !err.contains('\u{1b}'),
+        "colour codes in piped logs: {err:?}"
+    );
 }

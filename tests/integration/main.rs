@@ -26,6 +26,7 @@ mod model;
 mod model_trained;
 #[cfg(feature = "otlp")]
 mod otlp;
+mod profile_init;
 mod registration_accuracy;
 mod reliability;
 mod render_cli;

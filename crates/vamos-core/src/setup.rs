@@ -68,6 +68,23 @@ pub struct CoreSettings {
     pub episode: EpisodeConfig,
 }
 
+/// The meshes `robot` lacks, by package (`package "NAME"`, or `not in a package`), in
+/// the order the URDF names them.
+fn missing_by_package(robot: &Robot) -> Vec<(String, Vec<String>)> {
+    let mut groups: Vec<(String, Vec<String>)> = Vec::new();
+    for m in robot.missing_meshes() {
+        let key = m.package.as_ref().map_or_else(
+            || "not in a package".to_string(),
+            |p| format!("package {p:?}"),
+        );
+        match groups.iter_mut().find(|(k, _)| *k == key) {
+            Some((_, list)) => list.push(m.path),
+            None => groups.push((key, vec![m.path])),
+        }
+    }
+    groups
+}
+
 /// A profile with its robot and model loaded.
 #[derive(Clone)]
 pub struct Setup {
@@ -141,16 +158,28 @@ impl Setup {
         };
         let robot = match (&profile.file.robot, &profile.camera) {
             (Some(path), Some(spec)) => {
-                let load = if profile.robot_stored {
-                    Robot::load_stored
+                // A stored robot is sealed; a file's reads the profile's package paths.
+                let robot = if profile.robot_stored {
+                    Robot::load_stored(path, &settings.robot)
                 } else {
-                    Robot::load
-                };
-                let robot = load(path, &settings.robot).map_err(|source| SetupError::Robot {
+                    Robot::load_with_packages(path, &profile.file.robot_packages, &settings.robot)
+                }
+                .map_err(|source| SetupError::Robot {
                     path: path.clone(),
                     source,
                 })?;
-                for w in robot.warnings() {
+                // Meshes not found in one line per package, not one per mesh.
+                for (package, meshes) in missing_by_package(&robot) {
+                    tracing::warn!(
+                        robot = %path.display(),
+                        "{} mesh file{} not found ({package}), left out (the camera does not \
+                         see the links that use them: no body mask there): {}",
+                        meshes.len(),
+                        if meshes.len() == 1 { "" } else { "s" },
+                        meshes.join(", ")
+                    );
+                }
+                for w in robot.other_warnings() {
                     tracing::warn!(robot = %path.display(), "{w}");
                 }
                 let mount = robot.camera_for(spec).map_err(|source| SetupError::Robot {

@@ -44,7 +44,7 @@ pub mod render;
 pub use body_motion::{BodyMotion, BodyMotionError, body_motion_error};
 pub use camera::{CameraConvention, CameraSpec, CameraSpecError, Intrinsics, IntrinsicsError};
 pub use config::RobotConfig;
-pub use description::{Robot, VisualGeometry, VisualInfo};
+pub use description::{MissingMesh, Robot, VisualGeometry, VisualInfo};
 pub use error::RobotError;
 pub use geometry::{LinkMesh, TriMesh};
 pub use joints::{JointMapper, MappedJoints};

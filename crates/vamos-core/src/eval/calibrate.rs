@@ -74,8 +74,9 @@ pub fn conformal_rank(n: usize, alpha: f64) -> usize {
 }
 
 /// The fewest calibration episodes for which `conformal_rank(n, alpha) <= n` (capped at
-/// 2^53 for absurdly small budgets).
-fn episodes_needed(alpha: f64) -> usize {
+/// 2^53 for absurdly small budgets): the conformal threshold at `alpha` needs at least
+/// this many held-out episodes. Meaningful for alpha in (0, 1).
+pub fn conformal_episodes_needed(alpha: f64) -> usize {
     const CAP: usize = 1 << 53;
     let fits = |n: usize| conformal_rank(n, alpha) <= n;
     // rank(n) - n = ceil((1 - alpha) - n alpha) (up to rounding) falls with n: double
@@ -122,7 +123,7 @@ pub fn conformal_threshold(
             n,
             alpha,
             rank_k,
-            needed: episodes_needed(alpha),
+            needed: conformal_episodes_needed(alpha),
         });
     }
     let mut sorted = episode_max_scores.to_vec();
@@ -176,13 +177,13 @@ mod tests {
         assert_eq!(conformal_rank(10, 0.1), 10);
         assert_eq!(conformal_rank(9, 0.1), 9);
         assert_eq!(conformal_rank(48, 0.2), 40); // 49 * 0.8 = 39.2
-        assert_eq!(episodes_needed(0.05), 19);
-        assert_eq!(episodes_needed(0.1), 9);
-        assert_eq!(episodes_needed(0.2), 4);
-        assert_eq!(episodes_needed(0.3), 3); // 3 * 0.7 = 2.1 -> 3 > 2; 4 * 0.7 = 2.8 -> 3
-        assert_eq!(episodes_needed(0.5), 1);
-        assert_eq!(episodes_needed(0.01), 99);
-        assert_eq!(episodes_needed(1e-6), 999_999);
+        assert_eq!(conformal_episodes_needed(0.05), 19);
+        assert_eq!(conformal_episodes_needed(0.1), 9);
+        assert_eq!(conformal_episodes_needed(0.2), 4);
+        assert_eq!(conformal_episodes_needed(0.3), 3); // 3 * 0.7 = 2.1 -> 3 > 2; 4 * 0.7 = 2.8 -> 3
+        assert_eq!(conformal_episodes_needed(0.5), 1);
+        assert_eq!(conformal_episodes_needed(0.01), 99);
+        assert_eq!(conformal_episodes_needed(1e-6), 999_999);
         // (n + 1)(1 - alpha) = 1000001 * 0.999999 = 999999.999999: k = 10^6 = n.
         assert_eq!(conformal_rank(1_000_000, 1e-6), 1_000_000);
     }

@@ -25,7 +25,8 @@ pub mod plot;
 
 pub use ablation::{AblationTable, AucPair, FusionLevel};
 pub use calibrate::{
-    ConformalThreshold, conformal_rank, conformal_threshold, max_threshold, regularized_beta,
+    ConformalThreshold, conformal_episodes_needed, conformal_rank, conformal_threshold,
+    max_threshold, regularized_beta,
 };
 pub use episodes::{
     EpisodeOutcome, EvalReport, TypeReport, UNTYPED_ANOMALY, episode_false_alarm_rate,

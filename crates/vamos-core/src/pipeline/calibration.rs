@@ -24,8 +24,9 @@ use super::profile::Calibration;
 use super::scorer::{FrameScore, phase_s};
 use super::{KinematicsParams, PipelineConfig, ResidualParams};
 use crate::eval::{
-    CellStats, Components, NominalScales, Pooling, StateReference, TRIGGER_BASE, Thresholds,
-    Window, conformal_threshold, fuse_frame, max_threshold, novelty, pool_cells,
+    CellStats, Components, EvalError, NominalScales, Pooling, StateReference, TRIGGER_BASE,
+    Thresholds, Window, conformal_episodes_needed, conformal_threshold, fuse_frame, max_threshold,
+    novelty, pool_cells,
 };
 use std::path::{Path, PathBuf};
 use std::time::{SystemTime, UNIX_EPOCH};
@@ -149,8 +150,23 @@ pub fn calibrate<E>(
         0.0
     };
     let training_frames = frames.len();
+    // Without a conformal threshold, `alarm = "conformal"` falls back to the training
+    // maximum: every way there says so, with the numbers.
+    let fallback =
+        format!("alarms use the training maximum of the fused score ({score_max:.6}) instead");
     let conformal = if holdout.is_empty() {
-        notes.push("no held-out episodes: only the maximum thresholds are calibrated".into());
+        let needs = if alpha > 0.0 && alpha < 1.0 {
+            format!(
+                "; the conformal threshold at alpha {alpha} needs at least {} held-out \
+                 nominal episodes",
+                conformal_episodes_needed(alpha)
+            )
+        } else {
+            String::new()
+        };
+        notes.push(format!(
+            "no held-out episodes: no conformal threshold, {fallback}{needs}"
+        ));
         None
     } else {
         let held = score(holdout, thresholds.clone())?;
@@ -179,8 +195,18 @@ pub fn calibrate<E>(
                 }
                 Some(c)
             }
+            Err(EvalError::TooFewEpisodes {
+                n, alpha, needed, ..
+            }) => {
+                notes.push(format!(
+                    "no conformal threshold: {n} held-out episode{} given, the conformal \
+                     threshold at alpha {alpha} needs at least {needed}; {fallback}",
+                    if n == 1 { "" } else { "s" }
+                ));
+                None
+            }
             Err(e) => {
-                notes.push(format!("no conformal threshold: {e}"));
+                notes.push(format!("no conformal threshold: {e}; {fallback}"));
                 None
             }
         }

@@ -93,6 +93,65 @@ fn a_conformal_threshold_above_the_trigger_base_is_reported() {
     assert!(!below.notes.iter().any(|n| n.contains("can ever alarm")));
 }
 
+/// Too few held-out episodes for alpha, or none: no conformal threshold, and the notes
+/// say how many were given, how many alpha needs, and that alarms use the training
+/// maximum (its value).
+#[test]
+fn the_fallback_to_the_training_maximum_is_noted_with_the_numbers() {
+    let pipeline = PipelineConfig {
+        fusion: Fusion::Paper,
+        ..PipelineConfig::default()
+    };
+    let run = |holdout: &[PathBuf], alpha: f64| {
+        calibrate(
+            &[PathBuf::from("train.mcap")],
+            holdout,
+            alpha,
+            Some("sha".into()),
+            &pipeline,
+            |paths, t: Thresholds| -> Result<Vec<EpisodeScores>, String> {
+                Ok(paths
+                    .iter()
+                    .map(|p| scored(episode(&stem(p), &[1.0, 2.0]), &t))
+                    .collect())
+            },
+        )
+        .unwrap()
+    };
+    let two = [PathBuf::from("a.mcap"), PathBuf::from("b.mcap")];
+    let few = run(&two, 0.1);
+    assert!(few.calibration.conformal.is_none());
+    let max = format!("{:.6}", few.calibration.score_max);
+    assert!(
+        few.notes
+            .iter()
+            .any(|n| n.contains("2 held-out episodes given")
+                && n.contains("alpha 0.1 needs at least 9")
+                && n.contains(&format!("training maximum of the fused score ({max})"))),
+        "{:?}",
+        few.notes
+    );
+    let none = run(&[], 0.05);
+    assert!(none.calibration.conformal.is_none());
+    assert!(
+        none.notes
+            .iter()
+            .any(|n| n.starts_with("no held-out episodes")
+                && n.contains("training maximum")
+                && n.contains("alpha 0.05 needs at least 19")),
+        "{:?}",
+        none.notes
+    );
+    // Enough for alpha 0.5: a conformal threshold, no fallback note.
+    let enough = run(&two, 0.5);
+    assert!(enough.calibration.conformal.is_some());
+    assert!(
+        !enough.notes.iter().any(|n| n.contains("training maximum")),
+        "{:?}",
+        enough.notes
+    );
+}
+
 /// Frames fused as the scorer fuses them under paper fusion with `t`.
 fn scored(mut e: EpisodeScores, t: &Thresholds) -> EpisodeScores {
     for f in &mut e.frames {

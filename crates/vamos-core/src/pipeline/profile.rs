@@ -5,6 +5,7 @@
 //! ```toml
 //! name = "shelf-arm"
 //! robot = "robot/arm.urdf"        # URDF file, package folder or .zip/.tar.gz (optional)
+//! robot_packages = ["../ws/src"]  # where `package://NAME/...` meshes are (optional)
 //! camera = "camera.json"          # camera description, as `vamos render --camera` (optional)
 //! model = "model.vamos"           # flow-predictor bundle (optional)
 //! flow_preset = "realtime"        # TV-L1 preset (optional; default: the settings' [vision.flow])
@@ -75,6 +76,12 @@ pub struct ProfileFile {
     /// Robot description path.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub robot: Option<PathBuf>,
+    /// Where the ROS packages that the robot's `package://NAME/...` meshes name are:
+    /// each a package folder or a folder holding packages (searched a few levels down),
+    /// tried in order before the folders around the URDF (`vamos profile init` records
+    /// the ones it found). Not read for archives or robots the service stores.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub robot_packages: Vec<PathBuf>,
     /// Camera description path (JSON [`CameraSpec`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub camera: Option<PathBuf>,
@@ -225,6 +232,7 @@ impl Profile {
         for p in [&mut file.robot, &mut file.camera, &mut file.model]
             .into_iter()
             .flatten()
+            .chain(file.robot_packages.iter_mut())
         {
             if p.is_relative() {
                 *p = dir.join(&*p);

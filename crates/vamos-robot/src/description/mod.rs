@@ -3,14 +3,18 @@
 //!
 //! Mesh paths are resolved here, never by `urdf-rs` (its `package://` expansion needs ROS):
 //! - relative paths: against the URDF's folder;
-//! - `package://NAME/REST`: in the URDF's folder and each folder above it, a folder that
-//!   *is* `NAME` or *holds* `NAME` (this covers pybullet's layout, where `package://meshes/`
-//!   sits beside the URDF); then a folder named `NAME` anywhere in the package (three
-//!   levels deep at most); then the package root itself (packages renamed on disk);
+//! - `package://NAME/REST`: first in the package `NAME` found in the package paths the
+//!   caller gives ([`Robot::load_with_packages`], [`find_package`]: a ROS package folder,
+//!   or a folder holding packages); then in the URDF's folder and each folder above it, a
+//!   folder that *is* `NAME` or *holds* `NAME` (this covers pybullet's layout, where
+//!   `package://meshes/` sits beside the URDF); then a folder named `NAME` anywhere in the
+//!   package (three levels deep at most); then the package root itself (packages renamed
+//!   on disk);
 //! - `file:///abs` and absolute paths: as given (folders only; refused inside archives).
 //!
 //! A mesh that cannot be found, read or parsed, or is over a cap, is left out with a
-//! warning naming it ([`Robot::warnings`]); the robot still loads. So do URDF constructs
+//! warning naming it ([`Robot::warnings`]; the ones not found, grouped by package, in
+//! [`Robot::missing_meshes`]); the robot still loads. So do URDF constructs
 //! urdfdom (the ROS parser) accepts and `urdf-rs` refuses: a `<texture>` without a
 //! filename, a repeated `<axis>` (or other once-only element), a mesh `scale` of four
 //! values, `<plane>` (or other unsupported) geometry are dropped or fixed before parsing,
@@ -34,6 +38,7 @@ mod tests;
 mod urdf;
 
 use package::*;
+pub use package::{PACKAGE_SEARCH_DEPTH, find_package, package_of, package_xml_name};
 use urdf::*;
 
 /// What a visual element of a link is.
@@ -85,6 +90,20 @@ pub struct VisualInfo {
     pub triangles: usize,
 }
 
+/// A mesh file of the robot's visuals that was not found (so left out), and the links
+/// whose visuals name it.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
+pub struct MissingMesh {
+    /// The filename as written in the URDF.
+    pub uri: String,
+    /// The ROS package a `package://NAME/...` filename names.
+    pub package: Option<String>,
+    /// The path inside that package (for other filenames: the filename).
+    pub path: String,
+    /// The links that use it, in URDF order.
+    pub links: Vec<String>,
+}
+
 /// A loaded robot: names, joint tree, forward kinematics, visual meshes, load warnings.
 ///
 /// Link indices (`links()`, [`LinkMesh::link`], the poses of [`Robot::forward`]) and joint
@@ -96,24 +115,47 @@ pub struct Robot {
     visuals: Vec<Vec<VisualInfo>>,
     link_meshes: Vec<LinkMesh>,
     warnings: Vec<String>,
+    /// Where in `warnings` the meshes not found are (those of `missing_meshes`).
+    not_found_warnings: std::ops::Range<usize>,
     outside_meshes: Vec<String>,
 }
 
 impl Robot {
     /// Loads `path`: a folder (robot package), a `.zip`, `.tar.gz` or `.tgz` archive, or
-    /// a URDF file.
+    /// a URDF file. Its warnings are logged.
     pub fn load(path: &Path, cfg: &RobotConfig) -> Result<Self, RobotError> {
+        Self::load_with_packages(path, &[], cfg).map(Self::logged)
+    }
+
+    /// As [`Robot::load`], with `package://NAME/...` meshes looked for first in the
+    /// package `NAME` found in `packages` ([`find_package`]: each a ROS package folder or
+    /// a folder holding packages, in order). Archives are sealed: they read no package
+    /// path. Its warnings are not logged: the caller reports them ([`Robot::warnings`],
+    /// [`Robot::missing_meshes`]).
+    pub fn load_with_packages(
+        path: &Path,
+        packages: &[PathBuf],
+        cfg: &RobotConfig,
+    ) -> Result<Self, RobotError> {
         if path.is_dir() {
-            return Self::from_package_dir(path, cfg);
+            return Self::package_dir(path, packages, cfg);
         }
         let lower = path.to_string_lossy().to_ascii_lowercase();
         if [".zip", ".tar.gz", ".tgz"]
             .iter()
             .any(|ext| lower.ends_with(ext))
         {
-            return Self::from_archive_file(path, cfg);
+            return Self::archive_file(path, cfg);
         }
-        Self::from_urdf_file(path, cfg)
+        Self::urdf_file(path, packages, cfg)
+    }
+
+    /// Logs each warning (once, at load).
+    fn logged(self) -> Self {
+        for w in &self.warnings {
+            tracing::warn!(robot = %self.name, "{w}");
+        }
+        self
     }
 
     /// A robot as the service stores it (see [`Robot::meshes_outside_package`]): an
@@ -134,11 +176,16 @@ impl Robot {
             label: label.clone(),
             files: HashMap::new(),
         };
-        Self::from_parts(&xml, &label, &store, Path::new(""), Path::new(""), cfg)
+        Self::from_parts(&xml, &label, &store, Path::new(""), Path::new(""), &[], cfg)
+            .map(Self::logged)
     }
 
     /// A URDF file; meshes resolved against its folder.
     pub fn from_urdf_file(path: &Path, cfg: &RobotConfig) -> Result<Self, RobotError> {
+        Self::urdf_file(path, &[], cfg).map(Self::logged)
+    }
+
+    fn urdf_file(path: &Path, packages: &[PathBuf], cfg: &RobotConfig) -> Result<Self, RobotError> {
         let xml = std::fs::read_to_string(path).map_err(|e| RobotError::io(path, &e))?;
         let dir = urdf_folder(path)?;
         Self::from_parts(
@@ -147,6 +194,7 @@ impl Robot {
             &Store::Dir,
             &dir,
             &dir,
+            packages,
             cfg,
         )
     }
@@ -168,12 +216,20 @@ impl Robot {
         } else {
             Store::Nothing
         };
-        Self::from_parts(xml, "<string>", &store, &root, &root, cfg)
+        Self::from_parts(xml, "<string>", &store, &root, &root, &[], cfg).map(Self::logged)
     }
 
     /// A robot package folder: the one `.urdf` file nearest its top (at most four levels
     /// down) is loaded, meshes resolved within and above the folder.
     pub fn from_package_dir(dir: &Path, cfg: &RobotConfig) -> Result<Self, RobotError> {
+        Self::package_dir(dir, &[], cfg).map(Self::logged)
+    }
+
+    fn package_dir(
+        dir: &Path,
+        packages: &[PathBuf],
+        cfg: &RobotConfig,
+    ) -> Result<Self, RobotError> {
         let root = std::fs::canonicalize(dir).map_err(|e| RobotError::io(dir, &e))?;
         let mut urdfs = Vec::new();
         walk_dir(&root, 0, 4, &mut |p: &Path, is_dir| {
@@ -190,14 +246,19 @@ impl Robot {
             &Store::Dir,
             &urdf_dir,
             &root,
+            packages,
             cfg,
         )
     }
 
     /// A `.zip` or `.tar.gz` robot package file (see [`Robot::from_archive_bytes`]).
     pub fn from_archive_file(path: &Path, cfg: &RobotConfig) -> Result<Self, RobotError> {
+        Self::archive_file(path, cfg).map(Self::logged)
+    }
+
+    fn archive_file(path: &Path, cfg: &RobotConfig) -> Result<Self, RobotError> {
         let bytes = std::fs::read(path).map_err(|e| RobotError::io(path, &e))?;
-        Self::from_archive_bytes(&bytes, &path.display().to_string(), cfg)
+        Self::archive_bytes(&bytes, &path.display().to_string(), cfg)
     }
 
     /// A robot package archive in memory (zip or gzip-compressed tar, told apart by their
@@ -210,6 +271,10 @@ impl Robot {
         label: &str,
         cfg: &RobotConfig,
     ) -> Result<Self, RobotError> {
+        Self::archive_bytes(bytes, label, cfg).map(Self::logged)
+    }
+
+    fn archive_bytes(bytes: &[u8], label: &str, cfg: &RobotConfig) -> Result<Self, RobotError> {
         let files = unpack_archive(bytes, label, cfg)?;
         // The first component of every entry that sits in a folder.
         let tops: HashSet<PathBuf> = files
@@ -242,16 +307,20 @@ impl Robot {
             &store,
             &urdf_dir,
             &root,
+            &[],
             cfg,
         )
     }
 
+    /// The robot of `xml`, its meshes resolved in `store` (see the module docs); `packages`
+    /// are the caller's package paths (read only from the file system). Nothing is logged.
     fn from_parts(
         xml: &str,
         source_name: &str,
         store: &Store,
         urdf_dir: &Path,
         package_root: &Path,
+        packages: &[PathBuf],
         cfg: &RobotConfig,
     ) -> Result<Self, RobotError> {
         // Constructs urdfdom tolerates and urdf-rs refuses: dropped or fixed, with warnings.
@@ -261,16 +330,29 @@ impl Robot {
             message: e.to_string(),
         })?;
         let kinematics = kinematics_from_urdf(&urdf, &mut warnings)?;
+        // The package folders of the caller's package paths, each package found once.
+        let mut found = HashMap::new();
+        if !packages.is_empty() && !matches!(store, Store::Memory { .. }) {
+            for v in urdf.links.iter().flat_map(|l| &l.visual) {
+                if let urdf_rs::Geometry::Mesh { filename, .. } = &v.geometry
+                    && let Some((name, _)) = package_of(filename)
+                    && !found.contains_key(name)
+                    && let Some(dir) = find_package(name, packages)
+                {
+                    found.insert(name.to_string(), dir);
+                }
+            }
+        }
         let resolver = Resolver {
             store,
             urdf_dir,
             package_root,
+            packages: &found,
         };
-        let (visuals, link_meshes, mesh_warnings) = load_visuals(&urdf, &resolver, cfg)?;
+        let (visuals, link_meshes, not_found, mesh_warnings) = load_visuals(&urdf, &resolver, cfg)?;
+        let not_found_warnings = warnings.len()..warnings.len() + not_found.len();
+        warnings.extend(not_found);
         warnings.extend(mesh_warnings);
-        for w in &warnings {
-            tracing::warn!(robot = %urdf.name, "{w}");
-        }
         let mut outside_meshes: Vec<String> = urdf
             .links
             .iter()
@@ -290,6 +372,7 @@ impl Robot {
             visuals,
             link_meshes,
             warnings,
+            not_found_warnings,
             outside_meshes,
         })
     }
@@ -341,6 +424,51 @@ impl Robot {
     /// tolerated URDF constructs), by name.
     pub fn warnings(&self) -> &[String] {
         &self.warnings
+    }
+
+    /// The warnings but those of meshes not found (which [`Robot::missing_meshes`] lists):
+    /// meshes unreadable or over a cap, URDF constructs dropped or fixed.
+    pub fn other_warnings(&self) -> impl Iterator<Item = &str> {
+        self.warnings
+            .iter()
+            .enumerate()
+            .filter(|(i, _)| !self.not_found_warnings.contains(i))
+            .map(|(_, w)| w.as_str())
+    }
+
+    /// The mesh files of the visuals that were not found (left out, each also a warning),
+    /// one entry per filename in the order the URDF first names them.
+    pub fn missing_meshes(&self) -> Vec<MissingMesh> {
+        let mut out: Vec<MissingMesh> = Vec::new();
+        for (link, visuals) in self.links().iter().zip(&self.visuals) {
+            for v in visuals {
+                let VisualGeometry::Mesh {
+                    uri,
+                    resolved: None,
+                    ..
+                } = &v.geometry
+                else {
+                    continue;
+                };
+                if let Some(m) = out.iter_mut().find(|m| &m.uri == uri) {
+                    if m.links.last() != Some(link) {
+                        m.links.push(link.clone());
+                    }
+                    continue;
+                }
+                let (package, path) = match package_of(uri) {
+                    Some((name, rel)) => (Some(name.to_string()), rel.to_string()),
+                    None => (None, uri.clone()),
+                };
+                out.push(MissingMesh {
+                    uri: uri.clone(),
+                    package,
+                    path,
+                    links: vec![link.clone()],
+                });
+            }
+        }
+        out
     }
 
     /// Mesh paths of a package read from an archive or of a stored robot

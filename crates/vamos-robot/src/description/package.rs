@@ -1,5 +1,6 @@
 //! A robot package's files: finding the URDF in a folder, unpacking an archive into
-//! memory (paths normalised, caps enforced), and resolving mesh URIs against either.
+//! memory (paths normalised, caps enforced), resolving mesh URIs against either, and
+//! finding ROS packages in folders given by the user ([`find_package`]).
 
 use crate::config::RobotConfig;
 use crate::error::RobotError;
@@ -278,11 +279,139 @@ impl Store {
     }
 }
 
+/// Folder levels below a package search folder that [`find_package`] looks through (a
+/// colcon workspace's `install/NAME/share/NAME` is three).
+pub const PACKAGE_SEARCH_DEPTH: usize = 4;
+
+/// Entries [`find_package`] looks at below one search folder before it gives up on it.
+const PACKAGE_SEARCH_MAX_ENTRIES: usize = 200_000;
+
+/// The largest `package.xml` read, bytes.
+const MAX_PACKAGE_XML_BYTES: u64 = 1 << 20;
+
+/// The package name and the path inside it of a `package://NAME/REST` mesh URI.
+pub fn package_of(uri: &str) -> Option<(&str, &str)> {
+    let rest = uri.strip_prefix("package://")?;
+    Some(rest.split_once('/').unwrap_or((rest, "")))
+}
+
+/// The `<name>` that the ROS `package.xml` in `dir` declares, if there is one.
+pub fn package_xml_name(dir: &Path) -> Option<String> {
+    let path = dir.join("package.xml");
+    let meta = std::fs::metadata(&path).ok()?;
+    if !meta.is_file() || meta.len() > MAX_PACKAGE_XML_BYTES {
+        return None;
+    }
+    let text = std::fs::read_to_string(&path).ok()?;
+    let doc = roxmltree::Document::parse(&text).ok()?;
+    let root = doc.root_element();
+    if !root.has_tag_name("package") {
+        return None;
+    }
+    root.children()
+        .find(|n| n.has_tag_name("name"))
+        .and_then(|n| n.text())
+        .map(|t| t.trim().to_string())
+        .filter(|t| !t.is_empty())
+}
+
+/// How a folder is the package `name`: by its `package.xml` (certain) or only by its
+/// folder name (a package without one, e.g. a copied `meshes` tree).
+#[derive(Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+enum Match {
+    Declared,
+    Named,
+}
+
+/// How `dir` is the package `name` (if it is), and whether it is a package at all (a
+/// `package.xml` declaring any name).
+fn match_package(dir: &Path, name: &str) -> (Option<Match>, bool) {
+    match package_xml_name(dir) {
+        Some(declared) if declared == name => (Some(Match::Declared), true),
+        // A package.xml naming another package: that package, whatever the folder.
+        Some(_) => (None, true),
+        None if dir.file_name().is_some_and(|n| n == name) => (Some(Match::Named), false),
+        None => (None, false),
+    }
+}
+
+/// The folder of the ROS package `name` in `roots`, tried in order: a root that is the
+/// package itself (its `package.xml` declares `name`, or, without one, its folder is
+/// called `name`), else the package found below it, at most [`PACKAGE_SEARCH_DEPTH`]
+/// levels down (hidden folders skipped, links followed). Below one root, a folder whose
+/// `package.xml` declares `name` wins over one that is only called `name` (so a colcon
+/// `install/NAME/share/NAME` is found, not `install/NAME`), then the shallowest, then
+/// the first in name order. Other packages are not searched inside (ROS packages do not
+/// nest). `None` when no root holds it.
+pub fn find_package(name: &str, roots: &[PathBuf]) -> Option<PathBuf> {
+    if name.is_empty() {
+        return None;
+    }
+    roots.iter().find_map(|root| find_below(root, name))
+}
+
+fn find_below(root: &Path, name: &str) -> Option<PathBuf> {
+    if !root.is_dir() {
+        return None;
+    }
+    // The best candidate so far: (how it matches, depth, path), smallest first.
+    let mut best: Option<(Match, usize, PathBuf)> = match match_package(root, name) {
+        (Some(Match::Declared), _) => return Some(root.to_path_buf()),
+        (Some(Match::Named), _) => Some((Match::Named, 0, root.to_path_buf())),
+        (None, true) => return None, // another package: nothing nests in it
+        (None, false) => None,
+    };
+    let mut level = vec![root.to_path_buf()];
+    let mut seen = 0usize;
+    for depth in 1..=PACKAGE_SEARCH_DEPTH {
+        let mut next = Vec::new();
+        for dir in &level {
+            let Ok(entries) = std::fs::read_dir(dir) else {
+                continue;
+            };
+            for entry in entries.filter_map(Result::ok) {
+                seen += 1;
+                if seen > PACKAGE_SEARCH_MAX_ENTRIES {
+                    return best.map(|(_, _, p)| p);
+                }
+                if entry.file_name().to_string_lossy().starts_with('.') {
+                    continue;
+                }
+                let path = entry.path();
+                if !path.is_dir() {
+                    continue;
+                }
+                let (found, is_package) = match_package(&path, name);
+                if let Some(m) = found
+                    && best
+                        .as_ref()
+                        .is_none_or(|(bm, bd, bp)| (m, depth, &path) < (*bm, *bd, bp))
+                {
+                    best = Some((m, depth, path.clone()));
+                }
+                // Into folders that are no package (one only called `name` may hold the
+                // declared one, as colcon's isolated install does).
+                if !is_package {
+                    next.push(path);
+                }
+            }
+        }
+        if best.as_ref().is_some_and(|(m, _, _)| *m == Match::Declared) {
+            break;
+        }
+        level = next;
+    }
+    best.map(|(_, _, p)| p)
+}
+
 /// Mesh path resolution for one URDF.
 pub(super) struct Resolver<'a> {
     pub(super) store: &'a Store,
     pub(super) urdf_dir: &'a Path,
     pub(super) package_root: &'a Path,
+    /// Package folders found in the package paths the caller gave, by package name;
+    /// tried before the folders around the URDF.
+    pub(super) packages: &'a HashMap<String, PathBuf>,
 }
 
 impl Resolver<'_> {
@@ -292,8 +421,7 @@ impl Resolver<'_> {
         if !matches!(self.store, Store::Memory { .. }) {
             return false;
         }
-        if let Some(rest) = uri.strip_prefix("package://") {
-            let rel = rest.split_once('/').map_or("", |(_, rel)| rel);
+        if let Some((_, rel)) = package_of(uri) {
             return normalize_relative(Path::new(rel)).is_none();
         }
         let path = Path::new(uri.strip_prefix("file://").unwrap_or(uri));
@@ -303,12 +431,15 @@ impl Resolver<'_> {
     /// The path of a mesh `uri` in the store, or why it was not found.
     pub(super) fn resolve(&self, uri: &str) -> Result<PathBuf, String> {
         let in_memory = matches!(self.store, Store::Memory { .. });
-        if let Some(rest) = uri.strip_prefix("package://") {
-            let (name, rel) = rest
-                .split_once('/')
-                .ok_or("no path after the package name")?;
+        if let Some((name, rel)) = package_of(uri) {
+            if rel.is_empty() {
+                return Err("no path after the package name".into());
+            }
             let rel = normalize_relative(Path::new(rel)).ok_or("path leaves the package")?;
             let mut candidates = Vec::new();
+            if let Some(dir) = self.packages.get(name) {
+                candidates.push(dir.join(&rel));
+            }
             for dir in self.urdf_dir.ancestors() {
                 if dir.file_name().is_some_and(|n| n == name) {
                     candidates.push(dir.join(&rel));
@@ -323,8 +454,15 @@ impl Resolver<'_> {
             return candidates
                 .into_iter()
                 .find(|c| self.store.is_file(c))
-                .ok_or_else(|| {
-                    format!("no folder named {name:?} in or above the package holds it")
+                .ok_or_else(|| match self.packages.get(name) {
+                    Some(dir) => format!(
+                        "package {name:?} is at {}, but it does not hold {}",
+                        dir.display(),
+                        rel.display()
+                    ),
+                    None => {
+                        format!("no folder named {name:?} in or above the package holds it")
+                    }
                 });
         }
         let plain = uri.strip_prefix("file://").unwrap_or(uri);

@@ -405,3 +405,146 @@ fn archive_paths_are_normalised_or_refused() {
     let e = Robot::from_archive_bytes(b"plain text", "x.zip", &RobotConfig::default()).unwrap_err();
     assert!(matches!(e, RobotError::Archive { .. }), "{e}");
 }
+
+fn package_xml(name: &str) -> String {
+    format!(
+        "<?xml version=\"1.0\"?>\n<package format=\"3\">\n  <name> {name} </name>\n</package>\n"
+    )
+}
+
+#[test]
+fn packages_are_found_by_package_xml_first_then_by_folder_name() {
+    let tmp = tempfile::tempdir().unwrap();
+    let ws = tmp.path().join("ws");
+    // A colcon workspace: the source package (its folder named after its repository),
+    // an isolated install, and another package that must not be searched inside.
+    write(
+        &ws,
+        "src/arm_repo/arm_description/package.xml",
+        &package_xml("arm_description"),
+    );
+    write(&ws, "src/other/package.xml", &package_xml("other"));
+    write(&ws, "src/other/arm_description/meshes/x.stl", STL);
+    write(
+        &ws,
+        "install/arm_description/share/arm_description/package.xml",
+        &package_xml("arm_description"),
+    );
+    let src = ws.join("src");
+    assert_eq!(
+        find_package("arm_description", std::slice::from_ref(&src)),
+        Some(src.join("arm_repo/arm_description"))
+    );
+    // `install/NAME` is only called NAME: the declared package below it wins.
+    let install = ws.join("install");
+    assert_eq!(
+        find_package("arm_description", std::slice::from_ref(&install)),
+        Some(install.join("arm_description/share/arm_description"))
+    );
+    // A root that is the package; roots are tried in order.
+    let pkg = src.join("arm_repo/arm_description");
+    assert_eq!(
+        find_package("arm_description", &[pkg.clone(), install.clone()]),
+        Some(pkg.clone())
+    );
+    // Without a package.xml, the folder name; nothing inside another package; none.
+    write(tmp.path(), "copied/meshes_pkg/a.stl", STL);
+    assert_eq!(
+        find_package("meshes_pkg", &[tmp.path().join("copied")]),
+        Some(tmp.path().join("copied/meshes_pkg"))
+    );
+    assert_eq!(find_package("arm_description", &[src.join("other")]), None);
+    assert_eq!(
+        find_package("absent", &[ws.clone(), tmp.path().join("nope")]),
+        None
+    );
+    assert_eq!(package_xml_name(&pkg).as_deref(), Some("arm_description"));
+    assert_eq!(package_of("package://p/m/a.stl"), Some(("p", "m/a.stl")));
+    assert_eq!(package_of("meshes/a.stl"), None);
+}
+
+#[test]
+fn package_paths_resolve_meshes_the_urdf_folder_cannot() {
+    let tmp = tempfile::tempdir().unwrap();
+    let xml = urdf(
+        &(mesh_link("a", "package://far_pkg/meshes/a.stl")
+            + &mesh_link("b", "package://far_pkg/meshes/a.stl")
+            + &mesh_link("c", "package://far_pkg/meshes/gone.stl")
+            + &mesh_link("d", "meshes/local.stl")
+            + &mesh_link("e", "meshes/bad.stl")
+            + &joint("j1", "fixed", "a", "b", "")
+            + &joint("j2", "fixed", "a", "c", "")
+            + &joint("j3", "fixed", "a", "d", "")
+            + &joint("j4", "fixed", "a", "e", "")),
+    );
+    write(tmp.path(), "robot/r.urdf", &xml);
+    // Found but unreadable: a warning, not a missing mesh.
+    write(tmp.path(), "robot/meshes/bad.stl", "not a mesh");
+    let urdf_path = tmp.path().join("robot/r.urdf");
+    let cfg = RobotConfig::default();
+    // Without package paths: every mesh is missing, grouped per filename.
+    let plain = Robot::load(&urdf_path, &cfg).unwrap();
+    let missing = plain.missing_meshes();
+    assert_eq!(missing.len(), 3, "{missing:?}");
+    assert_eq!(missing[0].package.as_deref(), Some("far_pkg"));
+    assert_eq!(missing[0].path, "meshes/a.stl");
+    assert_eq!(missing[0].links, ["a", "b"]);
+    assert_eq!(missing[1].links, ["c"]);
+    assert_eq!(missing[2].package, None);
+    assert_eq!(missing[2].path, "meshes/local.stl");
+    assert_eq!(plain.triangle_count(), 0);
+    assert_eq!(plain.warnings().len(), 4, "{:?}", plain.warnings());
+    let other: Vec<&str> = plain.other_warnings().collect();
+    assert_eq!(other.len(), 1, "{other:?}");
+    assert!(other[0].contains("bad.stl"), "{other:?}");
+    // The package elsewhere, given as the folder holding it.
+    write(
+        tmp.path(),
+        "elsewhere/far_pkg/package.xml",
+        &package_xml("far_pkg"),
+    );
+    write(tmp.path(), "elsewhere/far_pkg/meshes/a.stl", STL);
+    let r = Robot::load_with_packages(&urdf_path, &[tmp.path().join("elsewhere")], &cfg).unwrap();
+    assert_eq!(r.triangle_count(), 2, "links a and b");
+    let missing = r.missing_meshes();
+    assert_eq!(
+        missing.iter().map(|m| m.uri.as_str()).collect::<Vec<_>>(),
+        ["package://far_pkg/meshes/gone.stl", "meshes/local.stl"]
+    );
+    // The warning of a mesh the found package lacks says where the package is.
+    assert!(
+        r.warnings()
+            .iter()
+            .any(|w| w.contains("gone.stl") && w.contains("elsewhere/far_pkg")),
+        "{:?}",
+        r.warnings()
+    );
+    match &r.visuals(0)[0].geometry {
+        VisualGeometry::Mesh { resolved, .. } => {
+            assert!(
+                resolved
+                    .as_deref()
+                    .unwrap()
+                    .ends_with("elsewhere/far_pkg/meshes/a.stl")
+            )
+        }
+        other => panic!("{other:?}"),
+    }
+    // Archives are sealed: package paths are not read for them.
+    let mut zip = zip::ZipWriter::new(std::io::Cursor::new(Vec::new()));
+    zip.start_file("r.urdf", zip::write::SimpleFileOptions::default())
+        .unwrap();
+    std::io::Write::write_all(&mut zip, xml.as_bytes()).unwrap();
+    let bytes = zip.finish().unwrap().into_inner();
+    std::fs::write(tmp.path().join("r.zip"), bytes).unwrap();
+    let sealed = Robot::load_with_packages(
+        &tmp.path().join("r.zip"),
+        &[tmp.path().join("elsewhere")],
+        &cfg,
+    )
+    .unwrap();
+    assert_eq!(sealed.triangle_count(), 0);
+    let missing = sealed.missing_meshes();
+    assert_eq!(missing.len(), 4, "the archive holds no mesh: {missing:?}");
+    assert_eq!(missing[0].uri, "package://far_pkg/meshes/a.stl");
+}

@@ -149,13 +149,21 @@ pub(super) fn kinematics_from_urdf(
     Kinematics::new(links, joints)
 }
 
-type Visuals = (Vec<Vec<VisualInfo>>, Vec<LinkMesh>, Vec<String>);
+/// Per-link visuals, the link meshes, the warnings of meshes not found, the other
+/// warnings.
+type Visuals = (
+    Vec<Vec<VisualInfo>>,
+    Vec<LinkMesh>,
+    Vec<String>,
+    Vec<String>,
+);
 
 pub(super) fn load_visuals(
     urdf: &urdf_rs::Robot,
     resolver: &Resolver<'_>,
     cfg: &RobotConfig,
 ) -> Result<Visuals, RobotError> {
+    let mut not_found = Vec::new();
     let mut warnings = Vec::new();
     let mut infos: Vec<Vec<VisualInfo>> = Vec::with_capacity(urdf.links.len());
     // Resolve every mesh first, then parse each distinct file once, in parallel.
@@ -169,7 +177,7 @@ pub(super) fn load_visuals(
                 let r = match resolver.resolve(filename) {
                     Ok(p) => Some(p),
                     Err(why) => {
-                        warnings.push(format!(
+                        not_found.push(format!(
                             "mesh {filename:?} of link {:?} left out: not found ({why})",
                             link.name
                         ));
@@ -292,7 +300,7 @@ pub(super) fn load_visuals(
         }
         infos.push(link_infos);
     }
-    Ok((infos, link_meshes, warnings))
+    Ok((infos, link_meshes, not_found, warnings))
 }
 
 pub(super) fn scaled(m: &TriMesh, scale: [f64; 3]) -> TriMesh {

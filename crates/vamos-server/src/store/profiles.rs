@@ -329,6 +329,8 @@ impl Store {
         let file = ProfileFile {
             name: name.into(),
             robot: robot_path,
+            // A stored robot is sealed: it reads no package path.
+            robot_packages: Vec::new(),
             camera: None,
             model: model.as_ref().map(|m| self.model_file(&m.name, m.version)),
             flow_preset: spec.flow_preset.clone(),
