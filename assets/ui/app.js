@@ -2,10 +2,16 @@
 // token-checked API; the token lives in this tab's sessionStorage and travels only in the
 // Authorization header (the live stream is read with fetch, as EventSource cannot send
 // headers). Text from the server is only ever set as textContent.
+//
+// Robots are the rows: each robot's open sessions and its last ended ones (kept by the
+// server with their whole timeline and alarms). A selected session's timeline has a time
+// axis (seconds since its first frame); the recent alarms of every session, ended ones
+// included, can be marked as false alarms by a robot or admin token.
 'use strict';
 
 const TOKEN_KEY = 'vamos-token';
 const MAX_POINTS = 600;
+const RECENT_ALARMS_SHOWN = 30;
 const DETECTORS = [
   { key: 'score', label: 'fused score', thr: 'alarm', color: '#1d232a' },
   { key: 'e_c', label: 'e_c camera motion (px)', thr: 'e_c', color: '#1565c0' },
@@ -17,13 +23,18 @@ const DETECTORS = [
 
 const state = {
   role: null,
+  // The session shown: { id, ended } (ended: the ended session of that id, even while a
+  // session of the same id is open).
   selected: null,
+  summary: null,
   points: [],
   thresholds: {},
-  alarms: [],
   abort: null,
   lastImages: 0,
   retry: null,
+  robots: [],
+  // Sessions the server keeps, by id (open or ended): what an alarm's link can select.
+  known: new Map(),
 };
 
 const $ = (id) => document.getElementById(id);
@@ -57,6 +68,24 @@ async function api(path, opts = {}) {
 }
 
 const fmt = (v, d = 3) => (v === null || v === undefined ? '-' : Number(v).toPrecision(d));
+const ms = (s) => (s === null || s === undefined ? '-' : (1000 * s).toFixed(0) + ' ms');
+
+// Wall-clock time of a server time (seconds since the epoch), local, 24 h; a day other
+// than today is named.
+function clock(unixS, seconds = true) {
+  if (unixS === null || unixS === undefined) return '-';
+  const t = new Date(unixS * 1000);
+  const two = (n) => String(n).padStart(2, '0');
+  const hm = two(t.getHours()) + ':' + two(t.getMinutes()) + (seconds ? ':' + two(t.getSeconds()) : '');
+  return t.toDateString() === new Date().toDateString() ? hm : t.toLocaleDateString() + ' ' + hm;
+}
+
+function duration(s) {
+  if (s === null || s === undefined) return '-';
+  if (s < 120) return s.toFixed(0) + ' s';
+  if (s < 7200) return (s / 60).toFixed(0) + ' min';
+  return (s / 3600).toFixed(1) + ' h';
+}
 
 // --- sign-in -------------------------------------------------------------------------
 
@@ -69,6 +98,7 @@ async function signIn() {
     say('');
     connect();
     loadSide();
+    loadAlarms();
   } catch (e) {
     state.role = null;
     $('role').textContent = 'not signed in';
@@ -94,7 +124,10 @@ $('signout').addEventListener('click', () => {
   state.role = null;
   $('role').textContent = 'not signed in';
   $('role').className = 'pill';
-  $('sessions').querySelector('tbody').replaceChildren();
+  $('robots').querySelector('tbody').replaceChildren();
+  $('recent-alarms').replaceChildren();
+  $('recent-alarms').dataset.key = '';
+  $('alarms').dataset.key = '';
 });
 
 // --- the live stream (server-sent events over fetch) -----------------------------------
@@ -111,7 +144,10 @@ function connect() {
   disconnect();
   const ctrl = new AbortController();
   state.abort = ctrl;
-  const q = state.selected ? '?session=' + encodeURIComponent(state.selected) : '';
+  let q = '';
+  if (state.selected) {
+    q = '?session=' + encodeURIComponent(state.selected.id) + (state.selected.ended ? '&ended=true' : '');
+  }
   readStream('/v1/live' + q, ctrl).catch((e) => {
     if (ctrl.signal.aborted) return;
     $('conn').textContent = 'reconnecting';
@@ -149,50 +185,118 @@ async function readStream(path, ctrl) {
 }
 
 function onEvent(name, data) {
-  if (name === 'sessions') renderSessions(data.sessions);
+  // `sessions` (the open sessions alone) is what `robots` also carries.
+  if (name === 'robots') renderRobots(data.robots);
   else if (name === 'timeline') onTimeline(data);
-  else if (name === 'alarms') renderAlarms(data.alarms);
+  else if (name === 'alarms') renderAlarms($('alarms'), data.alarms, false);
   else if (name === 'gone') {
     say(data.error);
     $('detail').hidden = true;
-    $('selected-title').textContent = 'Session ' + data.session + ' is not open';
+    $('selected-title').textContent = 'Session ' + data.session + ' is no longer kept';
     state.selected = null;
     connect();
   }
 }
 
-// --- sessions ------------------------------------------------------------------------
+// --- robots --------------------------------------------------------------------------
 
-function renderSessions(list) {
-  const body = $('sessions').querySelector('tbody');
-  const rows = list.map(({ summary: s, last_alarm: a }) => {
+// A session's state as shown: live / detached / episode, ALARM, degraded, ended.
+function statePills(s) {
+  const pills = [];
+  if (s.state === 'ended') pills.push(['ended', 'ended']);
+  else if (s.state === 'streaming') pills.push(['live', 'live']);
+  else pills.push([s.state, 'live']);
+  if (s.alarm_on) pills.push(['ALARM', 'alarm']);
+  if (s.degraded) pills.push(['degraded', 'degraded']);
+  const box = el('span');
+  for (const [text, cls] of pills) {
+    const p = el('span', text, 'state ' + cls);
+    if (cls === 'degraded') {
+      p.title = s.frames_lost + ' image(s) lost before scored frames (dropped by a full queue or refused)' +
+        (s.state === 'ended' ? '' : ', some among the last 100 frames');
+    }
+    box.appendChild(p);
+    box.appendChild(document.createTextNode(' '));
+  }
+  return box;
+}
+
+function isSelected(s, ended) {
+  return state.selected && state.selected.id === s.id && state.selected.ended === ended;
+}
+
+function sessionChip(s, ended) {
+  const b = el('button', null, 'session ' + (ended ? 'ended' : 'live'));
+  b.type = 'button';
+  b.dataset.id = s.id;
+  b.dataset.state = ended ? 'ended' : 'live';
+  if (s.degraded) b.classList.add('degraded');
+  if (s.anomalies > 0 || s.alarm_on) b.classList.add('alarmed');
+  if (isSelected(s, ended)) b.classList.add('selected');
+  b.textContent = s.id + (ended ? ' \u00b7 ended ' + clock(s.ended_unix_s, false) : ' \u00b7 live');
+  b.title = s.id + ': ' + s.frames_scored + ' frames, ' + s.dropped + ' dropped, ' + s.frames_lost + ' lost, ' +
+    (ended ? 'ran ' + duration(s.age_s) + (s.end_reason ? ' (' + s.end_reason + ')' : '') : 'open ' + duration(s.age_s));
+  b.addEventListener('click', (ev) => { ev.stopPropagation(); select(s.id, ended); });
+  return b;
+}
+
+function renderRobots(robots) {
+  state.robots = robots;
+  state.known = new Map();
+  const body = $('robots').querySelector('tbody');
+  const rows = robots.map((r) => {
+    const open = r.sessions.map((x) => x.summary);
+    for (const s of r.ended) state.known.set(s.id, true);
+    for (const s of open) state.known.set(s.id, false);
+    const current = open.length ? open[0] : null;
+    const shown = current || r.ended[0];
+    const ended = !current;
     const tr = el('tr');
-    tr.dataset.id = s.id;
-    if (s.alarm_on) tr.classList.add('alarm');
-    if (s.id === state.selected) tr.classList.add('selected');
-    const cells = [s.id, s.robot_id || '-', s.profile, s.model,
-      s.frame_rate_hz ? s.frame_rate_hz.toFixed(1) : '-',
-      s.latency_s !== null && s.latency_s !== undefined ? (1000 * s.latency_s).toFixed(0) + ' ms' : '-',
-      s.alarm_on ? s.state + ', ALARM' : s.state, s.frames_scored,
-      a ? a.detector + ' @ frame ' + a.start_frame : '-'];
-    for (const c of cells) tr.appendChild(el('td', c));
-    tr.addEventListener('click', () => select(s.id));
+    tr.dataset.robot = r.robot_id;
+    tr.dataset.state = ended ? 'ended' : (shown.degraded ? 'degraded' : 'live');
+    if (shown.alarm_on) tr.classList.add('alarm');
+    if (state.selected && [...open, ...r.ended].some((s) => s.id === state.selected.id)) tr.classList.add('selected');
+    const a = r.last_alarm;
+    const cells = [
+      el('td', r.robot_id || '(no robot id)'),
+      el('td', null, 'state-cell'),
+      el('td', shown.id),
+      el('td', shown.profile + ' / ' + shown.model),
+      el('td', shown.frame_rate_hz ? shown.frame_rate_hz.toFixed(1) : '-'),
+      el('td', ms(shown.latency_s)),
+      el('td', shown.dropped + ' / ' + shown.frames_lost, 'drops'),
+      el('td', shown.frames_scored),
+      el('td', a ? a.detector + ' at ' + clock(a.started_unix_s) + (a.false_alarm ? ' (false)' : '') : '-'),
+      el('td', null, 'recent'),
+    ];
+    cells[1].appendChild(statePills(shown));
+    cells[2].title = shown.id;
+    cells[3].title = cells[3].textContent;
+    cells[6].title = shown.dropped + ' image(s) dropped, ' + shown.frames_lost + ' lost before scored frames';
+    for (const s of open) cells[9].appendChild(sessionChip(s, false));
+    for (const s of r.ended) cells[9].appendChild(sessionChip(s, true));
+    for (const c of cells) tr.appendChild(c);
+    tr.addEventListener('click', () => select(shown.id, ended));
     return tr;
   });
   body.replaceChildren(...rows);
-  $('no-sessions').hidden = list.length > 0;
+  $('no-robots').hidden = robots.length > 0;
 }
 
-function select(id) {
-  state.selected = id;
+function select(id, ended) {
+  state.selected = { id, ended: !!ended };
   state.points = [];
+  state.summary = null;
   state.lastImages = 0;
   $('detail').hidden = false;
   $('selected-title').textContent = 'Session ' + id;
   $('timeline').dataset.points = '0';
   $('overlay').dataset.frame = '0';
   $('overlay').dataset.map = '0';
+  $('alarms').dataset.key = '';
+  $('alarms').replaceChildren();
   say('');
+  renderRobots(state.robots);
   connect();
 }
 
@@ -200,14 +304,48 @@ function select(id) {
 
 function onTimeline(data) {
   state.thresholds = data.thresholds || {};
-  for (const p of data.points) state.points.push(p);
-  if (state.points.length > MAX_POINTS) state.points.splice(0, state.points.length - MAX_POINTS);
+  const s = data.session;
+  const wasEnded = state.summary && state.summary.state === 'ended';
+  state.summary = s;
+  if (data.replace) state.points = data.points.slice();
+  else for (const p of data.points) state.points.push(p);
+  if (s.state !== 'ended' && state.points.length > MAX_POINTS) state.points.splice(0, state.points.length - MAX_POINTS);
+  const ended = s.state === 'ended';
+  $('selected-title').textContent = 'Session ' + s.id + ' of ' + (s.robot_id || '(no robot id)') +
+    (ended ? ' \u2014 ended ' + clock(s.ended_unix_s) : ' \u2014 ' + s.state);
+  $('session-facts').textContent = s.profile + ' / ' + s.model + (s.task ? ', task ' + s.task : '') + ', opened ' + clock(s.opened_unix_s) +
+    ', ' + (ended ? 'ran ' : 'open ') + duration(s.age_s) + ', ' + s.frames_scored + ' frames scored, ' + s.dropped + ' dropped, ' +
+    s.frames_lost + ' lost, latency ' + ms(s.latency_s) + (s.end_reason ? ' \u2014 ended: ' + s.end_reason : '');
+  const banner = $('degraded');
+  banner.hidden = !s.degraded;
+  banner.textContent = s.degraded
+    ? 'Degraded: ' + s.frames_lost + ' image(s) lost before scored frames (a full queue or refused images)' +
+      (ended ? ' during the session' : ', some among its last 100 frames') +
+      '; the frame after each gap has no motion score and cannot alarm (amber ticks on the timeline).'
+    : '';
+  // An ended session's frames are not kept (each alarm keeps the frame at its start): its
+  // timeline takes the room of the latest frame.
+  $('frame-box').hidden = ended;
   drawTimeline();
+  if (ended) {
+    if (!wasEnded) {
+      const c = $('overlay');
+      c.getContext('2d').clearRect(0, 0, c.width, c.height);
+    }
+    return;
+  }
   const now = Date.now();
   if (data.points.length && now - state.lastImages > 700) {
     state.lastImages = now;
-    drawImages(state.selected);
+    drawImages(state.selected.id);
   }
+}
+
+// Tick spacing near `raw`: 1, 2 or 5 times a power of ten.
+function niceStep(raw) {
+  const p = 10 ** Math.floor(Math.log10(raw));
+  for (const m of [1, 2, 5, 10]) if (m * p >= raw) return m * p;
+  return 10 * p;
 }
 
 function drawTimeline() {
@@ -216,11 +354,46 @@ function drawTimeline() {
   const pts = state.points;
   g.clearRect(0, 0, c.width, c.height);
   const rows = DETECTORS.filter((d) => d.key === 'score' || pts.some((p) => p[d.key] !== null && p[d.key] !== undefined));
-  const h = c.height / rows.length;
+  const axisH = 34;
+  const h = (c.height - axisH) / rows.length;
   const x0 = 8;
   const w = c.width - 16;
-  const n = Math.max(pts.length, 2);
-  const xOf = (i) => x0 + (w * i) / (n - 1);
+  // Time: seconds since the session's first frame (image stamps).
+  const origin = state.summary && state.summary.first_stamp_ns !== null && state.summary.first_stamp_ns !== undefined
+    ? state.summary.first_stamp_ns : (pts.length ? pts[0].stamp_ns : 0);
+  const tOf = (p) => (p.stamp_ns - origin) / 1e9;
+  const t0 = pts.length ? tOf(pts[0]) : 0;
+  let t1 = pts.length ? tOf(pts[pts.length - 1]) : 1;
+  if (!(t1 > t0)) t1 = t0 + 1;
+  const xOfT = (t) => x0 + (w * (t - t0)) / (t1 - t0);
+  const xOf = (i) => xOfT(tOf(pts[i]));
+  const band = (i) => Math.max(1, (i + 1 < pts.length ? xOf(i + 1) : x0 + w) - xOf(i));
+  // The axis: ticks every 1, 2 or 5 x 10^k seconds, grid lines through every row.
+  const step = niceStep((t1 - t0) / 6);
+  const decimals = Math.max(0, -Math.floor(Math.log10(step)));
+  const ticks = [];
+  for (let t = Math.ceil(t0 / step - 1e-9) * step; t <= t1 + 1e-9; t += step) ticks.push(t);
+  const plotBottom = c.height - axisH;
+  g.strokeStyle = '#eceff2';
+  g.lineWidth = 1;
+  for (const t of ticks) { g.beginPath(); g.moveTo(xOfT(t), 4); g.lineTo(xOfT(t), plotBottom); g.stroke(); }
+  g.strokeStyle = '#8a949e';
+  g.beginPath(); g.moveTo(x0, plotBottom + 2); g.lineTo(x0 + w, plotBottom + 2); g.stroke();
+  g.fillStyle = '#56606b';
+  g.font = '11px system-ui';
+  const labels = [];
+  for (const t of ticks) {
+    const x = xOfT(t);
+    g.beginPath(); g.moveTo(x, plotBottom + 2); g.lineTo(x, plotBottom + 6); g.stroke();
+    const label = t.toFixed(decimals) + ' s';
+    labels.push(label);
+    const tw = g.measureText(label).width;
+    g.fillText(label, Math.min(Math.max(x - tw / 2, x0), x0 + w - tw), plotBottom + 17);
+  }
+  const title = 'time since the session\u2019s first frame (s)' + (state.summary && state.summary.state === 'ended' ? ', whole session' : '');
+  g.fillText(title, x0 + w - g.measureText(title).width, plotBottom + 31);
+  c.dataset.ticks = labels.join(',');
+  c.dataset.axis = 'seconds';
   rows.forEach((d, r) => {
     const top = r * h + 16;
     const ph = h - 24;
@@ -230,10 +403,11 @@ function drawTimeline() {
     // Trigger-band scores (1e6 and above) would flatten the plot: cap the axis.
     if (d.key === 'score' && thr && max > thr * 4) max = thr * 4;
     const yOf = (v) => top + ph - ph * Math.min(v / max, 1);
-    // Warm-up greyed, alarms shaded.
+    // Warm-up greyed, alarms shaded, images lost before a frame ticked in amber.
     pts.forEach((p, i) => {
-      if (p.warming_up) { g.fillStyle = 'rgba(0,0,0,0.07)'; g.fillRect(xOf(i) - 1, top, w / n + 1, ph); }
-      if (p.alarm) { g.fillStyle = 'rgba(198,40,40,0.12)'; g.fillRect(xOf(i) - 1, top, w / n + 1, ph); }
+      if (p.warming_up) { g.fillStyle = 'rgba(0,0,0,0.07)'; g.fillRect(xOf(i), top, band(i), ph); }
+      if (p.alarm) { g.fillStyle = 'rgba(198,40,40,0.12)'; g.fillRect(xOf(i), top, band(i), ph); }
+      if (p.frames_lost > 0) { g.fillStyle = '#ef6c00'; g.fillRect(xOf(i) - 1, top, 2, 6); }
     });
     g.fillStyle = '#56606b';
     g.font = '11px system-ui';
@@ -268,12 +442,17 @@ async function bitmap(path) {
   return createImageBitmap(await r.blob());
 }
 
+function stillShown(id) {
+  return state.selected && state.selected.id === id && !state.selected.ended &&
+    !(state.summary && state.summary.state === 'ended');
+}
+
 async function drawImages(id) {
   const c = $('overlay');
   const g = c.getContext('2d');
   try {
     const frame = await bitmap('/v1/sessions/' + encodeURIComponent(id) + '/frame');
-    if (id !== state.selected) return;
+    if (!stillShown(id)) return;
     c.width = frame.width;
     c.height = frame.height;
     g.drawImage(frame, 0, 0);
@@ -281,7 +460,7 @@ async function drawImages(id) {
   } catch (e) { return; }
   let map;
   try { map = await bitmap('/v1/sessions/' + encodeURIComponent(id) + '/map'); } catch (e) { return; }
-  if (id !== state.selected) return;
+  if (!stillShown(id)) return;
   // Gray map -> red with alpha = value, scaled over the frame.
   const m = document.createElement('canvas');
   m.width = map.width;
@@ -312,26 +491,47 @@ async function thumb(img, id) {
   } catch (e) { img.alt = 'no thumbnail'; }
 }
 
-function renderAlarms(alarms) {
-  const key = JSON.stringify(alarms.map((a) => [a.id, a.end_frame, !!a.false_alarm, a.frames_flagged]));
-  if (key === state.alarmsKey) return;
-  state.alarmsKey = key;
-  const ul = $('alarms');
+// The alarms in `ul` (the selected session's, or with `recent` every session's), each
+// with its thumbnail, its values against the thresholds, and the button that marks it as
+// a false alarm (disabled for a viewer and once marked).
+function renderAlarms(ul, alarms, recent) {
+  const key = JSON.stringify([state.role, alarms.map((a) => [a.id, a.end_frame, !!a.false_alarm, a.frames_flagged])]);
+  if (key === ul.dataset.key) return;
+  ul.dataset.key = key;
   const items = alarms.map((a) => {
     const li = el('li');
     li.dataset.id = a.id;
+    li.dataset.session = a.session_id;
     if (a.false_alarm) li.classList.add('marked');
     const img = el('img');
     img.alt = 'frame at the alarm start';
     thumb(img, a.id);
     li.appendChild(img);
     const facts = el('div', null, 'facts');
-    facts.appendChild(el('strong', a.detector + (a.detectors.length > 1 ? ' (+' + a.detectors.slice(1).join(', ') + ')' : '')));
-    facts.appendChild(el('div', 'frames ' + a.start_frame + ' - ' + (a.end_frame ?? 'on') + ', ' + a.frames_flagged + ' flagged'));
+    const head = el('strong', a.detector + (a.detectors.length > 1 ? ' (+' + a.detectors.slice(1).join(', ') + ')' : ''));
+    facts.appendChild(head);
+    if (recent) {
+      facts.appendChild(document.createTextNode(' '));
+      const where = el('a', (a.robot_id || '(no robot id)') + ' / ' + a.session_id, 'session-link');
+      where.href = '#';
+      where.title = 'show this session';
+      where.addEventListener('click', (ev) => {
+        ev.preventDefault();
+        if (state.known.has(a.session_id)) select(a.session_id, state.known.get(a.session_id));
+        else say('Session ' + a.session_id + ' is no longer kept; its alarm is.');
+      });
+      facts.appendChild(where);
+    }
+    facts.appendChild(el('div', 'started ' + clock(a.started_unix_s) + ', frames ' + a.start_frame + ' - ' + (a.end_frame ?? 'on') +
+      ', ' + a.frames_flagged + ' flagged'));
     const t = a.thresholds;
-    facts.appendChild(el('div', 'at start: score ' + fmt(a.start.score) + ' (threshold ' + fmt(t.alarm) + '), e_c ' + fmt(a.start.e_c) +
-      ' (' + fmt(t.e_c) + '), e_b ' + fmt(a.start.e_b) + ' (' + fmt(t.e_b) + '), e_o ' + fmt(a.start.e_o) + ' (' + fmt(t.e_o) + '), e_r ' +
-      fmt(a.start.e_r) + ' (' + fmt(t.e_r) + '), e_k ' + fmt(a.start.e_k) + ' (' + fmt(t.e_k) + ')'));
+    if (!recent) {
+      facts.appendChild(el('div', 'at start: score ' + fmt(a.start.score) + ' (threshold ' + fmt(t.alarm) + '), e_c ' + fmt(a.start.e_c) +
+        ' (' + fmt(t.e_c) + '), e_b ' + fmt(a.start.e_b) + ' (' + fmt(t.e_b) + '), e_o ' + fmt(a.start.e_o) + ' (' + fmt(t.e_o) + '), e_r ' +
+        fmt(a.start.e_r) + ' (' + fmt(t.e_r) + '), e_k ' + fmt(a.start.e_k) + ' (' + fmt(t.e_k) + ')'));
+    } else {
+      facts.appendChild(el('div', 'peak score ' + fmt(a.peak.score) + ' (threshold ' + fmt(t.alarm) + ')'));
+    }
     facts.appendChild(el('div', a.false_alarm ? 'marked as a false alarm (' + a.false_alarm.by_role + ')' : a.id, 'muted'));
     li.appendChild(facts);
     const b = el('button', a.false_alarm ? 'False alarm' : 'Mark false alarm', 'mark');
@@ -344,6 +544,16 @@ function renderAlarms(alarms) {
   ul.replaceChildren(...items);
 }
 
+// The recent alarms of every session (ended ones included), newest first.
+async function loadAlarms() {
+  if (!state.role) return;
+  try {
+    const alarms = (await (await api('/v1/alarms')).json()).alarms || [];
+    renderAlarms($('recent-alarms'), alarms.slice(0, RECENT_ALARMS_SHOWN), true);
+    $('no-alarms').hidden = alarms.length > 0;
+  } catch (e) { $('no-alarms').hidden = false; $('no-alarms').textContent = e.message; }
+}
+
 async function mark(id, button) {
   button.disabled = true;
   try {
@@ -351,7 +561,9 @@ async function mark(id, button) {
       method: 'POST', headers: { 'Content-Type': 'application/json' }, body: JSON.stringify({ note: 'marked on the live view' }),
     });
     say('Alarm ' + id + ' marked as a false alarm.');
-    state.alarmsKey = null;
+    $('alarms').dataset.key = '';
+    $('recent-alarms').dataset.key = '';
+    loadAlarms();
     loadSide();
   } catch (e) {
     say('Not marked: ' + e.message);
@@ -509,3 +721,5 @@ function recalibrateButton(name) {
 signIn();
 // Jobs, profiles and marked alarms change rarely: refreshed every 10 s while signed in.
 setInterval(() => { if (state.role) loadSide(); }, 10000);
+// The recent alarms change with every session: refreshed every 2 s while signed in.
+setInterval(loadAlarms, 2000);

@@ -1,11 +1,11 @@
 //! `vamos layout`: a Foxglove layout for a profile's scored bags, made from a bag's topics
-//! and the detectors the profile runs ([`vamos::episode::layout`]).
+//! and the detectors the profile runs ([`vamos::pipeline::layout`]).
 
 use anyhow::{Context, Result};
 use std::path::PathBuf;
 use vamos::config::Settings;
 use vamos::episode::McapEpisode;
-use vamos::episode::layout::{layout_topics, scored_bag_layout};
+use vamos::pipeline::layout::{layout_topics, scored_bag_layout};
 use vamos::setup::Setup;
 
 #[derive(clap::Args, Debug)]

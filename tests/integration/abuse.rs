@@ -557,7 +557,8 @@ async fn stalled_uploads_cannot_block_the_admin_plane() {
 /// A robot token sees, resumes and marks only its own: a token issued for other robots,
 /// and one issued for none (which sees only what it opened), find another robot's live
 /// session, its frames and its alarms unknown, and cannot act for its robot; the owner,
-/// viewers and admins see it.
+/// viewers and admins see it, and once it ended still see it (its robot's ended sessions)
+/// while the other tokens still do not.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn robot_tokens_see_only_their_own_sessions_and_alarms() {
     use super::service::{episode, episode_messages, fixture_with, hex_sha256};
@@ -683,6 +684,44 @@ async fn robot_tokens_see_only_their_own_sessions_and_alarms() {
     assert_eq!(mark.status(), reqwest::StatusCode::OK);
     drop(tx);
     task.await.unwrap();
+    // Ended, the session is kept for the live view and seen exactly as before.
+    let deadline = Instant::now() + Duration::from_secs(30);
+    loop {
+        let (status, body) = get(ROBOT, "/v1/sessions/b-1/timeline".into()).await;
+        if body.contains("\"state\":\"ended\"") {
+            assert_eq!(status, reqwest::StatusCode::OK);
+            break;
+        }
+        assert!(Instant::now() < deadline, "b-1 never ended: {body}");
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    for token in [SCOPED, OTHER] {
+        for path in &session_paths[..3] {
+            let (status, body) = get(token, path.clone()).await;
+            assert_eq!(
+                status,
+                reqwest::StatusCode::NOT_FOUND,
+                "{token} {path}: {body}"
+            );
+        }
+        let (_, live) = get(token, "/v1/live".into()).await;
+        assert!(!live.contains("b-1"), "{token}: {live}");
+    }
+    for token in [ROBOT, VIEWER, ADMIN] {
+        let (_, live) = get(token, "/v1/live".into()).await;
+        let v: serde_json::Value = serde_json::from_str(&live).unwrap();
+        let ended: Vec<&str> = v["robots"]["robots"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .flat_map(|r| r["ended"].as_array().unwrap())
+            .filter_map(|e| e["id"].as_str())
+            .collect();
+        assert!(ended.contains(&"b-1"), "{token}: {live}");
+        let (status, body) = get(token, "/v1/sessions/b-1/alarms".into()).await;
+        assert_eq!(status, reqwest::StatusCode::OK, "{token}: {body}");
+        assert!(body.contains(&alarm_id), "{token}: {body}");
+    }
     server.shutdown().await.unwrap();
 }
 

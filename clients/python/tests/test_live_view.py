@@ -2,11 +2,19 @@
 
 A robot streams a simulated episode over gRPC (raw stubs, ``anomaly_maps`` on) while
 Debian's chromium, driven by selenium through chromium-driver, checks that the page:
-refuses to show anything without a token, lists the session for a viewer, updates the
-timeline, draws the anomaly map over the latest frame, lists the alarm with its
-thumbnail, does not let a viewer mark it (and the API refuses a viewer's mark, nothing
+refuses to show anything without a token, lists the robot and its session for a viewer,
+updates the timeline, draws the anomaly map over the latest frame, lists the alarm with
+its thumbnail, does not let a viewer mark it (and the API refuses a viewer's mark, nothing
 stored), lets a robot token mark it as a false alarm (which reaches the data directory),
-and says so when the session has ended.
+and keeps the session, marked as ended, when it ends.
+
+Then two robots, each with two sessions in sequence (the last one sent in a burst that a
+one-image queue cannot hold, so it is degraded): while it runs the page shows the robot
+degraded; after all four ended the page still shows both robots' sessions with their
+timelines (time axes labelled) and alarms, an ended session's alarm is marked false from
+the page (in its session's list and in the recent alarms) and the marks reach the server,
+the page fits a 1400 px window without a horizontal scroll, and a restarted server shows
+the same ended sessions and alarms again.
 
 The profile makes every frame an alarm frame (``[thresholds] alarm = 0.0``), so the
 alarm is certain and starts at the third frame (3 of 5). Skipped when chromium or
@@ -76,20 +84,23 @@ def _call(server: Server, method: str, path: str, token: "str | None",
         return e.code, json.loads(e.read() or b"{}")
 
 
-def _requests(pb: Any, session_id: str, pace_s: float, release: threading.Event):
+def _requests(pb: Any, session_id: str, pace_s: float, release: threading.Event,
+              robot_id: str = "browser-robot"):
     """The episode as a robot streams it: open (with anomaly maps), then its messages in
-    log-time order, images ``pace_s`` apart; then the session is held open (a phase marker
-    every second keeps it from idling out) until ``release`` is set (at most 120 s)."""
+    log-time order, images ``pace_s`` apart (0: all at once); then the session is held open
+    (a phase marker every second keeps it from idling out) until ``release`` is set (at
+    most 120 s)."""
     with open(EPISODE, "rb") as fh:
         reader = mcap_reader.make_reader(fh, decoder_factories=[mcap_ros2_decoder.DecoderFactory()])
         messages = list(reader.iter_decoded_messages(log_time_order=True))
     yield pb.StreamRequest(open=pb.OpenSession(
-        robot_id="browser-robot", profile="sim-arm", session_id=session_id, task="place_book",
+        robot_id=robot_id, profile="sim-arm", session_id=session_id, task="place_book",
         anomaly_maps=True))
     for schema, _channel, _message, m in messages:
         stamp = m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec if hasattr(m, "header") else 0
         if schema.name == "sensor_msgs/msg/Image":
-            time.sleep(pace_s)
+            if pace_s:
+                time.sleep(pace_s)
             yield pb.StreamRequest(image=pb.Image(
                 stamp_ns=stamp, encoding=m.encoding, width=m.width, height=m.height,
                 step=m.step, big_endian=bool(m.is_bigendian), data=bytes(m.data)))
@@ -104,12 +115,14 @@ def _requests(pb: Any, session_id: str, pace_s: float, release: threading.Event)
 class Robot(threading.Thread):
     """Streams the episode in the background, keeping every response."""
 
-    def __init__(self, server: Server, session_id: str, pace_s: float) -> None:
+    def __init__(self, server: Server, session_id: str, pace_s: float,
+                 robot_id: str = "browser-robot") -> None:
         super().__init__(daemon=True)
         from vamos.v1 import monitor_pb2, monitor_pb2_grpc
 
         self.pb, self.grpc_mod = monitor_pb2, monitor_pb2_grpc
         self.server, self.session_id, self.pace_s = server, session_id, pace_s
+        self.robot_id = robot_id
         self.responses: list[Any] = []
         self.error: "BaseException | None" = None
         #: Set to let the session end.
@@ -119,7 +132,8 @@ class Robot(threading.Thread):
         try:
             with grpc.insecure_channel(self.server.grpc) as channel:
                 stub = self.grpc_mod.MonitorStub(channel)
-                for r in stub.Stream(_requests(self.pb, self.session_id, self.pace_s, self.release),
+                for r in stub.Stream(_requests(self.pb, self.session_id, self.pace_s, self.release,
+                                               self.robot_id),
                                      metadata=[("authorization", f"Bearer {ROBOT}")]):
                     self.responses.append(r)
         except BaseException as e:  # noqa: BLE001 - reported by the test
@@ -156,12 +170,28 @@ def browser():
     d.quit()
 
 
-def _click_row(d: Any, session_id: str) -> None:
-    """Clicks the session's row (found and clicked in one script: the list is redrawn
-    twice a second, so a row found by one call may be gone by the next)."""
-    _wait(f"the row of {session_id}", lambda: d.execute_script(
-        "const r = [...document.querySelectorAll('#sessions tbody tr')]"
-        ".find((x) => x.dataset.id === arguments[0]); if (r) r.click(); return !!r;", session_id))
+def _click_session(d: Any, session_id: str, state: str = "") -> None:
+    """Clicks the session's button in its robot's row (``state``: only when it is ``live``
+    or ``ended``); found and clicked in one script: the rows are redrawn twice a second,
+    so a button found by one call may be gone by the next."""
+    _wait(f"the button of {session_id}", lambda: d.execute_script(
+        "const b = [...document.querySelectorAll('#robots button.session')]"
+        ".find((x) => x.dataset.id === arguments[0] && (!arguments[1] || x.dataset.state === arguments[1]));"
+        "if (b) b.click(); return !!b;", session_id, state))
+
+
+def _robot_row(d: Any, robot_id: str) -> "dict[str, Any] | None":
+    """The robot's row as ``{state, text, sessions: {id: [state, classes]}, order: [id]}``
+    (``order``: the session buttons as shown)."""
+    row = d.execute_script(
+        "const r = [...document.querySelectorAll('#robots tbody tr')].find((x) => x.dataset.robot === arguments[0]);"
+        "if (!r) return null;"
+        "const s = [...r.querySelectorAll('button.session')].map((b) => [b.dataset.id, b.dataset.state, b.className]);"
+        "return {state: r.dataset.state, text: r.textContent, sessions: s};", robot_id)
+    if row is not None:
+        row["order"] = [b[0] for b in row["sessions"]]
+        row["sessions"] = {b[0]: b[1:] for b in row["sessions"]}
+    return row
 
 
 def _sign_in(d: Any, token: str) -> None:
@@ -187,7 +217,7 @@ def test_live_view_in_a_real_browser(browser: Any, tmp_path: Path) -> None:
         d.get(server.rest + "/ui")
         _wait("the refusal", lambda: "needs a token" in d.find_element(By.ID, "message").text)
         assert d.find_element(By.ID, "role").text == "not signed in"
-        assert d.find_elements(By.CSS_SELECTOR, "#sessions tbody tr") == []
+        assert d.find_elements(By.CSS_SELECTOR, "#robots tbody tr") == []
         for path in ("/v1/live", "/v1/alarms", "/v1/sessions/ui-session/timeline", "/v1/whoami"):
             assert _call(server, "GET", path, None)[0] == 401, path
         # A bad token is refused too.
@@ -197,11 +227,9 @@ def test_live_view_in_a_real_browser(browser: Any, tmp_path: Path) -> None:
         # A viewer sees the session, its timeline, the frame with the map, the alarm.
         _sign_in(d, VIEWER)
         _wait("the viewer role", lambda: d.find_element(By.ID, "role").text == "role: viewer")
-        text = _wait("the session row", lambda: d.execute_script(
-            "const r = document.querySelector('#sessions tbody tr[data-id=\"ui-session\"]');"
-            "return r && r.textContent"))
-        assert "browser-robot" in text and "sim-arm" in text
-        _click_row(d, "ui-session")
+        row = _wait("the robot's row", lambda: _robot_row(d, "browser-robot"))
+        assert "sim-arm" in row["text"] and row["sessions"]["ui-session"][0] == "live", row
+        _click_session(d, "ui-session")
         canvas = d.find_element(By.ID, "timeline")
         first = _wait("timeline points", lambda: int(canvas.get_attribute("data-points")) or None)
         _wait("the timeline to grow", lambda: int(canvas.get_attribute("data-points")) > first + 5)
@@ -235,7 +263,7 @@ def test_live_view_in_a_real_browser(browser: Any, tmp_path: Path) -> None:
         # A robot token marks it on the page; the mark reaches the data directory.
         _sign_in(d, ROBOT)
         _wait("the robot role", lambda: d.find_element(By.ID, "role").text == "role: robot")
-        _click_row(d, "ui-session")
+        _click_session(d, "ui-session")
         button = _wait("the mark button", lambda: [
             b for b in d.find_elements(By.CSS_SELECTOR, f'#alarms li[data-id="{alarm_id}"] button.mark') if b.is_enabled()])[0]
         button.click()
@@ -266,8 +294,11 @@ def test_live_view_in_a_real_browser(browser: Any, tmp_path: Path) -> None:
         with_e_o = [s for s in scores if s.HasField("e_o")]
         assert with_e_o and all(s.anomaly_map[:8] == b"\x89PNG\r\n\x1a\n" for s in with_e_o)
 
-        # The session has ended: the page says so instead of showing stale data.
-        _wait("the page to notice the end", lambda: "no open session" in d.find_element(By.ID, "message").text)
+        # The session has ended: the page keeps it, as ended, with its timeline and alarm.
+        _wait("the page to notice the end", lambda: "ended" in d.find_element(By.ID, "selected-title").text)
+        assert int(canvas.get_attribute("data-points")) > 0
+        assert d.find_elements(By.CSS_SELECTOR, f'#alarms li[data-id="{alarm_id}"].marked')
+        _wait("the robot's row to say ended", lambda: (_robot_row(d, "browser-robot") or {}).get("state") == "ended")
 
         # The marked alarm kept the session's recording: it is the profile's nominal set.
         recording = json.loads(stored.read_text())["body"]["recording"]
@@ -284,6 +315,155 @@ def test_live_view_in_a_real_browser(browser: Any, tmp_path: Path) -> None:
               and "1 nominal episode(s)" in d.find_element(By.ID, "profiles").text, timeout_s=40)
     finally:
         robot.release.set()
+        server.stop()
+
+
+def _no_horizontal_scroll(d: Any) -> "dict[str, int]":
+    """The page's and the robots table's widths against the window's."""
+    return d.execute_script(
+        "const e = document.documentElement, t = document.getElementById('robots');"
+        "return {window: window.innerWidth, client: e.clientWidth, page: e.scrollWidth,"
+        " table: t.scrollWidth, table_box: t.clientWidth};")
+
+
+def test_robots_keep_their_last_sessions_and_alarms(browser: Any, tmp_path: Path) -> None:
+    """Two robots, each with two sessions in sequence; the page after all four ended, a
+    false alarm of an ended session marked from it, and a restart."""
+    from selenium.webdriver.common.by import By
+
+    d = browser
+    # A one-image queue: the burst of arm-b's second session loses images (degraded).
+    env = {"VAMOS_VIEWER_TOKEN": VIEWER, "VAMOS_SERVICE__QUEUE_DEPTH": "1"}
+    keys = f'model = "{MODEL}"\n'
+    extra = "[thresholds]\nalarm = 0.0\n"
+    server = Server(vamos_bin(), tmp_path / "server", env=env, profile_keys=keys, profile_extra=extra)
+    robots: "list[Robot]" = []
+
+    def run(session_id: str, robot_id: str, pace_s: float, hold: bool = False) -> Robot:
+        r = Robot(server, session_id, pace_s=pace_s, robot_id=robot_id)
+        if not hold:
+            r.release.set()  # the session ends after its last image
+        robots.append(r)
+        r.start()
+        return r
+
+    def finish(r: Robot) -> None:
+        r.release.set()
+        r.join(timeout=120)
+        assert not r.is_alive() and r.error is None, r.error
+
+    try:
+        d.get(server.rest + "/ui")
+        _sign_in(d, ROBOT)
+        _wait("the robot role", lambda: d.find_element(By.ID, "role").text == "role: robot")
+        # First sessions, side by side; each robot is a row while they run.
+        first = [run("arm-a-1", "arm-a", 0.1), run("arm-b-1", "arm-b", 0.1)]
+        _wait("both robots live", lambda: all(
+            (_robot_row(d, r) or {}).get("state") in ("live", "degraded") for r in ("arm-a", "arm-b")))
+        for r in first:
+            finish(r)
+        # Second sessions: arm-b's sent in one burst and held open.
+        second = [run("arm-a-2", "arm-a", 0.1), run("arm-b-2", "arm-b", 0.0, hold=True)]
+        row = _wait("arm-b degraded", lambda: (lambda r: r if r and r["state"] == "degraded" else None)(
+            _robot_row(d, "arm-b")), timeout_s=60)
+        assert "degraded" in row["text"] and "degraded" in row["sessions"]["arm-b-2"][1], row
+        status, live = _call(server, "GET", "/v1/live", VIEWER)
+        (b2,) = [x["summary"] for r in live["robots"]["robots"] if r["robot_id"] == "arm-b" for x in r["sessions"]]
+        assert b2["degraded"] and b2["frames_lost"] > 0, b2
+        for r in second:
+            finish(r)
+
+        # Both robots keep both sessions, ended, newest first, on the page and in the API.
+        def ended_rows() -> Any:
+            rows = {r: _robot_row(d, r) for r in ("arm-a", "arm-b")}
+            ok = all(x and x["state"] == "ended" and len(x["sessions"]) == 2
+                     and all(v[0] == "ended" for v in x["sessions"].values()) for x in rows.values())
+            return rows if ok else None
+        rows = _wait("both robots' ended sessions", ended_rows)
+        assert rows["arm-a"]["order"] == ["arm-a-2", "arm-a-1"], rows
+        assert rows["arm-b"]["order"] == ["arm-b-2", "arm-b-1"], rows
+        assert "degraded" in rows["arm-b"]["sessions"]["arm-b-2"][1]
+        status, live = _call(server, "GET", "/v1/live", VIEWER)
+        assert status == 200 and live["sessions"]["sessions"] == [], live["sessions"]
+        ended = {r["robot_id"]: [e["id"] for e in r["ended"]] for r in live["robots"]["robots"]}
+        assert ended == {"arm-a": ["arm-a-2", "arm-a-1"], "arm-b": ["arm-b-2", "arm-b-1"]}, ended
+
+        # An ended session: its whole timeline with a labelled time axis, and its alarm.
+        _click_session(d, "arm-a-1", "ended")
+        canvas = d.find_element(By.ID, "timeline")
+        _wait("arm-a-1's timeline", lambda: int(canvas.get_attribute("data-points")) >= 20)
+        assert "ended" in d.find_element(By.ID, "selected-title").text
+        ticks = canvas.get_attribute("data-ticks").split(",")
+        assert len(ticks) >= 3 and all(re.fullmatch(r"\d+(\.\d+)? s", t) for t in ticks), ticks
+        seconds = [float(t[:-2]) for t in ticks]
+        assert seconds == sorted(seconds) and seconds[-1] >= 2.0, seconds  # 29 frames 0.1 s apart
+        status, timeline = _call(server, "GET", "/v1/sessions/arm-a-1/timeline", VIEWER)
+        assert status == 200 and timeline["session"]["state"] == "ended", timeline["session"]
+        assert len(timeline["points"]) == int(canvas.get_attribute("data-points"))
+        item = _wait("arm-a-1's alarm", lambda: d.find_element(By.CSS_SELECTOR, "#alarms li"))
+        a1_alarm = item.get_attribute("data-id")
+        assert item.get_attribute("data-session") == "arm-a-1"
+        button = _wait("the mark button", lambda: [
+            b for b in d.find_elements(By.CSS_SELECTOR, f'#alarms li[data-id="{a1_alarm}"] button.mark')
+            if b.is_enabled()])[0]
+        button.click()
+        _wait("the confirmation", lambda: f"Alarm {a1_alarm} marked" in d.find_element(By.ID, "message").text)
+        status, alarms = _call(server, "GET", "/v1/sessions/arm-a-1/alarms", ROBOT)
+        assert status == 200 and alarms["alarms"][0]["false_alarm"]["by_role"] == "robot", alarms
+        _wait("the mark on the page", lambda: d.find_elements(
+            By.CSS_SELECTOR, f'#alarms li[data-id="{a1_alarm}"].marked'))
+
+        # The recent alarms list every session's alarms (the paced sessions alarm for
+        # certain; the burst's frames after a gap cannot); arm-b-1's is marked from there.
+        status, body = _call(server, "GET", "/v1/alarms", VIEWER)
+        with_alarms = {a["session_id"] for a in body["alarms"]}
+        assert with_alarms >= {"arm-a-1", "arm-a-2", "arm-b-1"}, with_alarms
+        _wait("every session's alarms in the recent list", lambda: {
+            i.get_attribute("data-session") for i in d.find_elements(By.CSS_SELECTOR, "#recent-alarms li")
+        } == with_alarms)
+        b1_alarm = _wait("arm-b-1's mark button", lambda: d.execute_script(
+            "const li = document.querySelector('#recent-alarms li[data-session=\"arm-b-1\"]');"
+            "const b = li && li.querySelector('button.mark');"
+            "if (!b || b.disabled) return null; b.click(); return li.dataset.id;"))
+        _wait("the second confirmation", lambda: f"Alarm {b1_alarm} marked" in d.find_element(By.ID, "message").text)
+        status, marked = _call(server, "GET", "/v1/alarms?marked=true", ADMIN)
+        assert status == 200 and sorted(a["id"] for a in marked["alarms"]) == sorted([a1_alarm, b1_alarm]), marked
+        assert (tmp_path / "server" / "data" / "alarms" / f"{b1_alarm}.json").is_file()
+
+        # 1400 px: nothing wider than the window.
+        widths = _no_horizontal_scroll(d)
+        assert widths["window"] == 1400 or widths["client"] >= 1380, widths
+        assert widths["page"] <= widths["client"] and widths["table"] <= widths["table_box"], widths
+        shot = os.environ.get("VAMOS_UI_SCREENSHOT")
+        if shot:
+            d.save_screenshot(str(Path(shot).with_suffix(".robots.png")))
+    finally:
+        for r in robots:
+            r.release.set()
+        server.stop()
+
+    # A restart: the ended sessions come back from the data directory with their alarms,
+    # the marks included (a viewer sees them; the robot token's identity is not stored).
+    server = Server(vamos_bin(), tmp_path / "server", env=env, profile_keys=keys, profile_extra=extra)
+    try:
+        status, live = _call(server, "GET", "/v1/live", VIEWER)
+        ended = {r["robot_id"]: [e["id"] for e in r["ended"]] for r in live["robots"]["robots"]}
+        assert ended == {"arm-a": ["arm-a-2", "arm-a-1"], "arm-b": ["arm-b-2", "arm-b-1"]}, ended
+        status, body = _call(server, "GET", "/v1/alarms", VIEWER)
+        by_id = {a["id"]: a for a in body["alarms"]}
+        assert {a["session_id"] for a in body["alarms"]} == with_alarms
+        assert by_id[a1_alarm]["false_alarm"] and by_id[b1_alarm]["false_alarm"], by_id
+        status, timeline = _call(server, "GET", "/v1/sessions/arm-a-1/timeline", VIEWER)
+        assert status == 200 and timeline["points"], timeline
+        d.get(server.rest + "/ui")
+        _sign_in(d, VIEWER)
+        _wait("the restored rows", lambda: all(
+            len((_robot_row(d, r) or {}).get("sessions", {})) == 2 for r in ("arm-a", "arm-b")))
+        _click_session(d, "arm-b-2", "ended")
+        _wait("arm-b-2's restored timeline", lambda: int(
+            d.find_element(By.ID, "timeline").get_attribute("data-points")) > 0)
+        assert not d.find_element(By.ID, "degraded").get_attribute("hidden"), "arm-b-2 lost images"
+    finally:
         server.stop()
 
 

@@ -117,17 +117,17 @@ impl Setup {
         )
     }
 
-    /// What the scored bags of this profile carry ([`crate::episode::layout`]): the
+    /// What the scored bags of this profile carry ([`crate::pipeline::layout`]): the
     /// detectors in force (`e_k` once calibrated with nominal states), and the anomaly
     /// map (calibrated scene statistics or a flow model).
-    pub fn scored_content(&self) -> crate::episode::layout::ScoredContent {
+    pub fn scored_content(&self) -> crate::pipeline::layout::ScoredContent {
         let mut detectors = self
             .config
             .detectors
             .in_force(self.robot.is_some(), self.model.is_some());
         let thresholds = self.profile.thresholds();
         detectors.kinematics &= thresholds.kinematics.is_some();
-        crate::episode::layout::ScoredContent {
+        crate::pipeline::layout::ScoredContent {
             detectors,
             anomaly_map: detectors.flow || (detectors.scene && thresholds.scene.is_some()),
         }

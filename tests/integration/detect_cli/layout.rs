@@ -24,7 +24,7 @@ fn the_layout_of_a_profile_shows_what_its_scored_bags_carry() {
     let episode = "test/test_0001_external_push.mcap";
     // Not calibrated: no e_k (no nominal states), no anomaly map (no statistics, no model).
     let (before, stderr) = layout(dir, episode);
-    let named = vamos::episode::layout::layout_topics(&before);
+    let named = vamos::pipeline::layout::layout_topics(&before);
     assert!(stderr.contains("/camera/image_raw"), "{stderr}");
     for absent in ["/vamos/e_k", "/vamos/e_o", "/vamos/anomaly_map"] {
         assert!(!named.iter().any(|t| t == absent), "{absent}: {named:?}");
@@ -61,7 +61,7 @@ fn the_layout_of_a_profile_shows_what_its_scored_bags_carry() {
     let (from_input, _) = layout(dir, episode);
     let (from_scored, _) = layout(dir, scored.to_str().unwrap());
     assert_eq!(from_input, from_scored);
-    let named = vamos::episode::layout::layout_topics(&from_scored);
+    let named = vamos::pipeline::layout::layout_topics(&from_scored);
     for expected in [
         "/camera/image_raw",
         "/camera/camera_info",

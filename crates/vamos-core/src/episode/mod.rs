@@ -37,7 +37,6 @@ pub mod folder;
 pub mod image;
 pub mod joints;
 pub mod labels;
-pub mod layout;
 pub mod ros;
 pub mod synthetic;
 pub mod writer;

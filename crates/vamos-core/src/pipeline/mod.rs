@@ -19,6 +19,7 @@ pub mod calibration;
 pub mod dataset;
 pub mod depth;
 pub mod frames;
+pub mod layout;
 pub mod novelty;
 pub mod offline;
 pub mod profile;

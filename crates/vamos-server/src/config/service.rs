@@ -198,6 +198,12 @@ pub struct ServiceConfig {
     /// Most raw bytes one session records, MiB; the rest of a longer session is not
     /// recorded.
     pub max_recording_mb: u64,
+    /// Ended live sessions the live view keeps per robot (summary, downsampled timeline,
+    /// alarms; stored in the data directory's `ended/` and restored at a restart), at most
+    /// 100; 1000 in all robots together. 0: none.
+    pub ended_sessions_per_robot: usize,
+    /// The oldest ended session kept, seconds since it ended. 0: none.
+    pub ended_session_max_age_s: f64,
     /// Every this many seconds the allocator hands the memory it holds but no longer
     /// uses back to the system (glibc's `malloc_trim`; Linux with glibc only), so the
     /// server's resident memory follows what it uses after bursts (sessions closing,
@@ -263,6 +269,8 @@ impl Default for ServiceConfig {
             record_sessions: true,
             recordings_disk_mb: 2048,
             max_recording_mb: 256,
+            ended_sessions_per_robot: 5,
+            ended_session_max_age_s: 86400.0,
         }
     }
 }

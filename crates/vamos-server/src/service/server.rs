@@ -177,6 +177,8 @@ impl Server {
         let metrics = Metrics::new();
         let metrics_for_uploads = metrics.upload_disk_used.clone();
         let hub = Hub::start(cfg.clone(), metrics);
+        // The live view's ended sessions, as the data directory kept them.
+        hub.restore_ended_sessions(&store);
         let (stop, _) = tokio::sync::watch::channel(false);
         let profiles = Arc::new(profiles.with_store(store.clone(), settings.clone()));
         let shared = Arc::new(Shared {

@@ -133,6 +133,16 @@ impl AlarmBook {
         recent.push_back(alarm);
     }
 
+    /// Alarms of ended sessions brought back at a restart ([`super::history`]), oldest
+    /// first, before any new alarm: without thumbnails, within the bound.
+    pub(super) fn restore(&self, alarms: Vec<AlarmRecord>) {
+        for a in alarms {
+            if self.get(&a.id).is_none() {
+                self.insert(a, None);
+            }
+        }
+    }
+
     fn update(&self, id: &str, f: impl FnOnce(&mut AlarmRecord)) -> Option<AlarmRecord> {
         let mut recent = lock(&self.recent);
         let a = recent.iter_mut().rev().find(|a| a.id == id)?;
@@ -249,7 +259,8 @@ impl Hub {
 }
 
 /// Marks alarm `id` as a false alarm (by a token of role `by_role`, with `note`) and
-/// stores it. Refused: an unknown id (not among the recent alarms), one already marked,
+/// stores it. Refused: an unknown id (not among the recent alarms nor those of the ended
+/// sessions kept, [`super::history`]), one already marked,
 /// a note over [`MAX_NOTE_CHARS`], a store that cannot write (read-only replica, full
 /// disk). Nothing changes when it is refused. Blocking (file I/O).
 pub fn mark_false_alarm(
@@ -265,7 +276,12 @@ pub fn mark_false_alarm(
         });
     }
     let stored = store.marked_alarm(id).map_err(store_error)?;
-    let Some(mut alarm) = hub.alarms.get(id).or(stored.clone()) else {
+    let Some(mut alarm) = hub
+        .alarms
+        .get(id)
+        .or_else(|| hub.history.alarm(id))
+        .or(stored.clone())
+    else {
         return Err(SessionError::UnknownAlarm { id: id.into() });
     };
     if alarm.false_alarm.is_some() || stored.is_some() {
@@ -289,7 +305,12 @@ pub fn mark_false_alarm(
     }
     store.put_marked_alarm(&alarm).map_err(store_error)?;
     let (mark, recording) = (alarm.false_alarm.clone(), alarm.recording.clone());
-    // The live record now carries the mark too (the stored one is the record of it).
+    // The live record and an ended session's copy now carry the mark too (the stored one
+    // is the record of it).
+    hub.history.update_alarm(id, |a| {
+        a.false_alarm = mark.clone();
+        a.recording = recording.clone();
+    });
     let updated = hub
         .alarms
         .update(id, |a| {

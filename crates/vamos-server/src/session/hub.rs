@@ -49,6 +49,8 @@ pub struct Hub {
     pub(super) injected_worker_panics: AtomicU64,
     /// The recent alarms of every session.
     pub alarms: super::alarms::AlarmBook,
+    /// Each robot's last ended live sessions.
+    pub history: super::history::History,
     /// The pool's capacity and the live sessions' load.
     pub(super) capacity: super::capacity::Capacity,
 }
@@ -119,6 +121,7 @@ impl Hub {
             injected_frame_panics: AtomicU64::new(0),
             injected_worker_panics: AtomicU64::new(0),
             alarms: super::alarms::AlarmBook::default(),
+            history: super::history::History::new(super::history::HistoryLimits::of(&config)),
             config,
             metrics,
             sessions: Mutex::new(HashMap::new()),
@@ -295,6 +298,9 @@ impl Hub {
             request_id: req.request_id,
             camera: req.camera,
             opened: Instant::now(),
+            opened_unix_ms: std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .map_or(0, |d| d.as_millis() as u64),
             state: Mutex::new(SessionState {
                 pending: VecDeque::new(),
                 queue: VecDeque::new(),
@@ -347,6 +353,13 @@ impl Hub {
         }
         tracing::info!(session = %id, robot = %session.robot_id, profile = %session.profile_name, "session opened");
         Ok((session, false))
+    }
+
+    /// Brings back the ended sessions `store` holds and stores the next ones there
+    /// ([`super::history::History::restore`]); returns how many. Blocking (file I/O);
+    /// once, at the server's start.
+    pub fn restore_ended_sessions(&self, store: &crate::store::Store) -> usize {
+        self.history.restore(store, &self.alarms)
     }
 
     /// Reserves a session place for an episode before its upload is read, so a full
@@ -484,7 +497,9 @@ impl Hub {
     }
 
     /// Closes a session: `error` ends its stream with an error (else it just ends),
-    /// waiting frames are discarded.
+    /// waiting frames are discarded. A live session joins its robot's ended sessions
+    /// ([`super::history`]) before it leaves the table, so a reader finds it in one or
+    /// the other.
     pub fn close(&self, s: &Arc<Session>, error: Option<SessionError>) {
         let out = {
             let mut st = lock(&s.state);
@@ -503,6 +518,11 @@ impl Hub {
             st.out.take()
         };
         s.space.notify_all();
+        if !s.episode {
+            let reason = error.as_ref().map(ToString::to_string);
+            self.history
+                .insert(super::history::EndedSession::of(s, reason, &self.alarms));
+        }
         // The session leaves the table before its stream ends, so a client that sees
         // the end of its stream never finds the session still listed.
         if lock(&self.sessions).remove(&s.id).is_some() {
@@ -539,6 +559,7 @@ impl Hub {
         let max_age = Duration::from_secs_f64(self.config.max_session_s.max(0.0));
         let sessions: Vec<Arc<Session>> = lock(&self.sessions).values().cloned().collect();
         let mut closed = 0;
+        self.history.prune();
         for s in sessions {
             let (expired, released) = {
                 let mut st = lock(&s.state);
@@ -595,6 +616,8 @@ impl Hub {
         for s in &sessions {
             self.close(s, Some(SessionError::ShuttingDown));
         }
+        // The ended sessions are stored before the process goes.
+        self.history.flush();
         self.work.notify_all();
         let handles = std::mem::take(&mut *lock(&self.workers));
         for h in handles {

@@ -1,6 +1,8 @@
 //! What the live view shows of a session: its recent frames as timeline points, the
-//! latest camera frame as a small gray thumbnail, and the latest anomaly map. Kept per
-//! session, bounded, and dropped with it.
+//! latest camera frame as a small gray thumbnail, and the latest anomaly map, kept per
+//! session and bounded; and an [`Overview`] of the whole session (at most
+//! [`OVERVIEW_POINTS`] points, each the maximum of a run of frames), which outlives the
+//! session in [`super::history`].
 //!
 //! The anomaly map of a frame is built from what the scorer returns: the scene residual
 //! per cell normalised by the profile's nominal per-cell statistics when the profile is
@@ -16,6 +18,13 @@ use vamos_vision::GrayImage;
 
 /// Timeline points kept per session (a minute at 10 Hz).
 pub const HISTORY_FRAMES: usize = 600;
+
+/// Points of a whole session's overview ([`Overview`]).
+pub const OVERVIEW_POINTS: usize = 256;
+
+/// A session is degraded while images were lost before any of its last this many
+/// scored frames (about 10 s at 10 Hz), or lost images wait for the next frame.
+pub const DEGRADED_FRAMES: usize = 100;
 
 /// Width of frame thumbnails, pixels (smaller frames keep their size).
 pub const THUMB_WIDTH: usize = 160;
@@ -137,10 +146,15 @@ pub fn anomaly_map(score: &FrameScore, thresholds: &Thresholds, alarm: f64) -> O
     })
 }
 
-/// One scored frame on a live timeline.
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, schemars::JsonSchema)]
+/// One scored frame on a live timeline (on an ended session's overview: a run of frames,
+/// each value the run's largest, flags set when any frame of the run had them,
+/// `warming_up` when every frame had it, `frames_lost` their sum).
+#[derive(
+    Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize, schemars::JsonSchema,
+)]
+#[serde(deny_unknown_fields)]
 pub struct FramePoint {
-    /// Frame index among processed frames.
+    /// Frame index among processed frames (of a run: its first).
     pub frame: u64,
     /// Image stamp, nanoseconds.
     pub stamp_ns: i64,
@@ -164,6 +178,10 @@ pub struct FramePoint {
     pub alarm: bool,
     /// Server latency, seconds.
     pub latency_s: f64,
+    /// Images lost (dropped by a full queue, refused) just before this frame: the
+    /// session was degraded here.
+    #[serde(default)]
+    pub frames_lost: u64,
 }
 
 fn finite(v: Option<f64>) -> Option<f64> {
@@ -171,8 +189,8 @@ fn finite(v: Option<f64>) -> Option<f64> {
 }
 
 impl FramePoint {
-    /// The point of a scored frame.
-    pub fn of(s: &FrameScore, alarm: bool, latency_s: f64) -> Self {
+    /// The point of a scored frame, after `frames_lost` lost images.
+    pub fn of(s: &FrameScore, alarm: bool, latency_s: f64, frames_lost: u64) -> Self {
         Self {
             frame: s.frame,
             stamp_ns: s.stamp_ns,
@@ -186,11 +204,96 @@ impl FramePoint {
             warming_up: s.warming_up,
             alarm,
             latency_s,
+            frames_lost,
+        }
+    }
+
+    /// `self` and the later run `next` as one run (see the type's docs).
+    fn absorb(&mut self, next: &FramePoint) {
+        fn max(a: Option<f64>, b: Option<f64>) -> Option<f64> {
+            match (a, b) {
+                (Some(x), Some(y)) => Some(x.max(y)),
+                (x, y) => x.or(y),
+            }
+        }
+        self.score = max(self.score, next.score);
+        self.e_c = max(self.e_c, next.e_c);
+        self.e_b = max(self.e_b, next.e_b);
+        self.e_o = max(self.e_o, next.e_o);
+        self.e_r = max(self.e_r, next.e_r);
+        self.e_k = max(self.e_k, next.e_k);
+        self.anomaly |= next.anomaly;
+        self.warming_up &= next.warming_up;
+        self.alarm |= next.alarm;
+        self.latency_s = self.latency_s.max(next.latency_s);
+        self.frames_lost += next.frames_lost;
+    }
+}
+
+/// A whole session's timeline in at most [`OVERVIEW_POINTS`] points: each point a run of
+/// `span` frames (see [`FramePoint`]); when the points are full, neighbours merge in
+/// pairs and runs double, so the memory is fixed however long the session runs.
+#[derive(Debug)]
+pub struct Overview {
+    points: Vec<FramePoint>,
+    /// Frames per point.
+    span: u64,
+    /// The run being filled and its frames.
+    open: Option<(FramePoint, u64)>,
+}
+
+impl Default for Overview {
+    fn default() -> Self {
+        Self {
+            points: Vec::with_capacity(OVERVIEW_POINTS),
+            span: 1,
+            open: None,
         }
     }
 }
 
-/// A session's live view: bounded timeline, latest frame and map.
+impl Overview {
+    /// Adds a frame.
+    pub fn push(&mut self, point: FramePoint) {
+        let (run, n) = match self.open.take() {
+            Some((mut run, n)) => {
+                run.absorb(&point);
+                (run, n + 1)
+            }
+            None => (point, 1),
+        };
+        if n < self.span {
+            self.open = Some((run, n));
+            return;
+        }
+        self.points.push(run);
+        if self.points.len() >= OVERVIEW_POINTS {
+            let merged = self
+                .points
+                .chunks(2)
+                .map(|pair| {
+                    let mut run = pair[0];
+                    if let Some(next) = pair.get(1) {
+                        run.absorb(next);
+                    }
+                    run
+                })
+                .collect();
+            self.points = merged;
+            self.span *= 2;
+        }
+    }
+
+    /// The points, oldest first (the run being filled last).
+    pub fn points(&self) -> Vec<FramePoint> {
+        let mut out = self.points.clone();
+        out.extend(self.open.map(|(run, _)| run));
+        out
+    }
+}
+
+/// A session's live view: bounded timeline, latest frame and map, the whole session's
+/// overview and totals.
 #[derive(Debug, Default)]
 pub struct LiveView {
     /// The last [`HISTORY_FRAMES`] frames.
@@ -199,6 +302,15 @@ pub struct LiveView {
     pub frame: Option<Thumb>,
     /// The latest anomaly map.
     pub map: Option<Thumb>,
+    /// The whole session, downsampled.
+    pub overview: Overview,
+    /// The stamp of the session's first scored frame, nanoseconds.
+    pub first_stamp_ns: Option<i64>,
+    /// Frames recorded and the sum of their latencies, seconds.
+    pub frames: u64,
+    latency_sum_s: f64,
+    /// Images lost before the frames recorded.
+    pub frames_lost: u64,
 }
 
 impl LiveView {
@@ -208,12 +320,32 @@ impl LiveView {
             self.history.pop_front();
         }
         self.history.push_back(point);
+        self.overview.push(point);
+        self.first_stamp_ns.get_or_insert(point.stamp_ns);
+        self.frames += 1;
+        self.latency_sum_s += point.latency_s;
+        self.frames_lost += point.frames_lost;
         if frame.is_some() {
             self.frame = frame;
         }
         if map.is_some() {
             self.map = map;
         }
+    }
+
+    /// Mean latency of every frame recorded, seconds.
+    pub fn mean_latency_s(&self) -> Option<f64> {
+        (self.frames > 0).then(|| self.latency_sum_s / self.frames as f64)
+    }
+
+    /// Images lost before the last `frames` frames kept.
+    pub fn recent_lost(&self, frames: usize) -> u64 {
+        self.history
+            .iter()
+            .rev()
+            .take(frames)
+            .map(|p| p.frames_lost)
+            .sum()
     }
 
     /// Points after frame `after` (all when `None`).
@@ -311,12 +443,47 @@ mod tests {
     }
 
     #[test]
+    fn the_overview_covers_the_whole_session_in_bounded_points() {
+        let mut o = Overview::default();
+        let mut s = score();
+        let frames = 10 * OVERVIEW_POINTS as u64 + 3;
+        for i in 0..frames {
+            s.frame = i;
+            s.stamp_ns = i as i64 * 1_000;
+            s.score = if i == 777 { 50.0 } else { 1.0 };
+            s.warming_up = i < 5;
+            let alarm = (900..903).contains(&i);
+            o.push(FramePoint::of(&s, alarm, 0.01, u64::from(i == 1500)));
+        }
+        let points = o.points();
+        assert!(points.len() <= OVERVIEW_POINTS, "{}", points.len());
+        assert!(points.len() > OVERVIEW_POINTS / 4, "{}", points.len());
+        // Runs follow each other from the first frame; the last run is the open one.
+        assert_eq!(points[0].frame, 0);
+        assert!(points.windows(2).all(|w| w[0].frame < w[1].frame));
+        assert!(points.last().unwrap().frame < frames);
+        // Peaks, alarms and losses survive the merging; warm-up only where all warmed.
+        let peak = points.iter().filter(|p| p.score == Some(50.0)).count();
+        assert_eq!(peak, 1);
+        assert_eq!(points.iter().filter(|p| p.alarm).count(), 1);
+        assert_eq!(points.iter().map(|p| p.frames_lost).sum::<u64>(), 1);
+        assert!(points.iter().all(|p| !p.warming_up));
+        // A short session is kept frame by frame.
+        let mut short = Overview::default();
+        for i in 0..10 {
+            s.frame = i;
+            short.push(FramePoint::of(&s, false, 0.0, 0));
+        }
+        assert_eq!(short.points().len(), 10);
+    }
+
+    #[test]
     fn the_history_is_bounded_and_read_after_a_frame() {
         let mut v = LiveView::default();
         let mut s = score();
         for i in 0..(HISTORY_FRAMES as u64 + 10) {
             s.frame = i;
-            v.push(FramePoint::of(&s, false, 0.0), None, None);
+            v.push(FramePoint::of(&s, false, 0.0, 0), None, None);
         }
         assert_eq!(v.history.len(), HISTORY_FRAMES);
         assert_eq!(v.since(None)[0].frame, 10);

@@ -16,7 +16,9 @@
 //!   calibration jobs.
 //! - [`alarms`]: per-frame flags debounced into alarms (start/end events, the recent
 //!   alarms of all sessions, false-alarm marks stored); [`live`]: what the live view
-//!   shows of a session (timeline points, latest frame thumbnail, anomaly map).
+//!   shows of a session (timeline points, latest frame thumbnail, anomaly map, the
+//!   whole session's overview); [`history`]: each robot's last ended sessions, bounded,
+//!   stored and restored at a restart.
 //! - [`capacity`]: each live session's measured load on the workers, and admission of
 //!   new ones against the pool's capacity.
 //! - [`budget`]: memory and upload-disk budgets; [`metrics`]: Prometheus metrics;
@@ -33,6 +35,7 @@ pub mod episode;
 pub mod error;
 pub mod event;
 pub mod fleet;
+pub mod history;
 pub mod hub;
 pub mod input;
 pub mod jobs;

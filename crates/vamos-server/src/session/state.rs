@@ -55,7 +55,10 @@ pub struct ReadyFrame {
 }
 
 /// The latest score of a session, for listings.
-#[derive(Debug, Clone, Copy, serde::Serialize, schemars::JsonSchema)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize, schemars::JsonSchema,
+)]
+#[serde(deny_unknown_fields)]
 pub struct LatestScore {
     /// Image stamp, nanoseconds.
     pub stamp_ns: i64,
@@ -84,7 +87,8 @@ pub struct SessionSummary {
     pub opener: Option<usize>,
     /// Current phase (latest phase marker).
     pub phase: Option<String>,
-    /// `streaming`, `detached` (waiting to be resumed), `episode`.
+    /// `streaming`, `detached` (waiting to be resumed), `episode`, or `ended` (kept with
+    /// its robot's last sessions, [`super::history`]).
     pub state: &'static str,
     /// Images received.
     pub images: u64,
@@ -92,12 +96,28 @@ pub struct SessionSummary {
     pub frames_scored: u64,
     /// Images dropped (queue full, rejected, undecodable, undelivered).
     pub dropped: u64,
+    /// Images lost before a scored frame (dropped by a full queue, refused): each such
+    /// frame restarted the motion history (its score's `frames_lost`).
+    pub frames_lost: u64,
+    /// Images were lost before one of its last 100 scored frames, or lost images wait
+    /// for the next frame: its scores have gaps (an ended session: images were lost at
+    /// any time).
+    pub degraded: bool,
     /// Frames flagged anomalous.
     pub anomalies: u64,
     /// Images waiting.
     pub queued: usize,
-    /// Seconds since open.
+    /// Seconds since open (an ended session: from open to end).
     pub age_s: f64,
+    /// When it opened, seconds since the Unix epoch (server clock).
+    pub opened_unix_s: u64,
+    /// When it ended, seconds since the Unix epoch (`None`: open).
+    pub ended_unix_s: Option<u64>,
+    /// Why it ended (`None`: open, or it finished normally).
+    pub end_reason: Option<String>,
+    /// The image stamp of its first scored frame, nanoseconds (the origin of its
+    /// timeline's time axis).
+    pub first_stamp_ns: Option<i64>,
     /// The latest score.
     pub latest: Option<LatestScore>,
     /// Times the session was moved to its profile's stored state ([`Hub::reload`]).
@@ -170,6 +190,8 @@ pub struct Session {
     /// Reloads so far.
     pub(super) reloads: AtomicU64,
     pub(super) opened: Instant,
+    /// When it opened, milliseconds since the Unix epoch.
+    pub(super) opened_unix_ms: u64,
     pub(super) state: Mutex<SessionState>,
     pub(super) space: Condvar,
     pub(super) scorer: Mutex<Scorer>,
@@ -221,7 +243,7 @@ impl Session {
     pub fn summary(&self) -> SessionSummary {
         let model = self.profile().model_label.clone();
         let alarm_on = self.alarm_on();
-        let (latency_s, frame_rate_hz) = {
+        let (latency_s, frame_rate_hz, frames_lost, recent_lost, first_stamp_ns) = {
             let live = lock(&self.live);
             let n = live.history.len();
             let latency =
@@ -232,7 +254,13 @@ impl Session {
                 }
                 _ => None,
             };
-            (latency, rate)
+            (
+                latency,
+                rate,
+                live.frames_lost,
+                live.recent_lost(super::live::DEGRADED_FRAMES),
+                live.first_stamp_ns,
+            )
         };
         let st = lock(&self.state);
         SessionSummary {
@@ -253,9 +281,15 @@ impl Session {
             images: st.images,
             frames_scored: self.frames_scored.load(Ordering::Relaxed),
             dropped: self.dropped.load(Ordering::Relaxed),
+            frames_lost: frames_lost + st.lost,
+            degraded: recent_lost + st.lost > 0,
             anomalies: self.anomalies.load(Ordering::Relaxed),
             queued: st.queue.len() + st.pending.len(),
             age_s: self.opened.elapsed().as_secs_f64(),
+            opened_unix_s: self.opened_unix_ms / 1000,
+            ended_unix_s: None,
+            end_reason: None,
+            first_stamp_ns,
             latest: st.latest,
             reloads: self.reloads.load(Ordering::Relaxed),
             alarm_on,

@@ -476,7 +476,7 @@ impl Hub {
         let alarm = self.track_alarm(s, &score, Some(&thumb));
         let anomaly_map = if s.maps { map.clone() } else { None };
         lock(&s.live).push(
-            live::FramePoint::of(&score, s.alarm_on(), latency),
+            live::FramePoint::of(&score, s.alarm_on(), latency, server.lost),
             Some(thumb),
             map,
         );

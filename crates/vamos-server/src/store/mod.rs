@@ -18,6 +18,8 @@
 //! <dir>/profiles/<name>/calibration.json   the profile's Calibration, once saved
 //! <dir>/jobs/<id>.json                     a background job's record (calibrations)
 //! <dir>/alarms/<id>.json                   an alarm marked as false (the nominal set)
+//! <dir>/ended/<key>.json                   a robot's ended live session as the live view
+//!                                          keeps it (summary, downsampled timeline, alarms)
 //! <dir>/file-calibrations/<name>.json      a server profile file's calibration made by the
 //!                                          service (it replaces the file's own)
 //! ```
@@ -61,6 +63,7 @@
 //!   says when the calibration was made with another model than the one resolved.
 
 mod alarms;
+mod ended;
 mod error;
 mod file_calibrations;
 mod files;

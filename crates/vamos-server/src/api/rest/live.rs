@@ -1,7 +1,10 @@
 //! The live view's data: alarms (list, one, the frame thumbnail at its start, marking a
 //! false alarm), a session's timeline, latest frame and anomaly map, the caller's role,
-//! and `GET /v1/live`, a server-sent-event stream of the session list (and, with
-//! `?session=ID`, that session's new timeline points and alarms) every half second.
+//! and `GET /v1/live`, a server-sent-event stream of the session list and the robots
+//! (each robot's open sessions and its last ended ones, [`crate::session::history`]),
+//! and, with `?session=ID`, that session's new timeline points and alarms, every half
+//! second. An ended session's timeline (its whole run, downsampled) and alarms are
+//! served as an open one's are, until the history's bounds drop it.
 //!
 //! Authentication is the REST one: a bearer token in the `authorization` header, so the
 //! page reads the event stream with `fetch` (a streamed body), not `EventSource` (which
@@ -14,6 +17,7 @@ use crate::api::state::Shared;
 use crate::session::SessionError;
 use crate::session::SessionSummary;
 use crate::session::alarms::mark_false_alarm;
+use crate::session::history::EndedSession;
 use crate::session::live::FramePoint;
 use crate::store::AlarmRecord;
 use axum::Json;
@@ -23,6 +27,7 @@ use axum::response::sse::{Event, KeepAlive, Sse};
 use axum::response::{IntoResponse, Response};
 use futures_util::stream::Stream;
 use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
 use std::convert::Infallible;
 use std::sync::Arc;
 use std::time::Duration;
@@ -58,8 +63,13 @@ pub struct Timeline {
     pub session: SessionSummary,
     /// Each detector's threshold in force, in its own units.
     pub thresholds: vamos_core::eval::DetectorThresholds,
-    /// The kept points, oldest first (after frame `after` when given).
+    /// The kept points, oldest first (after frame `after` when given): an open session's
+    /// last 600 frames, an ended session's whole run downsampled to at most 256 points
+    /// (each the largest values of a run of frames).
     pub points: Vec<FramePoint>,
+    /// The points replace what the reader has (a first answer, or the ended session's
+    /// whole run once it ended) instead of following it.
+    pub replace: bool,
 }
 
 /// The caller (`GET /v1/whoami`).
@@ -72,7 +82,7 @@ pub struct Whoami {
 }
 
 /// An open session with its last alarm (the `sessions` event of `GET /v1/live`).
-#[derive(Debug, Serialize, schemars::JsonSchema)]
+#[derive(Debug, Clone, Serialize, schemars::JsonSchema)]
 pub struct LiveSession {
     /// The session.
     pub summary: SessionSummary,
@@ -87,7 +97,28 @@ pub struct LiveSessions {
     pub sessions: Vec<LiveSession>,
 }
 
-/// The `gone` event of `GET /v1/live`: the session asked for is not open.
+/// A robot: its open sessions and its last ended ones.
+#[derive(Debug, Serialize, schemars::JsonSchema)]
+pub struct LiveRobot {
+    /// The robot id the sessions were opened with (may be empty).
+    pub robot_id: String,
+    /// Its open sessions, by id.
+    pub sessions: Vec<LiveSession>,
+    /// Its last ended sessions (state `ended`), the latest end first; bounded by
+    /// `[service] ended_sessions_per_robot` and `ended_session_max_age_s`.
+    pub ended: Vec<SessionSummary>,
+    /// The latest alarm of these sessions.
+    pub last_alarm: Option<AlarmRecord>,
+}
+
+/// The `robots` event of `GET /v1/live`.
+#[derive(Debug, Serialize, schemars::JsonSchema)]
+pub struct LiveRobots {
+    /// Every robot with an open or a kept ended session the caller may see, by robot id.
+    pub robots: Vec<LiveRobot>,
+}
+
+/// The `gone` event of `GET /v1/live`: the session asked for is neither open nor kept.
 #[derive(Debug, Serialize, schemars::JsonSchema)]
 pub struct LiveGone {
     /// Its id.
@@ -102,13 +133,15 @@ pub struct LiveGone {
 pub struct LiveSnapshot {
     /// The open sessions.
     pub sessions: LiveSessions,
+    /// The robots, with their open and last ended sessions.
+    pub robots: LiveRobots,
     /// With `?session=ID`: its new timeline points.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub timeline: Option<Timeline>,
     /// With `?session=ID`: its recent alarms.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub alarms: Option<AlarmList>,
-    /// With `?session=ID` once it is not open.
+    /// With `?session=ID` once it is neither open nor kept as ended.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub gone: Option<LiveGone>,
 }
@@ -156,7 +189,7 @@ pub(super) async fn get_alarm(
 /// A recent alarm, else a stored (marked) one, if the caller may see it (else it is
 /// unknown to the caller).
 async fn visible_alarm(s: &Shared, caller: &Caller, id: String) -> Result<AlarmRecord, ApiError> {
-    let alarm = match s.hub.alarms.get(&id) {
+    let alarm = match s.hub.alarms.get(&id).or_else(|| s.hub.history.alarm(&id)) {
         Some(a) => Some(a),
         None => {
             let store = s.store.clone();
@@ -193,6 +226,7 @@ pub(super) async fn alarm_thumbnail(
         .hub
         .alarms
         .get(&id)
+        .or_else(|| s.hub.history.alarm(&id))
         .is_some_and(|a| caller.sees(a.opener, &a.robot_id));
     match s.hub.alarms.thumbnail(&id).filter(|_| visible) {
         Some(p) => Ok(png(p)),
@@ -254,12 +288,26 @@ fn open_session(
         .ok_or_else(|| SessionError::UnknownSession { id: id.into() }.into())
 }
 
-/// `GET /v1/sessions/{id}/alarms`: the session's recent alarms, newest first.
+/// An ended session the caller may see, kept by the history.
+fn ended_session(s: &Shared, caller: &Caller, id: &str) -> Option<EndedSession> {
+    s.hub
+        .history
+        .get(id)
+        .filter(|e| caller.sees(e.opener, &e.robot_id))
+}
+
+/// `GET /v1/sessions/{id}/alarms`: the session's recent alarms (an ended session's
+/// kept ones), newest first.
 pub(super) async fn session_alarms(
     State(s): State<Arc<Shared>>,
     Extension(caller): Extension<Caller>,
     Path(id): Path<String>,
 ) -> Result<Response, ApiError> {
+    if s.hub.session(&id).is_none()
+        && let Some(e) = ended_session(&s, &caller, &id)
+    {
+        return Ok(Json(AlarmList { alarms: e.alarms }).into_response());
+    }
     let alarms: Vec<_> = s
         .hub
         .alarms
@@ -274,32 +322,81 @@ pub(super) async fn session_alarms(
     Ok(Json(AlarmList { alarms }).into_response())
 }
 
-/// `?after=N` of a timeline.
+/// `?after=N&ended=true` of a timeline.
 #[derive(Debug, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct TimelineQuery {
     /// Only the points after this frame index (what a page already has).
     after: Option<u64>,
+    /// The ended session of this id even while a session of the same id is open.
+    #[serde(default)]
+    ended: bool,
 }
 
 /// `GET /v1/sessions/{id}/timeline`: the kept timeline points (after frame `after`),
-/// the thresholds in force and the session's summary.
+/// the thresholds in force and the session's summary; an open session's, else (or with
+/// `ended=true`) the ended one's.
 pub(super) async fn timeline(
     State(s): State<Arc<Shared>>,
     Extension(caller): Extension<Caller>,
     Path(id): Path<String>,
     ApiQuery(q): ApiQuery<TimelineQuery>,
 ) -> Result<Response, ApiError> {
-    let session = open_session(&s, &caller, &id)?;
-    let points = session.timeline(q.after);
-    Ok(Json(timeline_of(&session, points)).into_response())
+    let open = if q.ended {
+        None
+    } else {
+        open_session(&s, &caller, &id).ok()
+    };
+    if let Some(session) = open {
+        let points = session.timeline(q.after);
+        return Ok(Json(timeline_of(&session, points, q.after.is_none())).into_response());
+    }
+    match ended_session(&s, &caller, &id) {
+        Some(e) => {
+            let points = e
+                .points
+                .iter()
+                .filter(|p| q.after.is_none_or(|a| p.frame > a))
+                .copied()
+                .collect();
+            Ok(Json(ended_timeline(&e, points, q.after.is_none())).into_response())
+        }
+        None => Err(SessionError::UnknownSession { id }.into()),
+    }
 }
 
-fn timeline_of(session: &crate::session::Session, points: Vec<FramePoint>) -> Timeline {
+fn timeline_of(
+    session: &crate::session::Session,
+    points: Vec<FramePoint>,
+    replace: bool,
+) -> Timeline {
     Timeline {
         session: session.summary(),
         thresholds: session.profile().setup.detector_thresholds(),
         points,
+        replace,
+    }
+}
+
+fn ended_timeline(e: &EndedSession, points: Vec<FramePoint>, replace: bool) -> Timeline {
+    Timeline {
+        session: e.summary(),
+        thresholds: e.thresholds,
+        points,
+        replace,
+    }
+}
+
+/// The answer for the latest frame or map of a session that is not open: an ended one
+/// keeps neither.
+fn no_images(s: &Shared, caller: &Caller, id: &str) -> ApiError {
+    if ended_session(s, caller, id).is_some() {
+        ApiError::not_found(format!(
+            "session {id:?} has ended: its frames are not kept (its alarms keep the frame at \
+             their start)"
+        ))
+    } else {
+        SessionError::UnknownSession { id: id.into() }.into()
     }
 }
 
@@ -309,7 +406,7 @@ pub(super) async fn latest_frame(
     Extension(caller): Extension<Caller>,
     Path(id): Path<String>,
 ) -> Result<Response, ApiError> {
-    let session = open_session(&s, &caller, &id)?;
+    let session = open_session(&s, &caller, &id).map_err(|_| no_images(&s, &caller, &id))?;
     match session.latest_images().0 {
         Some(p) => Ok(png(p)),
         None => Err(ApiError::not_found(format!(
@@ -324,7 +421,7 @@ pub(super) async fn latest_map(
     Extension(caller): Extension<Caller>,
     Path(id): Path<String>,
 ) -> Result<Response, ApiError> {
-    let session = open_session(&s, &caller, &id)?;
+    let session = open_session(&s, &caller, &id).map_err(|_| no_images(&s, &caller, &id))?;
     match session.latest_images().1 {
         Some(p) => Ok(png(p)),
         None => Err(ApiError::not_found(format!(
@@ -347,29 +444,38 @@ pub(super) async fn whoami(
     .into_response())
 }
 
-/// `?session=ID` of the live stream.
+/// `?session=ID&ended=true` of the live stream.
 #[derive(Debug, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct LiveQuery {
     /// Also this session's timeline and alarms (or `gone`).
     session: Option<String>,
+    /// The ended session of that id even while a session of the same id is open.
+    #[serde(default)]
+    ended: bool,
 }
 
 struct LiveState {
     shared: Arc<Shared>,
     caller: Caller,
     session: Option<String>,
+    /// Only the ended session of that id.
+    only_ended: bool,
     after: Option<u64>,
+    /// The last round served the session as ended (its whole run was sent).
+    served_ended: bool,
     stop: tokio::sync::watch::Receiver<bool>,
     first: bool,
 }
 
 /// `GET /v1/live`: with `Accept: text/event-stream`, server-sent events every half
-/// second: `sessions` (the list, with each one's last alarm), and with `?session=ID`
-/// `timeline` (new points, thresholds) and `alarms` (that session's), or `gone` once
-/// the session is not open (ended, or the server restarted: a stale page learns it
-/// here); the stream ends when the server stops. Any other `Accept`: one JSON snapshot
-/// of the same (`{"sessions": .., "timeline": .., "alarms": .., "gone": ..}`).
+/// second: `sessions` (the list, with each one's last alarm), `robots` (each robot's
+/// open and last ended sessions), and with `?session=ID` `timeline` (new points,
+/// thresholds; once the session ended, its whole run with `replace`) and `alarms`
+/// (that session's), or `gone` once the session is neither open nor kept (dropped by
+/// the history's bounds, or never seen); the stream ends when the server stops. Any
+/// other `Accept`: one JSON snapshot of the same (`{"sessions": .., "robots": ..,
+/// "timeline": .., "alarms": .., "gone": ..}`).
 pub(super) async fn live(
     State(s): State<Arc<Shared>>,
     Extension(caller): Extension<Caller>,
@@ -386,25 +492,29 @@ pub(super) async fn live(
             shared: s,
             caller,
             session: q.session,
+            only_ended: q.ended,
             after: None,
+            served_ended: false,
             first: true,
         };
         return Json(live_round(&mut st)).into_response();
     }
-    live_stream(s, caller, q.session).into_response()
+    live_stream(s, caller, q).into_response()
 }
 
 fn live_stream(
     s: Arc<Shared>,
     caller: Caller,
-    session: Option<String>,
+    q: LiveQuery,
 ) -> Sse<impl Stream<Item = Result<Event, Infallible>>> {
     let state = LiveState {
         stop: s.stop.subscribe(),
         shared: s,
         caller,
-        session,
+        session: q.session,
+        only_ended: q.ended,
         after: None,
+        served_ended: false,
         first: true,
     };
     let stream = futures_util::stream::unfold(state, |mut st| async move {
@@ -425,10 +535,58 @@ fn live_stream(
     Sse::new(stream.flatten()).keep_alive(KeepAlive::default())
 }
 
-/// One round: the session list, and the session asked for.
+/// Robot `id`'s entry of `robots`, made empty when missing.
+fn robot<'a>(robots: &'a mut BTreeMap<String, LiveRobot>, id: &str) -> &'a mut LiveRobot {
+    robots.entry(id.to_string()).or_insert_with(|| LiveRobot {
+        robot_id: id.to_string(),
+        sessions: Vec::new(),
+        ended: Vec::new(),
+        last_alarm: None,
+    })
+}
+
+/// Each robot the caller may see with its open sessions (`open`) and its kept ended
+/// ones (a session that is closing shows once, open).
+fn robots_of(s: &Shared, caller: &Caller, open: &[LiveSession]) -> LiveRobots {
+    let mut robots: BTreeMap<String, LiveRobot> = BTreeMap::new();
+    // The later start wins (ids break ties: they count up within a server's life).
+    let later = |a: &Option<AlarmRecord>, b: &AlarmRecord| {
+        a.as_ref()
+            .is_none_or(|a| (b.started_unix_s, &b.id) > (a.started_unix_s, &a.id))
+    };
+    for o in open {
+        let r = robot(&mut robots, &o.summary.robot_id);
+        if let Some(a) = &o.last_alarm
+            && later(&r.last_alarm, a)
+        {
+            r.last_alarm = Some(a.clone());
+        }
+        r.sessions.push(o.clone());
+    }
+    for (e, alarm) in s.hub.history.listing() {
+        let closing = open
+            .iter()
+            .any(|o| o.summary.id == e.id && o.summary.opened_unix_s == e.opened_unix_s);
+        if closing || !caller.sees(e.opener, &e.robot_id) {
+            continue;
+        }
+        let r = robot(&mut robots, &e.robot_id);
+        if let Some(a) = alarm
+            && later(&r.last_alarm, &a)
+        {
+            r.last_alarm = Some(a);
+        }
+        r.ended.push(e);
+    }
+    LiveRobots {
+        robots: robots.into_values().collect(),
+    }
+}
+
+/// One round: the session list, the robots, and the session asked for.
 fn live_round(st: &mut LiveState) -> LiveSnapshot {
     let s = &st.shared;
-    let sessions = s
+    let sessions: Vec<LiveSession> = s
         .hub
         .sessions()
         .into_iter()
@@ -441,40 +599,61 @@ fn live_round(st: &mut LiveState) -> LiveSnapshot {
             }
         })
         .collect();
+    let robots = robots_of(s, &st.caller, &sessions);
     let mut round = LiveSnapshot {
         sessions: LiveSessions { sessions },
+        robots,
         timeline: None,
         alarms: None,
         gone: None,
     };
-    if let Some(id) = &st.session {
-        match s
-            .hub
-            .session(id)
+    let Some(id) = st.session.clone() else {
+        return round;
+    };
+    let open = if st.only_ended {
+        None
+    } else {
+        s.hub
+            .session(&id)
             .filter(|x| st.caller.sees(x.opener, &x.robot_id))
-        {
-            Some(session) => {
-                let points = session.timeline(st.after);
-                if let Some(last) = points.last() {
-                    st.after = Some(last.frame);
-                }
-                round.timeline = Some(timeline_of(&session, points));
-                round.alarms = Some(AlarmList {
-                    alarms: s.hub.alarms.list(Some(id)),
-                });
-            }
-            None => {
-                round.gone = Some(LiveGone {
-                    session: id.clone(),
-                    error: SessionError::UnknownSession { id: id.clone() }.to_string(),
-                });
-            }
+    };
+    if let Some(session) = open {
+        if st.served_ended {
+            // A session of that id opened again: its points start afresh.
+            st.served_ended = false;
+            st.after = None;
         }
+        let replace = st.after.is_none();
+        let points = session.timeline(st.after);
+        if let Some(last) = points.last() {
+            st.after = Some(last.frame);
+        }
+        round.timeline = Some(timeline_of(&session, points, replace));
+        round.alarms = Some(AlarmList {
+            alarms: s.hub.alarms.list(Some(&id)),
+        });
+    } else if let Some(e) = ended_session(s, &st.caller, &id) {
+        // Its whole run once, then only its alarms (marks change them).
+        let replace = !st.served_ended;
+        st.served_ended = true;
+        let points = if replace {
+            e.points.clone()
+        } else {
+            Vec::new()
+        };
+        round.timeline = Some(ended_timeline(&e, points, replace));
+        round.alarms = Some(AlarmList { alarms: e.alarms });
+    } else {
+        round.gone = Some(LiveGone {
+            session: id.clone(),
+            error: SessionError::UnknownSession { id }.to_string(),
+        });
     }
     round
 }
 
-/// A round as server-sent events, in the order `sessions`, `timeline`, `alarms`, `gone`.
+/// A round as server-sent events, in the order `sessions`, `robots`, `timeline`,
+/// `alarms`, `gone`.
 fn live_events(round: &LiveSnapshot) -> Vec<Event> {
     fn event<T: Serialize>(name: &str, data: Option<&T>) -> Option<Event> {
         let data = serde_json::to_string(data?).ok()?;
@@ -482,6 +661,7 @@ fn live_events(round: &LiveSnapshot) -> Vec<Event> {
     }
     [
         event("sessions", Some(&round.sessions)),
+        event("robots", Some(&round.robots)),
         event("timeline", round.timeline.as_ref()),
         event("alarms", round.alarms.as_ref()),
         event("gone", round.gone.as_ref()),

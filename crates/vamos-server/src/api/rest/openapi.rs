@@ -409,7 +409,8 @@ fn operation(method: &str, path: &str, g: &mut SchemaGenerator) -> Option<Op> {
              stored model whose active version is served",
         )
         .ok::<ModelReady>(g, 200, "Ready")
-        .ok::<ModelReady>(g, 404, "Not ready"),
+        .ok::<ModelReady>(g, 503, "Known but not ready")
+        .ok::<ModelReady>(g, 404, "No profile or model of that name"),
         ("GET", "/v2") => {
             Op::new("KServe v2 server metadata").ok::<ServerMetadata>(g, 200, "Server metadata")
         }
@@ -658,10 +659,11 @@ fn operation(method: &str, path: &str, g: &mut SchemaGenerator) -> Option<Op> {
         .errors(&[404]),
         ("GET", "/v1/whoami") => Op::new("The caller's role").ok::<Whoami>(g, 200, "Role"),
         ("GET", "/v1/live") => Op::new(
-            "Live sessions, and a session's new timeline points and alarms: server-sent \
-             events every 0.5 s with Accept: text/event-stream (events sessions, timeline, \
-             alarms, gone: each event's data is the snapshot's member of that name), else \
-             one JSON snapshot",
+            "Live sessions, the robots with their open and last ended sessions, and a \
+             session's new timeline points and alarms (an ended one's whole run): \
+             server-sent events every 0.5 s with Accept: text/event-stream (events \
+             sessions, robots, timeline, alarms, gone: each event's data is the snapshot's \
+             member of that name), else one JSON snapshot",
         )
         .query::<LiveQuery>()
         .answer(
@@ -695,12 +697,15 @@ fn operation(method: &str, path: &str, g: &mut SchemaGenerator) -> Option<Op> {
         .json_body::<MarkBody>(g, false, "An optional note")
         .ok::<AlarmRecord>(g, 200, "The marked alarm")
         .errors(&[400, 404, 409, 507]),
-        ("GET", "/v1/sessions/{id}/alarms") => Op::new("A session's recent alarms, newest first")
+        ("GET", "/v1/sessions/{id}/alarms") => Op::new(
+            "A session's recent alarms (an ended session's kept ones), newest first",
+        )
             .ok::<AlarmList>(g, 200, "Alarms")
             .errors(&[404]),
         ("GET", "/v1/sessions/{id}/timeline") => Op::new(
-            "A session's timeline (the last 600 frames): each detector's value, the \
-             thresholds in force, the summary",
+            "A session's timeline (an open session's last 600 frames, an ended one's whole \
+             run in at most 256 points): each detector's value, the thresholds in force, the \
+             summary",
         )
         .query::<TimelineQuery>()
         .ok::<Timeline>(g, 200, "Timeline")

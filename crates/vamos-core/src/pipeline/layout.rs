@@ -1,4 +1,4 @@
-//! A Foxglove layout for the scored bags of one profile ([`super::ScoreBagWriter`]): the
+//! A Foxglove layout for the scored bags of one profile ([`crate::episode::ScoreBagWriter`]): the
 //! camera as the bag records it beside the anomaly map, the fused score and the alarm
 //! flag, and one plot per detector the profile runs, each on its own scale (the
 //! detectors' raw values differ by orders of magnitude).
@@ -7,8 +7,8 @@
 //! shows a topic the scored bag has. The format is Foxglove's layout JSON
 //! (`configById` with `Type!id` panel keys, and a `layout` tree of splits).
 
-use super::bag::ChosenTopics;
-use crate::pipeline::DetectorSwitches;
+use super::DetectorSwitches;
+use crate::episode::bag::ChosenTopics;
 use serde_json::{Value, json};
 
 /// What a scored bag of the profile carries besides the input's topics.
