@@ -35,6 +35,16 @@ raise SystemExit(0 if os.path.exists(os.path.join(sysconfig.get_paths()["include
 PYEOF
 [ -x "$VENV/bin/colcon" ] || { echo "error: no colcon in $VENV: pip install -r clients/ros2/rclpy_wire/requirements.txt" >&2; exit 1; }
 
+# A build folder made from another checkout (the workspace kept while the sources moved:
+# CMake refuses a cache of another source folder) is built afresh.
+for pkg in "${PACKAGES[@]}"; do
+    cache="$WS/build/$pkg/CMakeCache.txt"
+    if [ -f "$cache" ] && ! grep -qxF "CMAKE_HOME_DIRECTORY:INTERNAL=$ROOT/clients/ros2/$pkg" "$cache"; then
+        echo "$WS/build/$pkg was configured for another source folder: building it afresh"
+        rm -rf "${WS:?}/build/$pkg"
+    fi
+done
+
 # The environment's prefix is the only underlay; its bin/ brings colcon, cmake and the
 # Python that the generators and the Python type support are built with.
 export PATH="$VENV/bin:$PATH" AMENT_PREFIX_PATH="$VENV" CMAKE_PREFIX_PATH="$VENV"
