@@ -323,6 +323,11 @@ function onTimeline(data) {
       (ended ? ' during the session' : ', some among its last 100 frames') +
       '; the frame after each gap has no motion score and cannot alarm (amber ticks on the timeline).'
     : '';
+  // What the profile asks for and cannot do (a threshold's fallback, a detector that
+  // cannot run): said, never silent.
+  const notes = $('profile-notes');
+  notes.replaceChildren(...(s.notes || []).map(n => el('li', n)));
+  notes.hidden = !(s.notes || []).length;
   // An ended session's frames are not kept (each alarm keeps the frame at its start): its
   // timeline takes the room of the latest frame.
   $('frame-box').hidden = ended;

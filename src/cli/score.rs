@@ -250,7 +250,7 @@ pub fn score(
             setup.profile.path.display()
         );
     }
-    let rule = alarm_rule(&setup);
+    let rule = setup.alarm_rule();
     if rule.fallback {
         eprintln!("note: {}", rule.why);
     }
@@ -310,87 +310,6 @@ pub fn score(
         eprintln!("note: {line} ({n} of {} episodes)", results.len());
     }
     Ok(())
-}
-
-/// Which threshold on the fused score sets the anomaly flag, and why (`alarm_rule` of the
-/// score summary).
-#[derive(Debug, Clone, PartialEq, serde::Serialize)]
-pub struct AlarmRuleInForce {
-    /// `conformal` (the calibration's split-conformal threshold), `max` (the training
-    /// maximum of the fused score), `manual` (the profile's `[thresholds] alarm`) or
-    /// `none` (not calibrated: no alarms).
-    pub rule: &'static str,
-    /// The threshold (`None`: no alarms).
-    pub threshold: Option<f64>,
-    /// True when the profile asks for the conformal threshold and the training maximum
-    /// stands in for it.
-    pub fallback: bool,
-    /// Why this rule.
-    pub why: String,
-}
-
-/// The alarm rule in force for `setup`'s profile (see [`AlarmRuleInForce`]).
-pub fn alarm_rule(setup: &Setup) -> AlarmRuleInForce {
-    use vamos::pipeline::AlarmRule;
-    let profile = &setup.profile;
-    let threshold = Some(profile.alarm_threshold()).filter(|t| t.is_finite());
-    let rule = |rule, fallback, why: String| AlarmRuleInForce {
-        rule,
-        threshold,
-        fallback,
-        why,
-    };
-    if profile.file.thresholds.alarm.is_some() {
-        return rule(
-            "manual",
-            false,
-            "the profile's [thresholds] alarm replaces the calibrated threshold".into(),
-        );
-    }
-    let Some(cal) = &profile.calibration else {
-        return rule(
-            "none",
-            false,
-            "the profile is not calibrated (`vamos calibrate`): no alarms".into(),
-        );
-    };
-    match (profile.file.alarm, &cal.conformal) {
-        (AlarmRule::Max, _) => rule(
-            "max",
-            false,
-            "alarm = \"max\": the training maximum of the fused score".into(),
-        ),
-        (AlarmRule::Conformal, Some(c)) => rule(
-            "conformal",
-            false,
-            format!(
-                "the split-conformal threshold at alpha {} over {} held-out episodes",
-                c.alpha, c.n
-            ),
-        ),
-        (AlarmRule::Conformal, None) => {
-            let n = cal.calibration_episodes.len();
-            let held = if n == 0 {
-                "it was calibrated without held-out episodes".to_string()
-            } else {
-                format!(
-                    "its {n} held-out episode{} too few",
-                    if n == 1 { " was" } else { "s were" }
-                )
-            };
-            rule(
-                "max",
-                true,
-                format!(
-                    "the profile asks for the conformal threshold, but its calibration has \
-                     none ({held}; at alpha 0.1, `vamos calibrate`'s default, it needs at \
-                     least {}): alarms use the training maximum of the fused score instead; \
-                     calibrate with more held-out nominal runs (`vamos calibrate --holdout`)",
-                    vamos::eval::conformal_episodes_needed(0.1)
-                ),
-            )
-        }
-    }
 }
 
 /// A detector switched on in the profile that gave no value on an episode, and why.

@@ -298,6 +298,9 @@ def test_live_view_in_a_real_browser(browser: Any, tmp_path: Path) -> None:
         _wait("the page to notice the end", lambda: "ended" in d.find_element(By.ID, "selected-title").text)
         assert int(canvas.get_attribute("data-points")) > 0
         assert d.find_elements(By.CSS_SELECTOR, f'#alarms li[data-id="{alarm_id}"].marked')
+        # What the profile cannot do is said on the page: not calibrated, so no e_k.
+        notes = d.find_element(By.ID, "profile-notes")
+        assert not notes.get_attribute("hidden") and "e_k does not run" in notes.text, notes.text
         _wait("the robot's row to say ended", lambda: (_robot_row(d, "browser-robot") or {}).get("state") == "ended")
 
         # The marked alarm kept the session's recording: it is the profile's nominal set.

@@ -105,6 +105,23 @@ pub struct Setup {
     pub episode: EpisodeConfig,
 }
 
+/// Which threshold on the fused score sets the anomaly flag, and why (`alarm_rule` of the
+/// score summary).
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct AlarmRuleInForce {
+    /// `conformal` (the calibration's split-conformal threshold), `max` (the training
+    /// maximum of the fused score), `manual` (the profile's `[thresholds] alarm`) or
+    /// `none` (not calibrated: no alarms).
+    pub rule: &'static str,
+    /// The threshold (`None`: no alarms).
+    pub threshold: Option<f64>,
+    /// True when the profile asks for the conformal threshold and the training maximum
+    /// stands in for it.
+    pub fallback: bool,
+    /// Why this rule.
+    pub why: String,
+}
+
 impl Setup {
     /// The alarm threshold and each detector's own threshold in force (the profile's
     /// thresholds under its fusion, resolved on whether it has a flow model).
@@ -115,6 +132,123 @@ impl Setup {
             self.config.fusion,
             self.model.is_some(),
         )
+    }
+
+    /// The alarm rule in force (see [`AlarmRuleInForce`]): which threshold sets the
+    /// anomaly flag, and why, saying when the training maximum stands in for the conformal
+    /// threshold.
+    pub fn alarm_rule(&self) -> AlarmRuleInForce {
+        use crate::pipeline::AlarmRule;
+        let profile = &self.profile;
+        let threshold = Some(profile.alarm_threshold()).filter(|t| t.is_finite());
+        let rule = |rule, fallback, why: String| AlarmRuleInForce {
+            rule,
+            threshold,
+            fallback,
+            why,
+        };
+        if profile.file.thresholds.alarm.is_some() {
+            return rule(
+                "manual",
+                false,
+                "the profile's [thresholds] alarm replaces the calibrated threshold".into(),
+            );
+        }
+        let Some(cal) = &profile.calibration else {
+            return rule(
+                "none",
+                false,
+                "the profile is not calibrated (`vamos calibrate`): no alarms".into(),
+            );
+        };
+        match (profile.file.alarm, &cal.conformal) {
+            (AlarmRule::Max, _) => rule(
+                "max",
+                false,
+                "alarm = \"max\": the training maximum of the fused score".into(),
+            ),
+            (AlarmRule::Conformal, Some(c)) => rule(
+                "conformal",
+                false,
+                format!(
+                    "the split-conformal threshold at alpha {} over {} held-out episodes",
+                    c.alpha, c.n
+                ),
+            ),
+            (AlarmRule::Conformal, None) => {
+                let n = cal.calibration_episodes.len();
+                let held = if n == 0 {
+                    "it was calibrated without held-out episodes".to_string()
+                } else {
+                    format!(
+                        "its {n} held-out episode{} too few",
+                        if n == 1 { " was" } else { "s were" }
+                    )
+                };
+                rule(
+                    "max",
+                    true,
+                    format!(
+                        "the profile asks for the conformal threshold, but its calibration has \
+                         none ({held}; at alpha 0.1, `vamos calibrate`'s default, it needs at \
+                         least {}): alarms use the training maximum of the fused score instead; \
+                         calibrate with more held-out nominal runs (`vamos calibrate --holdout`)",
+                        crate::eval::conformal_episodes_needed(0.1)
+                    ),
+                )
+            }
+        }
+    }
+
+    /// What this profile cannot do that it asks for, said once (the live view shows it
+    /// for each session): the conformal threshold's fallback or no alarms at all, and each
+    /// detector switched on that cannot run with this profile (no robot, no flow model,
+    /// no calibrated nominal states).
+    pub fn fallbacks(&self) -> Vec<String> {
+        let mut out = Vec::new();
+        let rule = self.alarm_rule();
+        if rule.fallback || rule.rule == "none" {
+            out.push(rule.why);
+        }
+        let on = self.config.detectors;
+        let robot = self.robot.is_some();
+        let no_robot = "the profile has no robot (`robot` and `camera`)";
+        for (name, switched_on, why) in [
+            ("e_c", on.camera, (!robot).then_some(no_robot)),
+            ("e_b", on.body, (!robot).then_some(no_robot)),
+            (
+                "e_o",
+                on.flow,
+                self.model
+                    .is_none()
+                    .then_some("the profile has no flow model (`model`)"),
+            ),
+            (
+                "e_k",
+                on.kinematics,
+                if !robot {
+                    Some(no_robot)
+                } else if self.profile.calibration.is_none() {
+                    Some(
+                        "the profile is not calibrated: e_k needs the calibration's nominal states",
+                    )
+                } else if self
+                    .profile
+                    .calibration
+                    .as_ref()
+                    .is_some_and(|c| c.thresholds.kinematics.is_none())
+                {
+                    Some("the calibration has no nominal robot states: calibrate again")
+                } else {
+                    None
+                },
+            ),
+        ] {
+            if let (true, Some(why)) = (switched_on, why) {
+                out.push(format!("{name} does not run: {why}"));
+            }
+        }
+        out
     }
 
     /// What the scored bags of this profile carry ([`crate::pipeline::layout`]): the

@@ -120,6 +120,9 @@ pub struct EndedSession {
     pub points: Vec<super::live::FramePoint>,
     /// Its last [`ALARMS_PER_SESSION`] alarms, newest first.
     pub alarms: Vec<AlarmRecord>,
+    /// What its profile could not do ([`SessionSummary::notes`]).
+    #[serde(default)]
+    pub notes: Vec<String>,
 }
 
 impl EndedSession {
@@ -158,6 +161,7 @@ impl EndedSession {
             end_reason: reason,
             latency_s,
             frame_rate_hz: summary.frame_rate_hz,
+            notes: summary.notes,
             first_stamp_ns: summary.first_stamp_ns,
             latest: summary.latest,
             thresholds: profile.setup.detector_thresholds(),
@@ -194,6 +198,7 @@ impl EndedSession {
             alarm_on: false,
             latency_s: self.latency_s,
             frame_rate_hz: self.frame_rate_hz,
+            notes: self.notes.clone(),
         }
     }
 }

@@ -79,6 +79,7 @@ fn ended(robot: &str, id: &str, ago_s: u64, frames: u64) -> EndedSession {
         thresholds: AlarmThresholds::default(),
         points,
         alarms: vec![alarm(&format!("al-{id}"), id, robot)],
+        notes: vec!["e_k does not run: the profile is not calibrated".into()],
     }
 }
 

@@ -33,6 +33,8 @@ pub struct LoadedProfile {
     /// A profile file whose calibration in force is the data directory's (made by the
     /// service), not the file's own.
     pub calibration_stored: bool,
+    /// What the profile asks for and cannot do ([`Setup::fallbacks`]), made once.
+    pub notes: Vec<String>,
 }
 
 /// Why a profile cannot be used.
@@ -149,6 +151,7 @@ impl StoredProfiles {
         tracing::info!(profile = name, model = %model_label, "stored profile loaded");
         let loaded = Arc::new(LoadedProfile {
             name: name.into(),
+            notes: setup.fallbacks(),
             setup,
             model_label,
             calibration_stored: false,
@@ -191,6 +194,7 @@ fn loaded_file(setup: Setup) -> (String, Arc<LoadedProfile>) {
         name.clone(),
         Arc::new(LoadedProfile {
             name,
+            notes: setup.fallbacks(),
             setup,
             model_label,
             calibration_stored: false,
@@ -217,6 +221,7 @@ fn with_stored_calibration(
     setup.profile.calibration = Some(stored.calibration.clone());
     Some(Arc::new(LoadedProfile {
         name: base.name.clone(),
+        notes: setup.fallbacks(),
         setup,
         model_label: base.model_label.clone(),
         calibration_stored: true,

@@ -128,6 +128,9 @@ pub struct SessionSummary {
     pub latency_s: Option<f64>,
     /// Scored frames per second over its timeline (image stamps).
     pub frame_rate_hz: Option<f64>,
+    /// What its profile asks for and cannot do: the conformal threshold's fallback, no
+    /// alarms, a detector that cannot run, and why (the live view shows them).
+    pub notes: Vec<String>,
 }
 
 pub(super) struct SessionState {
@@ -295,6 +298,7 @@ impl Session {
             alarm_on,
             latency_s,
             frame_rate_hz,
+            notes: self.profile().notes.clone(),
         }
     }
 
