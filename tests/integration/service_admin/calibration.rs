@@ -137,6 +137,31 @@ async fn calibration_from_uploaded_episodes_with_job_limits_cancel_and_restart()
     server.shutdown().await.unwrap();
 }
 
+/// The alarm of session `session` among the recent alarms.
+async fn alarm_of(api: &Api, session: &str) -> Value {
+    let alarms = api.get("/v1/alarms").await;
+    alarms["alarms"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|a| a["session_id"] == session)
+        .unwrap_or_else(|| panic!("no alarm of the run: {alarms}"))
+        .clone()
+}
+
+/// Profile `profile`'s nominal set once its first episode's recording has finished.
+async fn finished_nominal(api: &Api, profile: &str) -> Value {
+    let deadline = std::time::Instant::now() + Duration::from_secs(30);
+    loop {
+        let n = api.get(&format!("/v1/profiles/{profile}/nominal")).await;
+        if n["episodes"][0]["finished"] == true {
+            return n;
+        }
+        assert!(std::time::Instant::now() < deadline, "{n}");
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+}
+
 /// An operator's false alarm puts its session's recording in the profile's nominal set;
 /// a recalibration from it proposes thresholds, shown (and nothing changed) before they
 /// are applied; applied, the same run no longer alarms. Applying twice, a recalibration
@@ -203,14 +228,7 @@ async fn a_false_alarm_joins_the_nominal_set_and_a_recalibration_clears_it() {
     };
     let first = run(camera).await;
     assert!(first.iter().any(|s| s.anomaly), "the run alarms");
-    let alarms = api.get("/v1/alarms").await;
-    let alarm = alarms["alarms"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .find(|a| a["session_id"] == "pushed")
-        .unwrap_or_else(|| panic!("no alarm of the run: {alarms}"))
-        .clone();
+    let alarm = alarm_of(&api, "pushed").await;
     // The push is over before the run is: the alarm's end was recorded too.
     assert!(alarm["end_frame"].is_u64(), "{alarm}");
     assert!(
@@ -229,15 +247,7 @@ async fn a_false_alarm_joins_the_nominal_set_and_a_recalibration_clears_it() {
     let recording = marked["recording"].as_str().unwrap().to_string();
     assert!(recording.ends_with(".mcap"), "{marked}");
     // The session's recording is in the nominal set once the session has ended.
-    let deadline = std::time::Instant::now() + Duration::from_secs(30);
-    let nominal = loop {
-        let n = api.get("/v1/profiles/arm-store/nominal").await;
-        if n["episodes"][0]["finished"] == true {
-            break n;
-        }
-        assert!(std::time::Instant::now() < deadline, "{n}");
-        tokio::time::sleep(Duration::from_millis(50)).await;
-    };
+    let nominal = finished_nominal(&api, "arm-store").await;
     // A viewer may look at the nominal set, but neither recalibrate nor stream.
     let as_viewer = |method: Method, path: &str| {
         reqwest::Client::new()
@@ -386,16 +396,8 @@ async fn a_profile_file_is_calibrated_and_recalibrated_in_the_data_directory() {
         run("pushed").await.iter().any(|s| s.anomaly),
         "the run alarms"
     );
-    let alarms = api.get("/v1/alarms").await;
-    let id = alarms["alarms"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .find(|a| a["session_id"] == "pushed")
-        .unwrap_or_else(|| panic!("no alarm of the run: {alarms}"))["id"]
-        .as_str()
-        .unwrap()
-        .to_string();
+    let alarm = alarm_of(&api, "pushed").await;
+    let id = alarm["id"].as_str().unwrap();
     let (status, marked) = api
         .json(
             Method::POST,
@@ -404,14 +406,7 @@ async fn a_profile_file_is_calibrated_and_recalibrated_in_the_data_directory() {
         )
         .await;
     assert_eq!(status, StatusCode::OK, "{marked}");
-    let deadline = std::time::Instant::now() + Duration::from_secs(30);
-    while api.get(&format!("{path}/nominal")).await["episodes"][0]["finished"] != true {
-        assert!(
-            std::time::Instant::now() < deadline,
-            "the recording never finished"
-        );
-        tokio::time::sleep(Duration::from_millis(50)).await;
-    }
+    finished_nominal(&api, "sim-arm").await;
     let (status, started) = api
         .call(Method::POST, &format!("{path}/recalibrate"), None)
         .await;
