@@ -10,7 +10,7 @@ use std::sync::Arc;
 use vamos::config::Settings;
 use vamos::episode::Labels;
 use vamos::eval::plot::{PlotOptions, plot_episode, plot_pr, plot_roc};
-use vamos::eval::{AblationTable, AucPair, FusionLevel};
+use vamos::eval::{AblationTable, AucPair, Detector, FusionLevel};
 use vamos::eval::{
     RocPoint, ScoredFrame, Thresholds, average_precision, evaluate, frames_by_type, fuse, pr_curve,
     roc_auc, roc_curve,
@@ -132,16 +132,8 @@ pub struct DetectorPoint {
     pub stamp_ns: i64,
     /// Fused score.
     pub score: f64,
-    /// Camera-motion error.
-    pub e_c: Option<f64>,
-    /// Body-motion error.
-    pub e_b: Option<f64>,
-    /// Flow-prediction error.
-    pub e_o: Option<f64>,
-    /// Scene residual.
-    pub e_r: Option<f64>,
-    /// Kinematic novelty (nominal joint ranges; metres for `state = "links"`).
-    pub e_k: Option<f64>,
+    /// Each detector's value.
+    pub values: vamos::eval::DetectorValues,
     /// The flow predictor is still warming up.
     pub warming_up: bool,
     /// The frame is flagged (`score >= alarm threshold`).
@@ -153,11 +145,7 @@ impl From<&vamos::pipeline::FrameScore> for DetectorPoint {
         Self {
             stamp_ns: f.stamp_ns,
             score: f.score,
-            e_c: f.e_c,
-            e_b: f.e_b,
-            e_o: f.e_o,
-            e_r: f.e_r,
-            e_k: f.e_k,
+            values: f.values,
             warming_up: f.warming_up,
             anomaly: f.anomaly,
         }
@@ -169,11 +157,7 @@ impl From<&vamos::api::proto::FrameScore> for DetectorPoint {
         Self {
             stamp_ns: f.stamp_ns,
             score: f.score,
-            e_c: f.e_c,
-            e_b: f.e_b,
-            e_o: f.e_o,
-            e_r: f.e_r,
-            e_k: f.e_k,
+            values: vamos::eval::DetectorValues::from_array([f.e_c, f.e_b, f.e_o, f.e_r, f.e_k]),
             warming_up: f.warming_up,
             anomaly: f.anomaly,
         }
@@ -237,64 +221,33 @@ pub fn write_detector_plots(
         };
         let s = |ns: i64| (ns - t0) as f64 / 1e9;
         let stamps: Vec<f64> = e.points.iter().map(|f| s(f.stamp_ns)).collect();
-        let series = |get: fn(&DetectorPoint) -> Option<f64>| -> Vec<f64> {
+        let score: Vec<f64> = e.points.iter().map(|f| f.score).collect();
+        let values = vamos::eval::PerDetector::from_fn(|d| {
             e.points
                 .iter()
-                .map(|f| get(f).unwrap_or(f64::NAN))
-                .collect()
-        };
-        let score = series(|f| Some(f.score));
-        let (e_c, e_b, e_o, e_r, e_k) = (
-            series(|f| f.e_c),
-            series(|f| f.e_b),
-            series(|f| f.e_o),
-            series(|f| f.e_r),
-            series(|f| f.e_k),
-        );
+                .map(|f| f.values[d].unwrap_or(f64::NAN))
+                .collect::<Vec<f64>>()
+        });
+        let labels = vamos::eval::PerDetector::from_fn(Detector::title);
         let warming: Vec<bool> = e.points.iter().map(|f| f.warming_up).collect();
         let first_alarm = first_alarm(&e.points, rule)?.and_then(|i| stamps.get(i).copied());
         let intervals: Vec<(f64, f64)> = e
             .labels
             .map(|l| l.intervals_ns.iter().map(|[a, b]| (s(*a), s(*b))).collect())
             .unwrap_or_default();
-        let panels = [
-            Panel {
-                label: "fused score",
-                values: &score,
-                threshold: thresholds.alarm,
-                log_y: true,
-            },
-            Panel {
-                label: "e_c camera (px)",
-                values: &e_c,
-                threshold: thresholds.e_c,
-                log_y: false,
-            },
-            Panel {
-                label: "e_b body (px)",
-                values: &e_b,
-                threshold: thresholds.e_b,
-                log_y: false,
-            },
-            Panel {
-                label: "e_o flow",
-                values: &e_o,
-                threshold: thresholds.e_o,
-                log_y: false,
-            },
-            Panel {
-                label: "e_r scene",
-                values: &e_r,
-                threshold: thresholds.e_r,
-                log_y: false,
-            },
-            Panel {
-                label: "e_k kinematics",
-                values: &e_k,
-                threshold: thresholds.e_k,
-                log_y: false,
-            },
-        ];
+        let panels: Vec<Panel<'_>> = std::iter::once(Panel {
+            label: "fused score",
+            values: &score,
+            threshold: thresholds.alarm,
+            log_y: true,
+        })
+        .chain(vamos::eval::Detector::ALL.map(|d| Panel {
+            label: &labels[d],
+            values: &values[d],
+            threshold: thresholds.detectors[d],
+            log_y: false,
+        }))
+        .collect();
         let path = dir.join(format!("{}.detectors.png", e.name));
         plot_detectors(
             &path,
@@ -459,7 +412,16 @@ fn ablation(
             };
             let scores: Vec<f64> = components
                 .iter()
-                .map(|f| fuse(f.e_c, f.e_b, f.e_o, &th).score)
+                .map(|f| {
+                    let v = |d| f.values[d];
+                    fuse(
+                        v(Detector::Camera),
+                        v(Detector::Body),
+                        v(Detector::Flow),
+                        &th,
+                    )
+                    .score
+                })
                 .collect();
             table.set(
                 &variant_label(variant),

@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use vamos::config::Settings;
 use vamos::episode::{EpisodeFrame, McapEpisode, ScoreBagWriter, ScoreTopics};
-use vamos::eval::Thresholds;
+use vamos::eval::{Detector, Thresholds};
 use vamos::model::FlowModel;
 use vamos::pipeline::offline::{EpisodeScores, score_episode};
 use vamos::pipeline::{FrameScore, PipelineConfig, Scorer};
@@ -183,11 +183,7 @@ fn write_frame(
         &ScoreTopics {
             score: s.score,
             anomaly: s.anomaly,
-            e_c: s.e_c,
-            e_b: s.e_b,
-            e_o: s.e_o,
-            e_r: s.e_r,
-            e_k: s.e_k,
+            values: s.values,
             heatmap: s.heatmap.as_deref(),
             anomaly_map: map.map(|m| (m.width as u32, m.height as u32, m.pixels.as_slice())),
             thresholds_json: thresholds_json.as_deref(),
@@ -329,22 +325,14 @@ pub fn detectors_not_run(setup: &Setup, r: &EpisodeScores) -> Vec<NotRun> {
     if r.frames.is_empty() {
         return Vec::new();
     }
-    /// A detector's name, whether the profile switches it on, and its value in a frame.
-    type Detector = (&'static str, bool, fn(&FrameScore) -> Option<f64>);
     let on = setup.config.detectors;
-    let list: [Detector; 5] = [
-        ("e_c", on.camera, |f| f.e_c),
-        ("e_b", on.body, |f| f.e_b),
-        ("e_o", on.flow, |f| f.e_o),
-        ("e_r", on.scene, |f| f.e_r),
-        ("e_k", on.kinematics, |f| f.e_k),
-    ];
     let mut out = Vec::new();
-    for (detector, switched_on, value) in list {
-        if !switched_on || r.frames.iter().any(|f| value(f).is_some()) {
+    for d in Detector::ALL {
+        if !on.get(d) || r.frames.iter().any(|f| f.values[d].is_some()) {
             continue;
         }
-        let needs_robot = matches!(detector, "e_c" | "e_b" | "e_k");
+        let detector = d.key();
+        let needs_robot = d.needs_robot();
         let reason = if needs_robot && setup.robot.is_none() {
             "the profile has no robot (`robot` and `camera`): it needs the robot's joint \
              states and body"

@@ -97,5 +97,10 @@ fn backwards_stamps_are_skipped_and_missing_joints_said() {
     let s = score("no_joints.mcap");
     assert!(s.no_joint_states);
     assert_eq!(s.frames.len(), 20);
-    assert!(s.frames.iter().all(|f| f.e_c.is_none() && f.e_b.is_none()));
+    assert!(
+        s.frames
+            .iter()
+            .all(|f| f.values[vamos::eval::Detector::Camera].is_none()
+                && f.values[vamos::eval::Detector::Body].is_none())
+    );
 }

@@ -89,12 +89,12 @@ fn warm_up_lasts_a_plus_b_flow_frames_then_e_o_is_the_score() {
     let scores = run(&mut s, 9);
     for f in &scores[..5] {
         assert!(f.warming_up, "frame {}", f.frame);
-        assert_eq!(f.e_o, None);
+        assert_eq!(f.values[vamos::eval::Detector::Flow], None);
         assert_eq!(f.score, 0.0);
     }
     for f in &scores[5..] {
         assert!(!f.warming_up);
-        let e_o = f.e_o.unwrap();
+        let e_o = f.values[vamos::eval::Detector::Flow].unwrap();
         assert!(e_o.is_finite() && e_o > 0.0, "{e_o}");
         assert_eq!(f.score, e_o, "no thresholds: the score is e_o");
         assert!((2..=4).contains(&f.best_offset.unwrap()));
@@ -109,12 +109,24 @@ fn warm_up_lasts_a_plus_b_flow_frames_then_e_o_is_the_score() {
     let again = run(&mut scorer(None, 7), 9);
     let other = run(&mut scorer(None, 8), 9);
     assert_eq!(
-        scores.iter().map(|f| f.e_o).collect::<Vec<_>>(),
-        again.iter().map(|f| f.e_o).collect::<Vec<_>>()
+        scores
+            .iter()
+            .map(|f| f.values[vamos::eval::Detector::Flow])
+            .collect::<Vec<_>>(),
+        again
+            .iter()
+            .map(|f| f.values[vamos::eval::Detector::Flow])
+            .collect::<Vec<_>>()
     );
     assert_ne!(
-        scores.iter().map(|f| f.e_o).collect::<Vec<_>>(),
-        other.iter().map(|f| f.e_o).collect::<Vec<_>>()
+        scores
+            .iter()
+            .map(|f| f.values[vamos::eval::Detector::Flow])
+            .collect::<Vec<_>>(),
+        other
+            .iter()
+            .map(|f| f.values[vamos::eval::Detector::Flow])
+            .collect::<Vec<_>>()
     );
 }
 

@@ -52,6 +52,14 @@ pub enum ClientError {
     Closed,
 }
 
+impl ClientError {
+    /// The server refused for capacity (`RESOURCE_EXHAUSTED`: its scoring capacity or a
+    /// limit is in use); trying again later may succeed.
+    pub fn is_over_capacity(&self) -> bool {
+        matches!(self, ClientError::Status(s) if s.code() == tonic::Code::ResourceExhausted)
+    }
+}
+
 /// How to reach the server.
 #[derive(Debug, Clone, Default)]
 pub struct ClientOptions {

@@ -2,7 +2,7 @@
 //! score`, `calibrate`, `eval` and the service's sessions share.
 
 use crate::episode::EpisodeConfig;
-use crate::eval::Thresholds;
+use crate::eval::{Detector, Thresholds};
 use crate::pipeline::{
     PipelineConfig, Profile, ProfileError, RobotSetup, Scorer, ScorerError, ScorerParts,
 };
@@ -213,39 +213,30 @@ impl Setup {
         let on = self.config.detectors;
         let robot = self.robot.is_some();
         let no_robot = "the profile has no robot (`robot` and `camera`)";
-        for (name, switched_on, why) in [
-            ("e_c", on.camera, (!robot).then_some(no_robot)),
-            ("e_b", on.body, (!robot).then_some(no_robot)),
-            (
-                "e_o",
-                on.flow,
-                self.model
-                    .is_none()
-                    .then_some("the profile has no flow model (`model`)"),
-            ),
-            (
-                "e_k",
-                on.kinematics,
-                if !robot {
-                    Some(no_robot)
-                } else if self.profile.calibration.is_none() {
-                    Some(
-                        "the profile is not calibrated: e_k needs the calibration's nominal states",
-                    )
-                } else if self
-                    .profile
-                    .calibration
-                    .as_ref()
-                    .is_some_and(|c| c.thresholds.kinematics.is_none())
-                {
-                    Some("the calibration has no nominal robot states: calibrate again")
-                } else {
-                    None
-                },
-            ),
-        ] {
-            if let (true, Some(why)) = (switched_on, why) {
-                out.push(format!("{name} does not run: {why}"));
+        for d in Detector::ALL.into_iter().filter(|&d| on.get(d)) {
+            let why = if d.needs_robot() && !robot {
+                Some(no_robot)
+            } else {
+                match d {
+                    Detector::Flow => self
+                        .model
+                        .is_none()
+                        .then_some("the profile has no flow model (`model`)"),
+                    Detector::Kinematics => match &self.profile.calibration {
+                        None => Some(
+                            "the profile is not calibrated: e_k needs the calibration's \
+                             nominal states",
+                        ),
+                        Some(c) if c.thresholds.kinematics.is_none() => {
+                            Some("the calibration has no nominal robot states: calibrate again")
+                        }
+                        Some(_) => None,
+                    },
+                    Detector::Camera | Detector::Body | Detector::Scene => None,
+                }
+            };
+            if let Some(why) = why {
+                out.push(format!("{} does not run: {why}", d.key()));
             }
         }
         out

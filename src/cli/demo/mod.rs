@@ -17,7 +17,7 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 use vamos::api::proto::{self, stream_request::Message as In};
 use vamos::client::replay::{Recording, record};
-use vamos::client::{Client, ClientOptions, Pace, SessionSummary, Update};
+use vamos::client::{Client, ClientError, ClientOptions, Pace, SessionSummary, Update};
 use vamos::config::Settings;
 use vamos::episode::Labels;
 use vamos::model::ModelError;
@@ -130,7 +130,14 @@ struct Progress {
     dropped: u64,
     done: bool,
     failed: Option<String>,
+    /// Refused for capacity, waiting to open again.
+    waiting: bool,
 }
+
+/// How long an episode the server refuses for capacity waits for room, in all, and
+/// between tries.
+const CAPACITY_WAIT: Duration = Duration::from_secs(120);
+const CAPACITY_RETRY: Duration = Duration::from_millis(500);
 
 /// One episode streamed and answered.
 struct Streamed {
@@ -449,38 +456,59 @@ async fn stream_all(
                 In::Image(img) => Some(img.stamp_ns),
                 _ => None,
             });
-            let result = client
-                .replay(open, &rec, pace, |u| {
-                    let mut all = progress.lock().unwrap_or_else(|e| e.into_inner());
-                    let p = &mut all[i];
-                    match u {
-                        Update::Sent { stamp_ns } => {
-                            p.sent += 1;
-                            sent_at.insert(*stamp_ns, Instant::now());
-                        }
-                        Update::Score(s) => {
-                            p.scored += 1;
-                            p.last_score = s.score;
-                            if let Some(t) = sent_at.remove(&s.stamp_ns) {
-                                latencies_s.push(t.elapsed().as_secs_f64());
+            // A session the server refuses for capacity (the robots before it measured
+            // more load than it has room for) waits for room and opens again: the demo's
+            // episodes are a batch, not robots that must be live now.
+            let mut waited = Duration::ZERO;
+            let result = loop {
+                let result = client
+                    .replay(open.clone(), &rec, pace, |u| {
+                        let mut all = progress.lock().unwrap_or_else(|e| e.into_inner());
+                        let p = &mut all[i];
+                        match u {
+                            Update::Sent { stamp_ns } => {
+                                p.sent += 1;
+                                sent_at.insert(*stamp_ns, Instant::now());
                             }
-                            if s.anomaly {
-                                p.alarms += 1;
-                                if p.first_alarm_s.is_none() {
-                                    p.first_alarm_s = t0.map(|t0| (s.stamp_ns - t0) as f64 / 1e9);
+                            Update::Score(s) => {
+                                p.scored += 1;
+                                p.last_score = s.score;
+                                if let Some(t) = sent_at.remove(&s.stamp_ns) {
+                                    latencies_s.push(t.elapsed().as_secs_f64());
+                                }
+                                if s.anomaly {
+                                    p.alarms += 1;
+                                    if p.first_alarm_s.is_none() {
+                                        p.first_alarm_s =
+                                            t0.map(|t0| (s.stamp_ns - t0) as f64 / 1e9);
+                                    }
                                 }
                             }
-                        }
-                        Update::Event(e) => {
-                            if e.kind == proto::session_event::Kind::FramesDropped as i32 {
-                                p.dropped = e.count;
+                            Update::Event(e) => {
+                                if e.kind == proto::session_event::Kind::FramesDropped as i32 {
+                                    p.dropped = e.count;
+                                }
                             }
+                            Update::Alarm(_) => {}
                         }
-                        Update::Alarm(_) => {}
-                    }
-                })
-                .await;
+                    })
+                    .await;
+                let refused = result.as_ref().is_err_and(ClientError::is_over_capacity);
+                let scored = progress.lock().unwrap_or_else(|e| e.into_inner())[i].scored;
+                if !refused || scored > 0 || waited >= CAPACITY_WAIT {
+                    break result;
+                }
+                {
+                    let mut all = progress.lock().unwrap_or_else(|e| e.into_inner());
+                    all[i].sent = 0;
+                    all[i].waiting = true;
+                }
+                sent_at.clear();
+                tokio::time::sleep(CAPACITY_RETRY).await;
+                waited += CAPACITY_RETRY;
+            };
             let mut all = progress.lock().unwrap_or_else(|e| e.into_inner());
+            all[i].waiting = false;
             all[i].done = true;
             match result {
                 Ok(summary) => Ok(Streamed {
@@ -535,6 +563,7 @@ fn progress_line(p: &Progress) -> String {
     let state = match (&p.failed, p.done) {
         (Some(e), _) => format!("FAILED: {e}"),
         (None, true) => "done".into(),
+        (None, false) if p.waiting => "waiting for capacity".into(),
         (None, false) if p.sent == 0 => "waiting".into(),
         _ => "streaming".into(),
     };

@@ -11,7 +11,7 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 use vamos::episode::{EpisodeConfig, McapEpisode};
 use vamos::eval::alarm::Debounce;
-use vamos::eval::{DetectorThresholds, EvalReport, ScoredFrame, evaluate};
+use vamos::eval::{Detector, DetectorThresholds, EvalReport, ScoredFrame, evaluate};
 use vamos::vision::GrayImage;
 
 fn opt(v: Option<f64>, digits: usize) -> String {
@@ -131,11 +131,11 @@ pub(super) fn write_report(
          threshold: e_c {}, e_b {}, e_o {}, e_r {}, e_k {} (-: it cannot alarm alone); an alarm \
          starts after {} flagged frames of {}.\n\n",
         fmt_threshold(alarm),
-        opt(thresholds.e_c, 3),
-        opt(thresholds.e_b, 3),
-        opt(thresholds.e_o, 4),
-        opt(thresholds.e_r, 3),
-        opt(thresholds.e_k, 3),
+        opt(thresholds.detectors[Detector::Camera], 3),
+        opt(thresholds.detectors[Detector::Body], 3),
+        opt(thresholds.detectors[Detector::Flow], 4),
+        opt(thresholds.detectors[Detector::Scene], 3),
+        opt(thresholds.detectors[Detector::Kinematics], 3),
         ctx.rule.frames,
         ctx.rule.window,
     ));

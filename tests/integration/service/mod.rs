@@ -247,9 +247,9 @@ pub(crate) fn assert_same_scores(streamed: &[proto::FrameScore], offline: &[Fram
         assert_eq!(s.index, o.index);
         assert_eq!(s.frame, o.frame);
         assert_eq!(s.score, o.score, "score of frame {}", o.frame);
-        assert_eq!(s.e_c, o.e_c);
-        assert_eq!(s.e_b, o.e_b);
-        assert_eq!(s.e_o, o.e_o);
+        assert_eq!(s.e_c, o.values[vamos::eval::Detector::Camera]);
+        assert_eq!(s.e_b, o.values[vamos::eval::Detector::Body]);
+        assert_eq!(s.e_o, o.values[vamos::eval::Detector::Flow]);
         assert_eq!(s.anomaly, o.anomaly);
         assert!(s.latency_s >= s.compute_s && s.compute_s > 0.0);
     }

@@ -391,7 +391,10 @@ async fn streamed_depth_images_are_used_and_bad_ones_reported_without_losing_fra
     .unwrap();
     assert_eq!(scores.len(), offline.len());
     assert!(
-        scores.iter().zip(&offline).any(|(s, o)| s.e_r != o.e_r),
+        scores
+            .iter()
+            .zip(&offline)
+            .any(|(s, o)| s.e_r != o.values[vamos::eval::Detector::Scene]),
         "a depth of 0.2 m changed no e_r"
     );
 

@@ -9,6 +9,8 @@ use super::EpisodeError;
 use super::bag::{EpisodeInfo, SourceMessage};
 use super::image::Encoding;
 use super::ros::{self, CompressedImageMsg, Header, ImageMsg, schema};
+#[allow(unused_imports)] // Detector: named in the docs.
+use crate::eval::{Detector, DetectorValues};
 use std::collections::{BTreeMap, HashMap};
 use std::fs::File;
 use std::io::BufWriter;
@@ -47,16 +49,9 @@ pub struct ScoreTopics<'a> {
     pub score: f64,
     /// The alarm (`/vamos/anomaly`).
     pub anomaly: bool,
-    /// Camera-motion error (`/vamos/e_c`), when defined.
-    pub e_c: Option<f64>,
-    /// Body-motion error (`/vamos/e_b`), when defined.
-    pub e_b: Option<f64>,
-    /// Flow-prediction error (`/vamos/e_o`), when defined.
-    pub e_o: Option<f64>,
-    /// Scene-motion residual (`/vamos/e_r`), when defined.
-    pub e_r: Option<f64>,
-    /// Kinematic novelty (`/vamos/e_k`), when defined.
-    pub e_k: Option<f64>,
+    /// Each detector's value (`/vamos/e_c` .. `/vamos/e_k`, [`Detector::topic`]), when
+    /// defined.
+    pub values: DetectorValues,
     /// Square squared-error map of the best prediction (`/vamos/heatmap`), when kept.
     pub heatmap: Option<&'a [f32]>,
     /// The frame's anomaly map `(width, height, mono8 pixels)` (`/vamos/anomaly_map`,
@@ -405,16 +400,8 @@ impl ScoreBagWriter {
         self.write_image(&frame.source.topic, t, ImageData::Source(&frame.source))?;
         self.write_f64("/vamos/score", t, s.score)?;
         self.write_bool("/vamos/anomaly", t, s.anomaly)?;
-        for (topic, v) in [
-            ("/vamos/e_c", s.e_c),
-            ("/vamos/e_b", s.e_b),
-            ("/vamos/e_o", s.e_o),
-            ("/vamos/e_r", s.e_r),
-            ("/vamos/e_k", s.e_k),
-        ] {
-            if let Some(v) = v {
-                self.write_f64(topic, t, v)?;
-            }
+        for (detector, v) in s.values.present() {
+            self.write_f64(detector.topic(), t, v)?;
         }
         if let Some(map) = s.heatmap {
             let side = (map.len() as f64).sqrt() as usize;

@@ -28,6 +28,7 @@
 //! triggers with ratio 1.
 
 use super::depth::LearnedDepth;
+use super::detector::{Detector, DetectorValues};
 use super::nominal::{CellStats, NominalScales, Scale};
 use super::novelty::StateReference;
 use serde::{Deserialize, Serialize};
@@ -39,22 +40,6 @@ pub const TRIGGER_BASE: f64 = 1.0e6;
 pub const UNTRIGGERED_MAX: f64 = 5.0e5;
 /// Largest threshold overshoot ratio carried into the triggered score.
 pub const RATIO_CAP: f64 = 1.0e9;
-
-/// The per-frame detectors.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Detector {
-    /// Camera-motion error e_c reached its threshold.
-    Camera,
-    /// Body-motion error e_b reached its threshold.
-    Body,
-    /// Flow-prediction error e_o (the score when no threshold was reached).
-    Flow,
-    /// Scene-motion residual e_r (calibrated fusion only).
-    Scene,
-    /// Kinematic novelty e_k (calibrated fusion only).
-    Kinematics,
-}
 
 /// How the detectors' values become one score.
 #[derive(
@@ -89,21 +74,6 @@ impl Fusion {
     }
 }
 
-/// The detector values of one frame (`None`: not computed).
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
-pub struct Components {
-    /// Camera-motion error.
-    pub e_c: Option<f64>,
-    /// Body-motion error.
-    pub e_b: Option<f64>,
-    /// Scene-motion residual.
-    pub e_r: Option<f64>,
-    /// Flow-prediction error.
-    pub e_o: Option<f64>,
-    /// Kinematic novelty.
-    pub e_k: Option<f64>,
-}
-
 /// What a scorer takes from the calibration: the paper's per-component thresholds
 /// (maxima over the training episodes; `None` disables that trigger), the detectors'
 /// nominal scales (calibrated fusion), the scene residual's per-cell statistics and the
@@ -115,8 +85,14 @@ pub struct Thresholds {
     pub e_c: Option<f64>,
     /// Threshold on e_b (pixels, as e_b itself).
     pub e_b: Option<f64>,
-    /// Nominal scale of each detector (calibrated fusion).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    /// Nominal scale of each detector (calibrated fusion); a detector without finite
+    /// nominal values has none.
+    #[serde(
+        default,
+        skip_serializing_if = "Option::is_none",
+        with = "super::detector::present::option"
+    )]
+    #[schemars(with = "Option<NominalScales>")]
     pub scales: Option<NominalScales>,
     /// Per-cell nominal statistics of the scene residual.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -280,23 +256,13 @@ impl Thresholds {
 ///   reaches `alarm`, i.e. `location + alarm * spread` (its raw value when it has no
 ///   nominal scale), unless `alarm` lies above [`RATIO_CAP`].
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize, schemars::JsonSchema)]
-#[serde(deny_unknown_fields)]
 pub struct DetectorThresholds {
     /// The fused-score alarm threshold.
     pub alarm: Option<f64>,
-    /// e_c, pixels.
-    pub e_c: Option<f64>,
-    /// e_b, pixels.
-    pub e_b: Option<f64>,
-    /// e_o, the flow prediction error.
-    #[serde(default)]
-    pub e_o: Option<f64>,
-    /// e_r, the scene residual.
-    #[serde(default)]
-    pub e_r: Option<f64>,
-    /// e_k, the kinematic novelty.
-    #[serde(default)]
-    pub e_k: Option<f64>,
+    /// Each detector's threshold in its own units (`e_c`, `e_b` pixels), keyed as the
+    /// values; absent in records made before a detector existed.
+    #[serde(flatten)]
+    pub detectors: DetectorValues,
 }
 
 impl DetectorThresholds {
@@ -308,11 +274,12 @@ impl DetectorThresholds {
         match fusion.resolve(thresholds, flow_model) {
             Fusion::Paper | Fusion::Auto => DetectorThresholds {
                 alarm,
-                e_c: finite(thresholds.e_c),
-                e_b: finite(thresholds.e_b),
-                e_o: alarm.filter(|a| *a <= UNTRIGGERED_MAX),
-                e_r: None,
-                e_k: None,
+                detectors: DetectorValues::from_fn(|d| match d {
+                    Detector::Camera => finite(thresholds.e_c),
+                    Detector::Body => finite(thresholds.e_b),
+                    Detector::Flow => alarm.filter(|a| *a <= UNTRIGGERED_MAX),
+                    Detector::Scene | Detector::Kinematics => None,
+                }),
             },
             Fusion::Calibrated => {
                 let scales = thresholds.scales.unwrap_or_default();
@@ -322,11 +289,7 @@ impl DetectorThresholds {
                 };
                 DetectorThresholds {
                     alarm,
-                    e_c: raw(scales.e_c),
-                    e_b: raw(scales.e_b),
-                    e_o: raw(scales.e_o),
-                    e_r: raw(scales.e_r),
-                    e_k: raw(scales.e_k),
+                    detectors: scales.map(|_, scale| raw(*scale)),
                 }
             }
         }
@@ -415,9 +378,14 @@ fn overshoot(value: Option<f64>, threshold: Option<f64>) -> Option<f64> {
 /// The fused score of one frame under `fusion` (see the module doc; an unresolved
 /// [`Fusion::Auto`] resolves on whether the frame has `e_o`: callers resolve it once per
 /// profile with [`Fusion::resolve`] so that warm-up frames fuse like the rest).
-pub fn fuse_frame(c: &Components, thresholds: &Thresholds, fusion: Fusion) -> Fused {
-    match fusion.resolve(thresholds, c.e_o.is_some()) {
-        Fusion::Paper | Fusion::Auto => fuse(c.e_c, c.e_b, c.e_o, thresholds),
+pub fn fuse_frame(c: &DetectorValues, thresholds: &Thresholds, fusion: Fusion) -> Fused {
+    match fusion.resolve(thresholds, c[Detector::Flow].is_some()) {
+        Fusion::Paper | Fusion::Auto => fuse(
+            c[Detector::Camera],
+            c[Detector::Body],
+            c[Detector::Flow],
+            thresholds,
+        ),
         Fusion::Calibrated => fuse_calibrated(c, thresholds.scales.as_ref()),
     }
 }
@@ -425,18 +393,13 @@ pub fn fuse_frame(c: &Components, thresholds: &Thresholds, fusion: Fusion) -> Fu
 /// The calibrated fusion: the largest nominal-calibrated detector score, clamped to
 /// `+-RATIO_CAP`; NaN values (failed measurements) score `RATIO_CAP`. Score 0 and no
 /// detector when no component is there.
-pub fn fuse_calibrated(c: &Components, scales: Option<&NominalScales>) -> Fused {
+pub fn fuse_calibrated(c: &DetectorValues, scales: Option<&NominalScales>) -> Fused {
     let s = scales.copied().unwrap_or_default();
-    let parts = [
-        (Detector::Camera, c.e_c, s.e_c),
-        (Detector::Body, c.e_b, s.e_b),
-        (Detector::Scene, c.e_r, s.e_r),
-        (Detector::Flow, c.e_o, s.e_o),
-        (Detector::Kinematics, c.e_k, s.e_k),
-    ];
     let mut best: Option<(Detector, f64)> = None;
-    for (detector, value, scale) in parts {
-        let Some(v) = value else { continue };
+    for (detector, value, scale) in c.zip(&s) {
+        let (Some(v), scale) = (*value, *scale) else {
+            continue;
+        };
         let z = match scale {
             Some(scale) => scale.score(v),
             None => v,

@@ -2,6 +2,12 @@
 //! broken values, and the ordering of triggered and untriggered scores.
 
 use super::*;
+use crate::eval::nominal::NominalScales;
+
+/// Detector values from `(detector, value)` pairs.
+fn values(pairs: &[(Detector, f64)]) -> DetectorValues {
+    DetectorValues::of(pairs)
+}
 
 #[test]
 fn each_detector_alone_at_its_own_threshold_reaches_the_alarm() {
@@ -9,44 +15,44 @@ fn each_detector_alone_at_its_own_threshold_reaches_the_alarm() {
     let t = Thresholds {
         e_c: Some(2.0),
         e_b: Some(3.0),
-        scales: Some(NominalScales {
-            e_c: scale(0.5, 1.0),
-            e_b: scale(1.0, 2.0),
-            e_r: scale(0.2, 0.1),
-            e_o: None,
-            e_k: scale(0.01, 0.04),
-        }),
+        scales: Some(NominalScales::from_array([
+            scale(0.5, 1.0),
+            scale(1.0, 2.0),
+            None,
+            scale(0.2, 0.1),
+            scale(0.01, 0.04),
+        ])),
         scene: None,
         kinematics: None,
         flow: None,
         fusion: None,
         depth: None,
     };
-    let none = Components::default();
     // Calibrated: location + alarm * spread, the raw value without a scale.
     let d = DetectorThresholds::new(&t, 1.5, Fusion::Calibrated, false);
-    assert_eq!((d.alarm, d.e_c, d.e_b), (Some(1.5), Some(2.0), Some(4.0)));
-    assert!((d.e_r.unwrap() - 0.35).abs() < 1e-12 && d.e_o == Some(1.5));
-    for (c, name) in [
-        (Components { e_c: d.e_c, ..none }, "e_c"),
-        (Components { e_b: d.e_b, ..none }, "e_b"),
-        (Components { e_r: d.e_r, ..none }, "e_r"),
-        (Components { e_o: d.e_o, ..none }, "e_o"),
-        (Components { e_k: d.e_k, ..none }, "e_k"),
-    ] {
+    let dt = |x| d.detectors[x];
+    assert_eq!(
+        (d.alarm, dt(Detector::Camera), dt(Detector::Body)),
+        (Some(1.5), Some(2.0), Some(4.0))
+    );
+    assert!((dt(Detector::Scene).unwrap() - 0.35).abs() < 1e-12);
+    assert_eq!(dt(Detector::Flow), Some(1.5));
+    for (detector, threshold) in d.detectors.present() {
+        let c = values(&[(detector, threshold)]);
         let score = fuse_frame(&c, &t, Fusion::Calibrated).score;
-        assert!((score - 1.5).abs() < 1e-12, "{name}: {score}");
+        assert!((score - 1.5).abs() < 1e-12, "{detector}: {score}");
     }
+    assert_eq!(d.detectors.present().count(), Detector::COUNT);
     // Paper (and auto with a model): e_c/e_b at their thresholds, e_o at the alarm.
     for d in [
         DetectorThresholds::new(&t, 0.02, Fusion::Paper, false),
         DetectorThresholds::new(&t, 0.02, Fusion::Auto, true),
     ] {
         assert_eq!(
-            (d.e_c, d.e_b, d.e_o, d.e_r),
-            (Some(2.0), Some(3.0), Some(0.02), None)
+            d.detectors,
+            DetectorValues::from_array([Some(2.0), Some(3.0), Some(0.02), None, None])
         );
-        let c = Components { e_o: d.e_o, ..none };
+        let c = values(&[(Detector::Flow, 0.02)]);
         assert_eq!(fuse_frame(&c, &t, Fusion::Paper).score, 0.02);
     }
     // Auto without a model is calibrated; an alarm out of reach gives no line.
@@ -55,7 +61,13 @@ fn each_detector_alone_at_its_own_threshold_reaches_the_alarm() {
         DetectorThresholds::new(&t, 1.5, Fusion::Calibrated, false)
     );
     let high = DetectorThresholds::new(&t, TRIGGER_BASE + 1.0, Fusion::Paper, true);
-    assert_eq!((high.e_o, high.e_c), (None, Some(2.0)));
+    assert_eq!(
+        (
+            high.detectors[Detector::Flow],
+            high.detectors[Detector::Camera]
+        ),
+        (None, Some(2.0))
+    );
     let never = DetectorThresholds::new(&t, f64::INFINITY, Fusion::Calibrated, false);
     assert_eq!(never, DetectorThresholds::default());
 }
@@ -118,44 +130,32 @@ fn auto_fusion_is_calibrated_unless_fitted_for_the_paper() {
     // Unresolved, a frame without e_o fuses like the calibrated rule: it ranks
     // below any threshold (the paper's rule would give 0 to both).
     let th = Thresholds::paper(Some(10.0), Some(10.0));
-    let low = Components {
-        e_c: Some(1.0),
-        ..Components::default()
-    };
-    let high = Components {
-        e_c: Some(2.0),
-        ..Components::default()
-    };
+    let low = values(&[(Detector::Camera, 1.0)]);
+    let high = values(&[(Detector::Camera, 2.0)]);
     assert!(fuse_frame(&high, &th, Fusion::Auto).score > fuse_frame(&low, &th, Fusion::Auto).score);
     assert_eq!(
-        fuse(low.e_c, None, None, &th).score,
-        fuse(high.e_c, None, None, &th).score
+        fuse(low[Detector::Camera], None, None, &th).score,
+        fuse(high[Detector::Camera], None, None, &th).score
     );
 }
 
 #[test]
 fn calibrated_fusion_takes_the_largest_calibrated_score() {
     use crate::eval::nominal::Scale;
-    let scales = NominalScales {
-        e_c: Some(Scale {
-            location: 1.0,
-            spread: 2.0,
-        }),
-        e_b: None,
-        e_r: Some(Scale {
-            location: 0.5,
-            spread: 0.5,
-        }),
-        e_o: None,
-        e_k: None,
-    };
-    let c = Components {
-        e_c: Some(4.0),
-        e_b: Some(0.2),
-        e_r: Some(2.0),
-        e_o: None,
-        e_k: None,
-    };
+    let mut scales = NominalScales::default();
+    scales[Detector::Camera] = Some(Scale {
+        location: 1.0,
+        spread: 2.0,
+    });
+    scales[Detector::Scene] = Some(Scale {
+        location: 0.5,
+        spread: 0.5,
+    });
+    let c = values(&[
+        (Detector::Camera, 4.0),
+        (Detector::Body, 0.2),
+        (Detector::Scene, 2.0),
+    ]);
     // e_c: 1.5; e_b: raw 0.2 (no scale); e_r: 3.0.
     let f = fuse_calibrated(&c, Some(&scales));
     assert_eq!((f.triggered, f.score), (Some(Detector::Scene), 3.0));
@@ -166,22 +166,22 @@ fn calibrated_fusion_takes_the_largest_calibrated_score() {
     assert_eq!(fuse_frame(&c, &th, Fusion::Calibrated), f);
     assert_eq!(
         fuse_frame(&c, &th, Fusion::Paper),
-        fuse(c.e_c, c.e_b, c.e_o, &th)
+        fuse(
+            c[Detector::Camera],
+            c[Detector::Body],
+            c[Detector::Flow],
+            &th
+        )
     );
-    let broken = Components {
-        e_c: Some(f64::NAN),
-        ..c
-    };
+    let mut broken = c;
+    broken[Detector::Camera] = Some(f64::NAN);
     assert_eq!(fuse_calibrated(&broken, Some(&scales)).score, RATIO_CAP);
     assert_eq!(
-        fuse_calibrated(&Components::default(), None).triggered,
+        fuse_calibrated(&DetectorValues::default(), None).triggered,
         None
     );
     // Below the median a score is negative and still ranks.
-    let low = Components {
-        e_r: Some(0.25),
-        ..Components::default()
-    };
+    let low = values(&[(Detector::Scene, 0.25)]);
     assert_eq!(fuse_calibrated(&low, Some(&scales)).score, -0.5);
 }
 

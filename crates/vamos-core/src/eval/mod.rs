@@ -15,6 +15,7 @@ mod ablation;
 pub mod alarm;
 mod calibrate;
 pub mod depth;
+pub mod detector;
 pub mod detector_plot;
 mod episodes;
 mod fuse;
@@ -28,16 +29,19 @@ pub use calibrate::{
     ConformalThreshold, conformal_episodes_needed, conformal_rank, conformal_threshold,
     max_threshold, regularized_beta,
 };
+pub use detector::{Detector, DetectorValues, PerDetector};
 pub use episodes::{
     EpisodeOutcome, EvalReport, TypeReport, UNTYPED_ANOMALY, episode_false_alarm_rate,
     episode_outcomes, evaluate, frames_by_type, pre_onset_false_alarm_rate,
 };
 pub use fuse::{
-    Components, Detector, DetectorThresholds, Fused, Fusion, RATIO_CAP, StatsSummary, TRIGGER_BASE,
-    Thresholds, UNTRIGGERED_MAX, Window, fuse, fuse_calibrated, fuse_frame,
+    DetectorThresholds, Fused, Fusion, RATIO_CAP, StatsSummary, TRIGGER_BASE, Thresholds,
+    UNTRIGGERED_MAX, Window, fuse, fuse_calibrated, fuse_frame,
 };
 pub use metrics::{PrPoint, RocPoint, average_precision, pr_curve, roc_auc, roc_curve};
-pub use nominal::{CellNorm, CellStats, NominalScales, PhaseCells, Pooling, Scale, pool_cells};
+pub use nominal::{
+    CellNorm, CellStats, NominalScales, PhaseCells, Pooling, Scale, fit_scales, pool_cells,
+};
 pub use novelty::StateReference;
 
 use std::path::PathBuf;

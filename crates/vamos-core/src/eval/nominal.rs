@@ -68,37 +68,11 @@ impl Scale {
 }
 
 /// The nominal scales of every detector (absent: the detector had no finite value).
-#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize, schemars::JsonSchema)]
-#[serde(deny_unknown_fields)]
-pub struct NominalScales {
-    /// Camera-motion error.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub e_c: Option<Scale>,
-    /// Body-motion error.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub e_b: Option<Scale>,
-    /// Scene-motion residual.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub e_r: Option<Scale>,
-    /// Flow-prediction error.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub e_o: Option<Scale>,
-    /// Kinematic novelty.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub e_k: Option<Scale>,
-}
+pub type NominalScales = super::detector::PerDetector<Option<Scale>>;
 
-impl NominalScales {
-    /// Fits each detector's scale from its values over nominal frames.
-    pub fn fit(e_c: &[f64], e_b: &[f64], e_r: &[f64], e_o: &[f64], e_k: &[f64]) -> NominalScales {
-        NominalScales {
-            e_c: Scale::fit(e_c),
-            e_b: Scale::fit(e_b),
-            e_r: Scale::fit(e_r),
-            e_o: Scale::fit(e_o),
-            e_k: Scale::fit(e_k),
-        }
-    }
+/// Fits each detector's scale from its values over nominal frames.
+pub fn fit_scales(values: &super::detector::PerDetector<Vec<f64>>) -> NominalScales {
+    values.map(|_, v| Scale::fit(v))
 }
 
 /// Per-cell nominal statistics of a map of `columns x rows` cells (row-major).

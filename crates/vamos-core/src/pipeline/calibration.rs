@@ -5,7 +5,7 @@
 //!    are the maxima of `e_c` and `e_b` over them (the paper). With `learn_depth`, the
 //!    static scene's depth is first learned from that pass ([`super::depth`]) and the
 //!    training episodes are scored again with it.
-//! 2. The scene residual's per-cell statistics are fitted on the training frames' cell
+//! 2. Each detector fits its statistics ([`super::detectors`]): the scene residual's per-cell statistics are fitted on the training frames' cell
 //!    maps, their `e_r` pooled again with them (and so the flow predictor's error per cell
 //!    and `e_o`, with `flow_pooling = "cells"`), and each detector's nominal scale
 //!    (median, 99th percentile) fitted on the training frames (calibrated fusion).
@@ -18,15 +18,14 @@
 //!    threshold on their per-episode maximum fused score bounds the episode-level false-
 //!    alarm probability by `alpha` ([`crate::eval::conformal_threshold`]).
 
-use super::depth::LearnedDepth;
+use super::PipelineConfig;
+use super::detectors::{flow, kinematics, scene};
 use super::offline::EpisodeScores;
 use super::profile::Calibration;
 use super::scorer::{FrameScore, phase_s};
-use super::{KinematicsParams, PipelineConfig, ResidualParams};
 use crate::eval::{
-    CellStats, Components, EvalError, NominalScales, Pooling, StateReference, TRIGGER_BASE,
-    Thresholds, Window, conformal_episodes_needed, conformal_threshold, fuse_frame, max_threshold,
-    novelty, pool_cells,
+    Detector, DetectorValues, EvalError, PerDetector, TRIGGER_BASE, Thresholds, Window,
+    conformal_episodes_needed, conformal_threshold, fit_scales, fuse_frame, max_threshold,
 };
 use std::path::{Path, PathBuf};
 use std::time::{SystemTime, UNIX_EPOCH};
@@ -70,7 +69,7 @@ pub fn calibrate<E>(
     let depth = pipeline
         .camera_motion
         .learn_depth
-        .then(|| learn_depth(&train, pipeline, &mut notes))
+        .then(|| scene::learn_depth(&train, pipeline, &mut notes))
         .flatten();
     if let Some(depth) = &depth {
         // The training frames again, the static scene placed at the learned depth.
@@ -91,36 +90,22 @@ pub fn calibrate<E>(
             e.frames.iter().map(move |f| phase_s(first, f.stamp_ns))
         })
         .collect();
-    let component = |f: fn(&FrameScore) -> Option<f64>| -> Vec<f64> {
-        frames.iter().filter_map(|x| f(x)).collect()
-    };
-    let scene = fit_scene(&frames, &phases, &pipeline.residual, &mut notes);
-    let flow = fit_flow(&frames, &phases, &pipeline.residual, &mut notes);
-    let pooling = Pooling {
-        top_fraction: pipeline.residual.top_fraction,
-    };
-    // e_r and e_o of the training frames, pooled again with the fitted statistics.
-    let e_r = repool(&frames, &phases, scene_map, scene.as_ref(), pooling, |f| {
-        f.e_r
-    });
-    let e_o = repool(&frames, &phases, flow_map, flow.as_ref(), pooling, |f| {
-        f.e_o
-    });
-    let e_r_values: Vec<f64> = e_r.iter().flatten().copied().collect();
-    let e_o_values: Vec<f64> = e_o.iter().flatten().copied().collect();
-    let (kinematics, e_k) = fit_kinematics(&train, &pipeline.kinematics, &mut notes);
-    let e_k_values: Vec<f64> = e_k.iter().flatten().copied().collect();
-    let scales = NominalScales::fit(
-        &component(|f| f.e_c),
-        &component(|f| f.e_b),
-        &e_r_values,
-        &e_o_values,
-        &e_k_values,
-    );
+    // Each training frame's detector values as then scored: e_c and e_b as they are, e_r
+    // and e_o pooled again with the fitted cell statistics, e_k against the other
+    // episodes' states.
+    let (scene, e_r) = scene::fit(&frames, &phases, &pipeline.residual, &mut notes);
+    let (flow, e_o) = flow::fit(&frames, &phases, &pipeline.residual, &mut notes);
+    let (kinematics, e_k) = kinematics::fit(&train, &pipeline.kinematics, &mut notes);
+    let mut training: PerDetector<Vec<Option<f64>>> =
+        PerDetector::from_fn(|d| frames.iter().map(|f| f.values[d]).collect());
+    training[Detector::Scene] = e_r;
+    training[Detector::Flow] = e_o;
+    training[Detector::Kinematics] = e_k;
+    let finite = training.map(|_, v| v.iter().flatten().copied().collect::<Vec<f64>>());
     let thresholds = Thresholds {
-        e_c: max_threshold(&component(|f| f.e_c)),
-        e_b: max_threshold(&component(|f| f.e_b)),
-        scales: Some(scales),
+        e_c: max_threshold(&finite[Detector::Camera]),
+        e_b: max_threshold(&finite[Detector::Body]),
+        scales: Some(fit_scales(&finite)),
         scene,
         kinematics,
         flow,
@@ -129,19 +114,14 @@ pub fn calibrate<E>(
     };
     // The training frames' fused scores as the scorer gives them (windowed per episode).
     let mut window = Window::new(pipeline.temporal_window);
-    let mut pooled = e_r.iter().zip(&e_o).zip(&e_k);
+    let mut frame = 0;
     let mut score_max = f64::NEG_INFINITY;
     for episode in &train {
         window.clear();
-        for (f, ((&e_r, &e_o), &e_k)) in episode.frames.iter().zip(&mut pooled) {
-            let c = Components {
-                e_c: f.e_c,
-                e_b: f.e_b,
-                e_r,
-                e_o,
-                e_k,
-            };
-            score_max = score_max.max(window.push(fuse_frame(&c, &thresholds, fusion)).score);
+        for _ in &episode.frames {
+            let values: DetectorValues = training.map(|_, v| v[frame]);
+            frame += 1;
+            score_max = score_max.max(window.push(fuse_frame(&values, &thresholds, fusion)).score);
         }
     }
     let score_max = if score_max.is_finite() {
@@ -226,52 +206,6 @@ pub fn calibrate<E>(
     Ok(CalibrationOutcome { calibration, notes })
 }
 
-/// The static scene's depth learned from the training frames' evidence
-/// (`[pipeline.camera_motion] learn_depth`), said in a note; `None` (with the reason) when
-/// they show none.
-fn learn_depth(
-    train: &[EpisodeScores],
-    pipeline: &PipelineConfig,
-    notes: &mut Vec<String>,
-) -> Option<LearnedDepth> {
-    if !pipeline.detectors.scene {
-        notes.push(
-            "learn_depth needs the scene detector ([pipeline.detectors] scene = true): the \
-             assumed depth stays"
-                .into(),
-        );
-        return None;
-    }
-    let grid = (
-        pipeline.camera_motion.grid_columns,
-        pipeline.camera_motion.grid_rows,
-    );
-    let evidence = train
-        .iter()
-        .flat_map(|e| &e.frames)
-        .filter_map(|f| f.depth_evidence.as_ref());
-    match LearnedDepth::fit(evidence, grid) {
-        Ok(d) => {
-            let (median, near, far) = d.summary();
-            notes.push(format!(
-                "learned the static scene's depth from {} training frames in {} views of the \
-                 camera: over all of them median {median:.2} m, {near:.2} to {far:.2} m over \
-                 the {}x{} cells ({} with too little evidence took the median of all)",
-                d.frames,
-                d.views.len(),
-                d.columns,
-                d.rows,
-                d.filled_cells
-            ));
-            Some(d)
-        }
-        Err(e) => {
-            notes.push(format!("learn_depth: {e}; the assumed depth stays"));
-            None
-        }
-    }
-}
-
 /// What [`revise`] proposes.
 #[derive(Debug, Clone)]
 pub struct Revision {
@@ -319,8 +253,16 @@ pub fn revise(
         )
     };
     for (name, current, seen) in [
-        ("e_c", &mut revised.thresholds.e_c, component_max(|f| f.e_c)),
-        ("e_b", &mut revised.thresholds.e_b, component_max(|f| f.e_b)),
+        (
+            "e_c",
+            &mut revised.thresholds.e_c,
+            component_max(|f| f.values[Detector::Camera]),
+        ),
+        (
+            "e_b",
+            &mut revised.thresholds.e_b,
+            component_max(|f| f.values[Detector::Body]),
+        ),
     ] {
         // Just above the episodes' maximum: none of their frames fires it.
         if let (Some(t), Some(m)) = (current.as_mut(), seen.map(f64::next_up))
@@ -332,7 +274,7 @@ pub fn revise(
             *t = m;
         }
     }
-    let e_k = learn_states(calibration, &mut revised, nominal, &mut notes);
+    let e_k = kinematics::revise(calibration, &mut revised, nominal, &mut notes);
     let mut window = Window::new(pipeline.temporal_window);
     let episodes: Vec<(String, f64, f64)> = nominal
         .iter()
@@ -344,13 +286,8 @@ pub fn revise(
                 .iter()
                 .zip(e_k)
                 .map(|(f, &e_k)| {
-                    let c = Components {
-                        e_c: f.e_c,
-                        e_b: f.e_b,
-                        e_r: f.e_r,
-                        e_o: f.e_o,
-                        e_k,
-                    };
+                    let mut c = f.values;
+                    c[Detector::Kinematics] = e_k;
                     window
                         .push(fuse_frame(&c, &revised.thresholds, fusion))
                         .score
@@ -412,250 +349,6 @@ pub fn revise(
         episodes,
         notes,
     }
-}
-
-/// The kinematic novelty's side of a revision: the nominal episodes' robot states join
-/// the reference of `revised` (a robot doing what an operator judged nominal is then not
-/// novel), and each episode's `e_k` is measured again against the old reference and the
-/// *other* nominal episodes' states (as a held-out episode would be). Returns each
-/// episode's frames' `e_k` (as scored when the calibration has no reference or the
-/// frames no state).
-fn learn_states(
-    calibration: &Calibration,
-    revised: &mut Calibration,
-    nominal: &[EpisodeScores],
-    notes: &mut Vec<String>,
-) -> Vec<Vec<Option<f64>>> {
-    let as_scored: Vec<Vec<Option<f64>>> = nominal
-        .iter()
-        .map(|e| e.frames.iter().map(|f| f.e_k).collect())
-        .collect();
-    let Some(reference) = calibration.thresholds.kinematics.as_ref() else {
-        return as_scored;
-    };
-    let states = robot_states(nominal);
-    let dims = reference.dims();
-    if !states.iter().flatten().any(|s| s.len() == dims) {
-        return as_scored;
-    }
-    let Some(learned) = reference.extended(&states) else {
-        return as_scored;
-    };
-    let e_k = states
-        .iter()
-        .enumerate()
-        .map(|(i, episode)| {
-            let others: Vec<Vec<Vec<f32>>> = states
-                .iter()
-                .enumerate()
-                .filter(|&(j, _)| j != i)
-                .map(|(_, e)| e.clone())
-                .collect();
-            let against = reference.extended(&others);
-            episode
-                .iter()
-                .zip(&as_scored[i])
-                .map(|(s, &scored)| match &against {
-                    Some(r) if s.len() == dims => r.distance(s),
-                    _ => scored,
-                })
-                .collect()
-        })
-        .collect();
-    notes.push(format!(
-        "the kinematic novelty's nominal states: {} -> {} (these episodes' robot states \
-         join them)",
-        reference.len(),
-        learned.len()
-    ));
-    revised.thresholds.kinematics = Some(learned);
-    e_k
-}
-
-/// Where a frame keeps one detector's cell map: the cells and their `(columns, rows)`.
-type CellMap = fn(&FrameScore) -> Option<(&[f32], (usize, usize))>;
-
-/// A frame's scene residual cells and their `(columns, rows)`.
-fn scene_map(f: &FrameScore) -> Option<(&[f32], (usize, usize))> {
-    Some((f.scene_cells.as_deref()?, f.scene_grid))
-}
-
-/// A frame's flow-error cells and their `(columns, rows)`.
-fn flow_map(f: &FrameScore) -> Option<(&[f32], (usize, usize))> {
-    Some((f.flow_cells.as_deref()?, f.flow_grid))
-}
-
-/// Per-cell statistics of the cell maps `map` takes from the training frames (those of
-/// the first map's grid); `None` when no frame has one. With `phase_window_s > 0`, per
-/// phase window as well (`phases`: each frame's seconds into its episode).
-fn fit_cells(
-    frames: &[&FrameScore],
-    phases: &[f64],
-    map: CellMap,
-    phase_window_s: f64,
-) -> Option<Result<CellStats, String>> {
-    let (_, (columns, rows)) = frames.iter().find_map(|f| map(f))?;
-    let (maps, map_phases): (Vec<&[f32]>, Vec<f64>) = frames
-        .iter()
-        .zip(phases)
-        .filter_map(|(f, &t)| {
-            map(f)
-                .filter(|(_, g)| *g == (columns, rows))
-                .map(|(m, _)| (m, t))
-        })
-        .unzip();
-    Some(
-        CellStats::fit_phased(columns, rows, &maps, &map_phases, phase_window_s)
-            .map_err(|e| e.to_string()),
-    )
-}
-
-/// Each training frame's detector pooled again from its cells with the fitted `stats`
-/// (as it is then scored); `raw` (as scored without statistics) for a frame without cells
-/// or when there are no statistics.
-fn repool(
-    frames: &[&FrameScore],
-    phases: &[f64],
-    map: CellMap,
-    stats: Option<&CellStats>,
-    pooling: Pooling,
-    raw: fn(&FrameScore) -> Option<f64>,
-) -> Vec<Option<f64>> {
-    frames
-        .iter()
-        .zip(phases)
-        .map(|(f, &phase)| match (map(f), stats) {
-            (Some((cells, (columns, rows))), Some(stats)) => pool_cells(
-                cells,
-                columns,
-                rows,
-                Some(stats.at(Some(phase))),
-                pooling,
-                None,
-            ),
-            _ => raw(f),
-        })
-        .collect()
-}
-
-/// Per-cell statistics of the scene residual from the training frames' cell maps;
-/// `None`, with a note, when there are too few.
-fn fit_scene(
-    frames: &[&FrameScore],
-    phases: &[f64],
-    residual: &ResidualParams,
-    notes: &mut Vec<String>,
-) -> Option<CellStats> {
-    let stats = fit_noted(
-        frames,
-        phases,
-        scene_map,
-        residual,
-        notes,
-        "scene",
-        "e_r is scored from raw residuals",
-    )?;
-    Some(CellStats {
-        photometric: residual.takes_photometric(),
-        ..stats
-    })
-}
-
-/// Per-cell statistics of the flow predictor's error (`flow_pooling = "cells"`) from the
-/// training frames' cell maps; `None`, with a note, when there are too few.
-fn fit_flow(
-    frames: &[&FrameScore],
-    phases: &[f64],
-    residual: &ResidualParams,
-    notes: &mut Vec<String>,
-) -> Option<CellStats> {
-    fit_noted(
-        frames,
-        phases,
-        flow_map,
-        residual,
-        notes,
-        "flow-error",
-        "e_o is scored from raw cell errors",
-    )
-}
-
-/// [`fit_cells`] with a note (`what` statistics missing, and `then`) when the maps are too
-/// few.
-fn fit_noted(
-    frames: &[&FrameScore],
-    phases: &[f64],
-    map: CellMap,
-    residual: &ResidualParams,
-    notes: &mut Vec<String>,
-    what: &str,
-    then: &str,
-) -> Option<CellStats> {
-    match fit_cells(frames, phases, map, residual.phase_window_s)? {
-        Ok(stats) => Some(stats),
-        Err(e) => {
-            notes.push(format!("no per-cell {what} statistics ({e}): {then}"));
-            None
-        }
-    }
-}
-
-/// Each episode's frames' robot states (empty for a frame without one, which the state
-/// reference skips).
-fn robot_states(episodes: &[EpisodeScores]) -> Vec<Vec<Vec<f32>>> {
-    episodes
-        .iter()
-        .map(|e| {
-            e.frames
-                .iter()
-                .map(|f| f.kinematic_state.clone().unwrap_or_default())
-                .collect()
-        })
-        .collect()
-}
-
-/// The nominal robot states of the training episodes (scaled as `params` says) and each
-/// training frame's `e_k` against the other episodes' states (flattened like the
-/// episodes' frames; `None` for a frame without a state). No reference, with a note, when
-/// no frame has a state or no frame's distance can be measured (a single training
-/// episode).
-fn fit_kinematics(
-    train: &[EpisodeScores],
-    params: &KinematicsParams,
-    notes: &mut Vec<String>,
-) -> (Option<StateReference>, Vec<Option<f64>>) {
-    let frames = train.iter().map(|e| e.frames.len()).sum();
-    let Some(dims) = train
-        .iter()
-        .flat_map(|e| &e.frames)
-        .find_map(|f| f.kinematic_state.as_ref().map(Vec::len))
-    else {
-        if params.effort {
-            notes.push(
-                "no kinematic novelty (e_k): [pipeline.kinematics] effort = true, but no \
-                 training frame's joint states carry one effort per joint"
-                    .into(),
-            );
-        }
-        return (None, vec![None; frames]);
-    };
-    let states = robot_states(train);
-    let rows: Vec<&[f32]> = states.iter().flatten().map(Vec::as_slice).collect();
-    let scale = params.scale(&rows, dims);
-    let e_k: Vec<Option<f64>> = novelty::leave_one_episode_out(&states, dims, scale.as_deref())
-        .into_iter()
-        .flatten()
-        .map(|d| d.is_finite().then_some(d))
-        .collect();
-    if e_k.iter().all(Option::is_none) {
-        notes.push(
-            "no kinematic novelty (e_k): it needs robot states from at least two training \
-             episodes"
-                .into(),
-        );
-        return (None, vec![None; frames]);
-    }
-    (StateReference::fit(&states, dims, scale), e_k)
 }
 
 /// The fewest held-out episodes whose split-conformal rank `ceil((n + 1)(1 - alpha))` is

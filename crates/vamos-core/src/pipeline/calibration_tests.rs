@@ -2,7 +2,7 @@
 //! revision that learns nominal episodes (their scores and robot states).
 
 use super::*;
-use crate::eval::Fusion;
+use crate::eval::{Fusion, NominalScales, StateReference};
 use crate::pipeline::scorer::StageTimings;
 
 /// An episode of frames with these `e_c` values and nothing else.
@@ -15,11 +15,10 @@ fn episode(name: &str, e_c: &[f64]) -> EpisodeScores {
             frame: i as u64,
             stamp_ns: i as i64 * 100_000_000,
             score: 0.0,
-            e_c: Some(e),
-            e_b: None,
-            e_o: Some(0.01),
-            e_r: None,
-            e_k: None,
+            values: crate::eval::DetectorValues::of(&[
+                (Detector::Camera, e),
+                (Detector::Flow, 0.01),
+            ]),
             anomaly: false,
             triggered: None,
             warming_up: false,
@@ -155,13 +154,9 @@ fn the_fallback_to_the_training_maximum_is_noted_with_the_numbers() {
 /// Frames fused as the scorer fuses them under paper fusion with `t`.
 fn scored(mut e: EpisodeScores, t: &Thresholds) -> EpisodeScores {
     for f in &mut e.frames {
-        let c = Components {
-            e_c: f.e_c,
-            e_b: None,
-            e_r: None,
-            e_o: f.e_o,
-            e_k: None,
-        };
+        let mut c = DetectorValues::default();
+        c[Detector::Camera] = f.values[Detector::Camera];
+        c[Detector::Flow] = f.values[Detector::Flow];
         f.score = fuse_frame(&c, t, Fusion::Paper).score;
     }
     e
@@ -212,7 +207,7 @@ fn a_revision_takes_the_nominal_episodes_in_and_leaves_no_frame_of_them_alarming
     let high = scored(episode("run", &[1.0, 1.9]), &old.thresholds);
     let mut hot = high.clone();
     for f in &mut hot.frames {
-        f.e_o = Some(0.5);
+        f.values[Detector::Flow] = Some(0.5);
         f.score = 0.5;
     }
     let r = revise(&old, &pipeline, true, &[hot]);
@@ -234,13 +229,11 @@ fn a_revision_learns_the_robot_states_of_the_nominal_episodes() {
     };
     let line = |y: f32| -> Vec<Vec<f32>> { (0..10).map(|i| vec![i as f32 * 0.1, y]).collect() };
     let reference = StateReference::fit(&[line(0.0)], 2, None).unwrap();
-    let scales = NominalScales {
-        e_k: Some(crate::eval::Scale {
-            location: 0.0,
-            spread: 0.1,
-        }),
-        ..NominalScales::default()
-    };
+    let mut scales = NominalScales::default();
+    scales[Detector::Kinematics] = Some(crate::eval::Scale {
+        location: 0.0,
+        spread: 0.1,
+    });
     let current = Calibration {
         created_unix_s: 1,
         model_sha256: None,
@@ -259,13 +252,10 @@ fn a_revision_learns_the_robot_states_of_the_nominal_episodes() {
     let run = |name: &str, y: f32| {
         let mut e = episode(name, &[0.0; 10]);
         for (f, s) in e.frames.iter_mut().zip(line(y)) {
-            f.e_k = reference.distance(&s);
+            f.values[Detector::Kinematics] = reference.distance(&s);
             f.kinematic_state = Some(s);
             f.score = fuse_frame(
-                &Components {
-                    e_k: f.e_k,
-                    ..Components::default()
-                },
+                &DetectorValues::from_fn(|d| f.values[d].filter(|_| d == Detector::Kinematics)),
                 &current.thresholds,
                 Fusion::Calibrated,
             )

@@ -9,6 +9,7 @@
 
 use super::DetectorSwitches;
 use crate::episode::bag::ChosenTopics;
+use crate::eval::Detector;
 use serde_json::{Value, json};
 
 /// What a scored bag of the profile carries besides the input's topics.
@@ -20,15 +21,6 @@ pub struct ScoredContent {
     /// Frames carry `/vamos/anomaly_map` (calibrated scene statistics or a flow model).
     pub anomaly_map: bool,
 }
-
-/// The score topics of each detector, with the plot's title.
-const DETECTOR_PLOTS: [(&str, &str); 5] = [
-    ("/vamos/e_c", "e_c: camera motion, px"),
-    ("/vamos/e_b", "e_b: body motion, px"),
-    ("/vamos/e_o", "e_o: flow prediction error"),
-    ("/vamos/e_r", "e_r: scene-motion residual"),
-    ("/vamos/e_k", "e_k: kinematic novelty"),
-];
 
 fn plot(topic: &str, label: &str) -> Value {
     json!({
@@ -101,23 +93,11 @@ pub fn scored_bag_layout(topics: &ChosenTopics, content: &ScoredContent) -> Valu
             }),
         ),
     ];
-    let d = &content.detectors;
     let joints = topics.joint_states.is_some();
-    let on = [
-        d.camera && joints,
-        d.body && joints,
-        d.flow,
-        d.scene,
-        d.kinematics && joints,
-    ];
-    let detectors: Vec<Value> = DETECTOR_PLOTS
-        .iter()
-        .zip(on)
-        .filter(|(_, on)| *on)
-        .map(|((topic, label), _)| {
-            let id = format!("Plot!{}", topic.trim_start_matches("/vamos/"));
-            add(id, plot(topic, label))
-        })
+    let detectors: Vec<Value> = Detector::ALL
+        .into_iter()
+        .filter(|&d| content.detectors.get(d) && (joints || !d.needs_robot()))
+        .map(|d| add(format!("Plot!{}", d.key()), plot(d.topic(), &d.title())))
         .collect();
     let lower = if detectors.is_empty() {
         split(&overall, "column")

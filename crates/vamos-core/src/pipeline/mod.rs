@@ -5,8 +5,9 @@
 //!   resolution, histogram equalisation, TV-L1 flow from the previous processed frame,
 //!   Fourier-Mellin registration, and the flow predictor's 64x64 input in the configured
 //!   [`FlowVariant`].
-//! - [`scorer`]: the detector of one stream: frames and joint states in, fused scores out
-//!   (`e_c`, `e_b`, `e_o`, thresholds).
+//! - [`scorer`]: the detector of one stream: frames and joint states in, fused scores out.
+//! - [`detectors`]: the per-frame detectors (`e_c`, `e_b`, `e_o`, `e_r`, `e_k`), one module
+//!   each behind one trait, with their calibration statistics.
 //! - [`profile`]: what binds a robot, a camera, pipeline parameters, a model and the
 //!   calibrated thresholds, as a TOML file plus its calibration.
 //! - [`calibration`]: thresholds from nominal episodes (`vamos calibrate`, service jobs).
@@ -18,6 +19,7 @@ pub mod attach;
 pub mod calibration;
 pub mod dataset;
 pub mod depth;
+pub mod detectors;
 pub mod frames;
 pub mod layout;
 pub mod novelty;
@@ -40,7 +42,7 @@ pub use vamos_model::FlowVariant;
 pub use novelty::{EffortWindow, KinematicsParams, StateKind};
 pub use residual::{BodyError, FlowPooling, ResidualParams};
 
-use crate::eval::Fusion;
+use crate::eval::{Detector, Fusion};
 use serde::{Deserialize, Serialize};
 use vamos_robot::camera_motion::{CameraErrorWeights, CameraMotionParams};
 
@@ -113,6 +115,17 @@ impl Default for DetectorSwitches {
 }
 
 impl DetectorSwitches {
+    /// Whether `detector` is switched on.
+    pub fn get(&self, detector: Detector) -> bool {
+        match detector {
+            Detector::Camera => self.camera,
+            Detector::Body => self.body,
+            Detector::Flow => self.flow,
+            Detector::Scene => self.scene,
+            Detector::Kinematics => self.kinematics,
+        }
+    }
+
     /// The switches in force for a profile with or without a robot and a flow model: the
     /// camera, body and kinematic detectors need a robot, the flow detector a model.
     pub fn in_force(&self, robot: bool, flow_model: bool) -> DetectorSwitches {

@@ -8,7 +8,7 @@
 //! ([`crate::store::AlarmRecord`]) so the profile's false alarms outlive the session.
 
 use super::error::SessionError;
-use super::event::{Output, detector_name, detector_of};
+use super::event::{Output, detector_of};
 use super::hub::Hub;
 use super::live::Thumb;
 use super::state::{Session, lock};
@@ -16,6 +16,7 @@ use crate::store::{AlarmComponents, AlarmRecord, FalseAlarmMark, Store, StoreErr
 use std::collections::{HashMap, VecDeque};
 use std::sync::Mutex;
 use std::sync::atomic::{AtomicU64, Ordering};
+use vamos_core::eval::Detector;
 use vamos_core::eval::alarm::{Debounce, Debouncer, Edge};
 use vamos_core::pipeline::FrameScore;
 
@@ -102,11 +103,7 @@ fn components(s: &FrameScore) -> AlarmComponents {
     AlarmComponents {
         stamp_ns: s.stamp_ns,
         score: finite(Some(s.score)),
-        e_c: finite(s.e_c),
-        e_b: finite(s.e_b),
-        e_o: finite(s.e_o),
-        e_r: finite(s.e_r),
-        e_k: finite(s.e_k),
+        values: s.values.map(|_, v| finite(*v)),
     }
 }
 
@@ -191,7 +188,7 @@ impl Hub {
         match (edge, tracker.current.clone()) {
             (Edge::Start, _) => {
                 let profile = s.profile();
-                let detector = fired.map_or("flow", detector_name).to_string();
+                let detector = fired.map_or("flow", Detector::name).to_string();
                 let alarm = AlarmRecord {
                     id: self.alarms.new_id(),
                     session_id: s.id.clone(),
@@ -242,7 +239,7 @@ impl Hub {
                 drop(tracker);
                 self.alarms.update(&id, |a| {
                     a.frames_flagged += 1;
-                    if let Some(d) = fired.map(detector_name)
+                    if let Some(d) = fired.map(Detector::name)
                         && !a.detectors.iter().any(|x| x == d)
                     {
                         a.detectors.push(d.to_string());

@@ -93,17 +93,6 @@ pub fn detector_of(score: &FrameScore) -> Option<Detector> {
     }
 }
 
-/// A detector's name in JSON outputs and metric labels.
-pub fn detector_name(d: Detector) -> &'static str {
-    match d {
-        Detector::Camera => "camera",
-        Detector::Body => "body",
-        Detector::Flow => "flow",
-        Detector::Scene => "scene",
-        Detector::Kinematics => "kinematics",
-    }
-}
-
 /// What happened to a session, as its client hears it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum EventKind {

@@ -12,7 +12,7 @@
 //! threshold, the frame's own maximum). Both are u8 images, 0 = nominal.
 
 use std::collections::VecDeque;
-use vamos_core::eval::Thresholds;
+use vamos_core::eval::{DetectorValues, Thresholds};
 use vamos_core::pipeline::FrameScore;
 use vamos_vision::GrayImage;
 
@@ -152,7 +152,6 @@ pub fn anomaly_map(score: &FrameScore, thresholds: &Thresholds, alarm: f64) -> O
 #[derive(
     Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize, schemars::JsonSchema,
 )]
-#[serde(deny_unknown_fields)]
 pub struct FramePoint {
     /// Frame index among processed frames (of a run: its first).
     pub frame: u64,
@@ -160,16 +159,10 @@ pub struct FramePoint {
     pub stamp_ns: i64,
     /// Fused score (`None`: not finite).
     pub score: Option<f64>,
-    /// Camera-motion error.
-    pub e_c: Option<f64>,
-    /// Body-motion error.
-    pub e_b: Option<f64>,
-    /// Flow-prediction error.
-    pub e_o: Option<f64>,
-    /// Scene residual.
-    pub e_r: Option<f64>,
-    /// Kinematic novelty (nominal joint ranges; metres for `state = "links"`).
-    pub e_k: Option<f64>,
+    /// Each detector's value (`None`: not computed or not finite), as the fields `e_c`
+    /// .. `e_k`.
+    #[serde(flatten)]
+    pub values: DetectorValues,
     /// The frame's anomaly flag.
     pub anomaly: bool,
     /// The predictor was warming up.
@@ -195,11 +188,7 @@ impl FramePoint {
             frame: s.frame,
             stamp_ns: s.stamp_ns,
             score: finite(Some(s.score)),
-            e_c: finite(s.e_c),
-            e_b: finite(s.e_b),
-            e_o: finite(s.e_o),
-            e_r: finite(s.e_r),
-            e_k: finite(s.e_k),
+            values: s.values.map(|_, v| finite(*v)),
             anomaly: s.anomaly,
             warming_up: s.warming_up,
             alarm,
@@ -217,11 +206,9 @@ impl FramePoint {
             }
         }
         self.score = max(self.score, next.score);
-        self.e_c = max(self.e_c, next.e_c);
-        self.e_b = max(self.e_b, next.e_b);
-        self.e_o = max(self.e_o, next.e_o);
-        self.e_r = max(self.e_r, next.e_r);
-        self.e_k = max(self.e_k, next.e_k);
+        for (d, v) in self.values.iter_mut() {
+            *v = max(*v, next.values[d]);
+        }
         self.anomaly |= next.anomaly;
         self.warming_up &= next.warming_up;
         self.alarm |= next.alarm;
@@ -385,11 +372,7 @@ mod tests {
             frame: 0,
             stamp_ns: 0,
             score: 0.0,
-            e_c: None,
-            e_b: None,
-            e_o: None,
-            e_r: None,
-            e_k: None,
+            values: Default::default(),
             anomaly: false,
             triggered: None,
             warming_up: false,

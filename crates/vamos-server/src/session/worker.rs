@@ -4,7 +4,7 @@
 //! scorer is rebuilt); a panic outside a frame restarts the worker.
 
 use super::budget::{BudgetSpent, ByteBudget, Charge};
-use super::event::{EventKind, LiveImage, Output, ScoredFrame, detector_name};
+use super::event::{EventKind, LiveImage, Output, ScoredFrame};
 use super::hub::{Hub, event};
 use super::live;
 use super::state::{ImagePayload, LatestScore, ReadyFrame, Session, lock};
@@ -14,6 +14,7 @@ use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
 use vamos_core::episode::image::EncodedImage;
 use vamos_core::episode::ros::MessageError;
+use vamos_core::eval::Detector;
 use vamos_core::pipeline::{FrameInput, FrameScore, JointInput};
 use vamos_vision::{DepthImage, GrayImage};
 
@@ -431,7 +432,7 @@ impl Hub {
         let detector = super::event::detector_of(&score);
         if score.anomaly {
             s.anomalies.fetch_add(1, Ordering::Relaxed);
-            let label = detector.map_or("flow", detector_name);
+            let label = detector.map_or("flow", Detector::name);
             m.anomalies.with_label_values(&[profile, label]).inc();
         }
         let warm_event = {

@@ -6,29 +6,22 @@
 use super::files::{check_name, list_dir, now_unix_s, read_json, write_json};
 use super::{Store, StoreError};
 use serde::{Deserialize, Serialize};
+use vamos_core::eval::DetectorValues;
 
 /// Marked alarms kept; the oldest are removed past this many.
 pub const KEPT_MARKED_ALARMS: usize = 5000;
 
 /// Detector values of one frame (absent: off, not yet defined, or not finite).
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize, schemars::JsonSchema)]
-#[serde(deny_unknown_fields)]
 pub struct AlarmComponents {
     /// Image stamp, nanoseconds.
     pub stamp_ns: i64,
     /// Fused score.
     pub score: Option<f64>,
-    /// Camera-motion error, pixels.
-    pub e_c: Option<f64>,
-    /// Body-motion error, pixels.
-    pub e_b: Option<f64>,
-    /// Flow-prediction error.
-    pub e_o: Option<f64>,
-    /// Scene residual.
-    pub e_r: Option<f64>,
-    /// Kinematic novelty (nominal joint ranges; metres for `state = "links"`).
-    #[serde(default)]
-    pub e_k: Option<f64>,
+    /// Each detector's value, as the fields `e_c` .. `e_k` (records stored before a
+    /// detector existed read with it absent; other fields are refused).
+    #[serde(flatten)]
+    pub values: DetectorValues,
 }
 
 /// The thresholds in force when an alarm started: the fused score's and each
@@ -179,6 +172,7 @@ pub fn now_s() -> u64 {
 mod tests {
     use super::*;
     use crate::store::StoreLimits;
+    use vamos_core::eval::Detector;
 
     fn alarm(id: &str, profile: &str, marked: bool) -> AlarmRecord {
         AlarmRecord {
@@ -197,15 +191,12 @@ mod tests {
             detectors: vec!["camera".into()],
             thresholds: AlarmThresholds {
                 alarm: Some(0.5),
-                e_c: Some(2.0),
-                e_o: Some(0.5),
-                ..AlarmThresholds::default()
+                detectors: DetectorValues::of(&[(Detector::Camera, 2.0), (Detector::Flow, 0.5)]),
             },
             start: AlarmComponents {
                 stamp_ns: 400,
                 score: Some(1e6),
-                e_c: Some(3.0),
-                ..Default::default()
+                values: DetectorValues::of(&[(Detector::Camera, 3.0)]),
             },
             peak: AlarmComponents::default(),
             false_alarm: marked.then(|| FalseAlarmMark {

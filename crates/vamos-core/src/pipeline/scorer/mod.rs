@@ -30,33 +30,26 @@
 
 use super::attach::AttachedShapes;
 use super::depth::{LearnedDepth, ViewIndex};
-use super::frames::{FrameProcessor, ProcessedFrame};
-use super::residual::{self, FlowPooling};
-use super::{DetectorSwitches, EffortWindow, PipelineConfig};
-use crate::eval::{Components, Pooling, Thresholds, Window, fuse_frame, pool_cells};
+use super::detectors::{self, FrameContext, FrameDetector, Pose};
+use super::frames::FrameProcessor;
+use super::{DetectorSwitches, PipelineConfig};
+use crate::eval::{DetectorValues, Thresholds, Window, fuse_frame};
 use nalgebra::Isometry3;
 
-use std::collections::HashMap;
 use std::sync::Arc;
 use std::time::Instant;
 use vamos_model::FlowModel;
-use vamos_model::predictor::{Prediction, Predictor, PredictorParams};
+use vamos_model::predictor::PredictorParams;
 use vamos_robot::JointMapper;
 use vamos_robot::camera_motion::Depth;
 use vamos_robot::render::{BodyRenderer, RenderConfig, RenderFrame, RenderOutput, RobotView};
-use vamos_vision::FlowField;
 use vamos_vision::flow::FlowParams;
 use vamos_vision::preprocess::NetworkInputParams;
 use vamos_vision::registration::RegistrationParams;
 
-mod detectors;
-use detectors::SceneResidual;
 mod types;
 
 pub use types::{FrameInput, FrameScore, JointInput, RobotSetup, ScorerError, StageTimings};
-
-/// A processed frame's robot pose: `base_from_link` of every link and `camera_from_base`.
-type Pose = (Vec<Isometry3<f64>>, Isometry3<f64>);
 
 /// The state that moves the robot and renders it.
 struct BodyState {
@@ -65,17 +58,10 @@ struct BodyState {
     renderer: Box<dyn BodyRenderer>,
     out: RenderOutput,
     /// Previous processed frame: `base_from_link` and `camera_from_base`.
-    previous: Option<(Vec<Isometry3<f64>>, Isometry3<f64>)>,
-    /// The previous processed frame's stamp and the positions part of its robot state
-    /// (`e_k`).
-    previous_positions: Option<(i64, Vec<f64>)>,
+    previous: Option<Pose>,
     /// The joints that move of their own (not fixed, not mimic): their indices in the
-    /// robot's joint order (the positions part of a state), and by name their place
-    /// there (for the efforts that follow it).
+    /// robot's joint order (the positions the kinematic novelty takes).
     own: Vec<usize>,
-    own_joints: HashMap<String, usize>,
-    /// The recent efforts (`[pipeline.kinematics] effort`), smoothed.
-    efforts: EffortWindow,
     /// The previous processed frame's body mask (empty when it had none).
     previous_mask: Vec<bool>,
     /// The profile's attached shapes, and the link poses with theirs the renderer is given
@@ -89,18 +75,18 @@ pub struct Scorer {
     config: PipelineConfig,
     thresholds: Thresholds,
     alarm_threshold: f64,
-    heatmaps: bool,
     processor: FrameProcessor,
     body: Option<BodyState>,
-    predictor: Option<Predictor>,
+    /// The detectors in force, in the order they run.
+    detectors: Vec<Box<dyn FrameDetector>>,
+    /// The flow predictor's temporal parameters, when it runs.
+    predictor: Option<PredictorParams>,
     images: u64,
     frames: u64,
     last_stamp_ns: Option<i64>,
     /// The stream's first image stamp: a frame's phase is its time since then.
     first_stamp_ns: Option<i64>,
     warned_no_joints: bool,
-    /// The expected image flow of the current frame (reused buffer).
-    expected_flow: FlowField,
     /// The last processed frame's depth image at the processing resolution (NaN where it
     /// has none); empty when it came without one.
     previous_depth: Vec<f32>,
@@ -235,28 +221,6 @@ impl Scorer {
                 config.frames.variant
             )));
         }
-        let predictor = match model {
-            Some(model) if config.detectors.flow => {
-                let manifest = model.manifest();
-                if manifest.flow_variant != config.frames.variant {
-                    tracing::warn!(
-                        model = ?manifest.flow_variant,
-                        pipeline = %config.frames.variant,
-                        "the model was trained on another flow variant than the pipeline computes"
-                    );
-                }
-                let samples = config.samples.unwrap_or(samples);
-                let mut params = PredictorParams::from_manifest(manifest, samples);
-                if let Some(a) = config.offset_a {
-                    params.a = a;
-                }
-                if let Some(b) = config.offset_b {
-                    params.b = b;
-                }
-                Some(Predictor::new(model, params, seed)?)
-            }
-            _ => None,
-        };
         let body = match robot {
             Some(setup) => {
                 let mut renderer = vamos_robot::render::create_renderer(&render)?;
@@ -272,21 +236,13 @@ impl Scorer {
                 let own: Vec<usize> = (0..joints.len())
                     .filter(|&j| joints[j].kind.is_moving() && joints[j].mimic.is_none())
                     .collect();
-                let own_joints = own
-                    .iter()
-                    .enumerate()
-                    .map(|(place, &j)| (joints[j].name.clone(), place))
-                    .collect();
                 Some(BodyState {
                     mapper: setup.robot.joint_mapper(),
                     setup,
                     own,
-                    own_joints,
-                    efforts: EffortWindow::default(),
                     renderer,
                     out: RenderOutput::default(),
                     previous: None,
-                    previous_positions: None,
                     previous_mask: Vec::new(),
                     shapes,
                     view_poses: Default::default(),
@@ -294,6 +250,19 @@ impl Scorer {
             }
             None => None,
         };
+        let in_force = config.detectors.in_force(body.is_some(), model.is_some());
+        let detectors = detectors::build(
+            detectors::Inputs {
+                config: &config,
+                robot: body.as_ref().map(|b| &b.setup),
+                model,
+                samples,
+                seed,
+                heatmaps,
+            },
+            in_force,
+        )?;
+        let predictor = detectors.iter().find_map(|d| d.predictor_params());
         let processor = FrameProcessor::new(config.frames.clone(), flow, registration, network)?;
         // Only the flow predictor reads the network input.
         let processor = if predictor.is_some() {
@@ -322,16 +291,15 @@ impl Scorer {
             config,
             thresholds,
             alarm_threshold,
-            heatmaps,
             processor,
             body,
+            detectors,
             predictor,
             images: 0,
             frames: 0,
             last_stamp_ns: None,
             first_stamp_ns: None,
             warned_no_joints: false,
-            expected_flow: FlowField::zeros(0, 0),
             previous_depth: Vec::new(),
             warned_depth: false,
             learned_depth,
@@ -365,7 +333,7 @@ impl Scorer {
 
     /// The predictor's temporal parameters, if there is a model.
     pub fn predictor_params(&self) -> Option<PredictorParams> {
-        self.predictor.as_ref().map(Predictor::params)
+        self.predictor
     }
 
     /// Images pushed so far (including skipped and refused ones).
@@ -378,12 +346,10 @@ impl Scorer {
         self.processor.reset();
         if let Some(b) = &mut self.body {
             b.previous = None;
-            b.previous_positions = None;
-            b.efforts = EffortWindow::default();
             b.previous_mask.clear();
         }
-        if let Some(p) = &mut self.predictor {
-            p.reset();
+        for d in &mut self.detectors {
+            d.reset();
         }
         self.images = 0;
         self.frames = 0;
@@ -442,18 +408,11 @@ impl Scorer {
 
         // Robot pose and render at t.
         let t0 = Instant::now();
-        let mut joint_positions = None;
-        let mut joint_efforts = None;
+        let mut positions = None;
         let pose = match (&mut self.body, input.joints) {
             (Some(body), Some(joints)) => {
                 let (links, camera_from_base, q) = body.pose(joints)?;
-                if self.config.kinematics.effort && self.config.detectors.kinematics {
-                    let efforts = body.own_efforts(joints);
-                    joint_efforts = body
-                        .efforts
-                        .push(efforts, self.config.kinematics.effort_window);
-                }
-                joint_positions = Some(q);
+                positions = Some(q);
                 Some((links, camera_from_base))
             }
             (Some(_), None) => {
@@ -527,28 +486,17 @@ impl Scorer {
         let processed = self.processor.push(input.image, mask)?;
         let frame = self.frames;
         self.frames += 1;
-        // The positions part of the robot's state for e_k.
-        let kinematic_positions = match (&pose, &joint_positions) {
-            (Some((links, _)), Some(q)) if self.config.detectors.kinematics => {
-                Some(self.config.kinematics.positions(q, links))
-            }
-            _ => None,
-        };
-        let (previous_pose, previous_mask, previous_positions) = match &mut self.body {
+        let (previous_pose, previous_mask) = match &mut self.body {
             Some(body) => {
                 let previous = body.previous.take();
                 body.previous = pose.clone();
-                let previous_positions = std::mem::replace(
-                    &mut body.previous_positions,
-                    kinematic_positions.clone().map(|p| (input.stamp_ns, p)),
-                );
                 let previous_mask = std::mem::take(&mut body.previous_mask);
                 if intrinsics.is_some() {
                     body.previous_mask.clone_from(&body.out.mask);
                 }
-                (previous, previous_mask, previous_positions)
+                (previous, previous_mask)
             }
-            None => (None, Vec::new(), None),
+            None => (None, Vec::new()),
         };
         // The flow runs from the previous frame: its depth places the static scene.
         let previous_depth = std::mem::take(&mut self.previous_depth);
@@ -563,58 +511,8 @@ impl Scorer {
                 .map(|b| b.out.mask.as_slice()),
             index,
         );
-        // The robot's state for e_k (positions and their change since the previous frame).
-        let t0 = Instant::now();
-        let kinematic_state = kinematic_positions.as_deref().and_then(|now| {
-            self.config.kinematics.state(
-                now,
-                previous_positions
-                    .as_ref()
-                    .map(|(then, before)| (before.as_slice(), phase_s(*then, input.stamp_ns))),
-                joint_efforts.as_deref(),
-            )
-        });
-        let e_k = kinematic_state.as_deref().and_then(|s| {
-            self.thresholds
-                .kinematics
-                .as_ref()
-                .and_then(|r| r.distance(s))
-        });
-        timings.kinematics_us += micros(t0);
-        let Some(processed) = processed else {
-            timings.total_us = micros(start);
-            return Ok(Some(FrameScore {
-                index,
-                frame,
-                stamp_ns: input.stamp_ns,
-                score: 0.0,
-                e_c: None,
-                e_b: None,
-                e_o: None,
-                e_r: None,
-                e_k,
-                anomaly: false,
-                triggered: None,
-                warming_up: true,
-                best_offset: None,
-                registration_confidence: None,
-                body_pixels,
-                timings,
-                heatmap: None,
-                scene_cells: None,
-                scene_grid: (0, 0),
-                flow_cells: None,
-                flow_grid: (0, 0),
-                phase_s: phase_s(first_ns, input.stamp_ns),
-                kinematic_state,
-                depth_evidence: None,
-            }));
-        };
-        timings.front_end = processed.timings;
-
-        let t0 = Instant::now();
         let learned_depth = match &mut self.learned_depth {
-            Some(cache) if previous_depth.is_empty() => {
+            Some(cache) if previous_depth.is_empty() && processed.is_some() => {
                 Some(cache.at(previous_pose.as_ref().map(|p| &p.1), (w, h)))
             }
             _ => None,
@@ -624,163 +522,74 @@ impl Scorer {
             (_, Some(learned)) => Depth::Image(learned),
             _ => Depth::Assumed,
         };
-        let e_c = self.camera_error(
-            pose.as_ref(),
-            previous_pose.as_ref(),
-            intrinsics.as_ref(),
-            depth,
-            &processed,
-        )?;
-        timings.camera_us = micros(t0);
-        let t0 = Instant::now();
-        let e_b = self.body_error(previous_pose.is_some() && intrinsics.is_some(), &processed)?;
-        timings.body_us = micros(t0);
-
-        let t0 = Instant::now();
-        let SceneResidual {
-            e_r,
-            cells: scene_cells,
-            grid: scene_grid,
-            depth_evidence,
-        } = self.scene_residual(
-            pose.as_ref(),
-            previous_pose.as_ref(),
-            intrinsics.as_ref(),
-            depth,
-            &previous_mask,
-            &processed,
-            phase_s(first_ns, input.stamp_ns),
-        )?;
-        timings.scene_us = micros(t0);
-
-        let t0 = Instant::now();
-        let Predicted {
-            e_o,
-            best_offset,
-            heatmap,
-            warming_up,
-            cells: (flow_cells, flow_grid),
-        } = self.predict(&processed, phase_s(first_ns, input.stamp_ns))?;
-        timings.model_us = micros(t0);
-
-        let fused = self.window.push(fuse_frame(
-            &Components {
-                e_c,
-                e_b,
-                e_r,
-                e_o,
-                e_k,
-            },
-            &self.thresholds,
-            self.config
-                .fusion
-                .resolve(&self.thresholds, self.predictor.is_some()),
-        ));
-        timings.total_us = micros(start);
-        Ok(Some(FrameScore {
+        let phase = phase_s(first_ns, input.stamp_ns);
+        let mut score = FrameScore {
             index,
             frame,
             stamp_ns: input.stamp_ns,
-            score: fused.score,
-            e_c,
-            e_b,
-            e_o,
-            e_r,
-            e_k,
-            anomaly: fused.score >= self.alarm_threshold,
-            triggered: fused.triggered,
-            warming_up,
-            best_offset,
-            registration_confidence: Some(processed.registration.confidence),
+            score: 0.0,
+            values: DetectorValues::default(),
+            anomaly: false,
+            triggered: None,
+            warming_up: processed.is_none(),
+            best_offset: None,
+            registration_confidence: processed.as_ref().map(|p| p.registration.confidence),
             body_pixels,
-            timings,
-            heatmap,
-            scene_cells,
-            scene_grid,
-            flow_cells,
-            flow_grid,
-            phase_s: phase_s(first_ns, input.stamp_ns),
-            kinematic_state,
-            depth_evidence,
-        }))
-    }
-
-    /// Runs the predictor on a processed frame at `phase_s` into its stream.
-    fn predict(
-        &mut self,
-        processed: &ProcessedFrame,
-        phase_s: f64,
-    ) -> Result<Predicted, ScorerError> {
-        let Some(predictor) = &mut self.predictor else {
-            return Ok(Predicted::default());
+            timings: StageTimings::default(),
+            heatmap: None,
+            scene_cells: None,
+            scene_grid: (0, 0),
+            flow_cells: None,
+            flow_grid: (0, 0),
+            phase_s: phase,
+            kinematic_state: None,
+            depth_evidence: None,
         };
-        let p = predictor.params();
-        let history = predictor.frames_seen();
-        let size = predictor.model().dims().size;
-        let prediction =
-            predictor.push(&processed.network_input, processed.network_valid.as_deref())?;
-        let full_history = history >= (p.a + p.b) as u64;
-        Ok(match prediction {
-            Prediction::Scored(s) if full_history => {
-                let residual = &self.config.residual;
-                // Cells once calibrated with them, or before any calibration (what the
-                // calibration fits on); the paper's mean under a calibration made with it.
-                let cells = (residual.flow_pooling == FlowPooling::Cells
-                    && (self.thresholds.flow.is_some() || self.thresholds.scales.is_none()))
-                .then(|| {
-                    let grid = residual::cell_grid(size, size, residual.flow_cell_px);
-                    let cells = residual::flow_cells(
-                        &s.error_map,
-                        processed.network_valid.as_deref(),
-                        size,
-                        residual.flow_cell_px,
-                    );
-                    (cells, grid)
-                });
-                let e_o = match &cells {
-                    Some((c, (columns, rows))) => pool_cells(
-                        c,
-                        *columns,
-                        *rows,
-                        self.thresholds.flow.as_ref().map(|f| f.at(Some(phase_s))),
-                        Pooling {
-                            top_fraction: residual.top_fraction,
-                        },
-                        None,
-                    ),
-                    None => Some(s.e_o),
-                };
-                let (cells, grid) = cells.map_or((None, (0, 0)), |(c, g)| (Some(c), g));
-                Predicted {
-                    e_o,
-                    best_offset: Some(s.n),
-                    heatmap: self.heatmaps.then_some(s.error_map),
-                    warming_up: false,
-                    cells: (cells, grid),
-                }
-            }
-            Prediction::Scored(_) | Prediction::WarmingUp { .. } => Predicted {
-                warming_up: true,
-                ..Predicted::default()
-            },
-            Prediction::NoValidPixels { .. } => Predicted {
-                warming_up: !full_history,
-                ..Predicted::default()
-            },
-        })
+        if let Some(p) = &processed {
+            timings.front_end = p.timings;
+        }
+        let context = FrameContext {
+            stamp_ns: input.stamp_ns,
+            phase_s: phase,
+            joints: input.joints,
+            positions: positions.as_deref(),
+            pose: pose.as_ref(),
+            previous_pose: previous_pose.as_ref(),
+            intrinsics: intrinsics.as_ref(),
+            render: self
+                .body
+                .as_ref()
+                .filter(|_| intrinsics.is_some())
+                .map(|b| &b.out),
+            previous_mask: &previous_mask,
+            depth,
+            processed: processed.as_ref(),
+            image: self.processor.current(),
+            thresholds: &self.thresholds,
+            size: (w, h),
+        };
+        for detector in &mut self.detectors {
+            let t0 = Instant::now();
+            let d = detector.detector();
+            score.values[d] = detector.measure(&context, &mut score)?;
+            *timings.of(d) += micros(t0);
+        }
+        if processed.is_some() {
+            let fused = self.window.push(fuse_frame(
+                &score.values,
+                &self.thresholds,
+                self.config
+                    .fusion
+                    .resolve(&self.thresholds, self.predictor.is_some()),
+            ));
+            score.score = fused.score;
+            score.anomaly = fused.score >= self.alarm_threshold;
+            score.triggered = fused.triggered;
+        }
+        timings.total_us = micros(start);
+        score.timings = timings;
+        Ok(Some(score))
     }
-}
-
-/// What the predictor made of a frame.
-#[derive(Default)]
-struct Predicted {
-    e_o: Option<f64>,
-    /// The past offset `n` of the best prediction.
-    best_offset: Option<usize>,
-    heatmap: Option<Vec<f32>>,
-    warming_up: bool,
-    /// The error per cell and `(columns, rows)` (`flow_pooling = "cells"`).
-    cells: (Option<Vec<f32>>, (usize, usize)),
 }
 
 impl BodyState {
@@ -805,21 +614,6 @@ impl BodyState {
                 })?;
         let own = self.own.iter().map(|&j| q.as_slice()[j]).collect();
         Ok((links, camera_from_base, own))
-    }
-
-    /// The efforts of the joints that move of their own, in their order (0 for one the
-    /// message lacks); `None` when the message carries no efforts (or not one per name).
-    fn own_efforts(&self, joints: JointInput<'_>) -> Option<Vec<f64>> {
-        if joints.efforts.is_empty() || joints.efforts.len() != joints.names.len() {
-            return None;
-        }
-        let mut out = vec![0.0; self.own_joints.len()];
-        for (name, &e) in joints.names.iter().zip(joints.efforts) {
-            if let Some(&i) = self.own_joints.get(name.as_str()) {
-                out[i] = e;
-            }
-        }
-        Some(out)
     }
 }
 

@@ -10,7 +10,7 @@ use vamos_robot::render::RenderBackend;
 use vamos_robot::{CameraConvention, RobotConfig};
 use vamos_robot::{Intrinsics, Robot};
 use vamos_vision::synthetic::Texture;
-use vamos_vision::{DepthImage, GrayImage};
+use vamos_vision::{DepthImage, FlowField, GrayImage};
 
 const W: usize = 160;
 const H: usize = 120;
@@ -181,21 +181,21 @@ fn nominal_pan_gives_small_errors_and_no_trigger() {
     let step = 0.01;
     let scores = run(&mut s, &setup, 5, step, |k| step * k as f64);
     assert_eq!(scores.len(), 5);
-    assert!(scores[0].warming_up && scores[0].e_c.is_none());
+    assert!(scores[0].warming_up && scores[0].values[Detector::Camera].is_none());
     let (sx, _) = expected_shift(&setup, 0.0, step);
     assert!(
         sx.abs() > 1.0,
         "the pan moves the image by {sx} px per frame"
     );
     for f in &scores[1..] {
-        let e_c = f.e_c.unwrap();
+        let e_c = f.values[Detector::Camera].unwrap();
         assert!(e_c < 0.3, "nominal e_c {e_c} (frame {})", f.frame);
-        let e_b = f.e_b.expect("the box is in view");
+        let e_b = f.values[Detector::Body].expect("the box is in view");
         assert!(e_b < 0.5, "nominal e_b {e_b}");
         assert!(f.body_pixels > 100, "{}", f.body_pixels);
         assert_eq!(f.triggered, None);
         assert!(!f.anomaly);
-        assert!(f.e_o.is_none(), "no model");
+        assert!(f.values[Detector::Flow].is_none(), "no model");
     }
 }
 
@@ -210,12 +210,12 @@ fn motion_the_joints_do_not_show_triggers_the_camera_detector() {
     // The camera is pushed: the image pans, the joint states stay at 0.
     let scores = run(&mut s, &setup, 4, step, |_| 0.0);
     for f in &scores[1..] {
-        let e_c = f.e_c.unwrap();
+        let e_c = f.values[Detector::Camera].unwrap();
         assert!(
             (e_c - shift).abs() < 0.35,
             "e_c {e_c} should be the unexplained shift {shift}"
         );
-        let e_b = f.e_b.unwrap();
+        let e_b = f.values[Detector::Body].unwrap();
         assert!((e_b - shift).abs() < 0.5, "e_b {e_b} vs {shift}");
         assert_eq!(f.triggered, Some(Detector::Camera));
         assert!(f.score > 1.0, "a triggered frame outranks e_o: {}", f.score);
@@ -256,13 +256,17 @@ fn after_a_gap_the_next_frame_starts_the_history_afresh_and_cannot_alarm() {
     // Images 3 and 4 were lost.
     s.restart_after_gap();
     let resumed = push(&mut s, 5);
-    assert!(resumed.warming_up && !resumed.anomaly && resumed.e_c.is_none());
+    assert!(resumed.warming_up && !resumed.anomaly && resumed.values[Detector::Camera].is_none());
     assert_eq!(resumed.score, 0.0);
     // The stream's position goes on: counters, phase, stamp order.
     assert_eq!((resumed.index, resumed.frame), (3, 3));
     assert!((resumed.phase_s - 0.5).abs() < 1e-9, "{}", resumed.phase_s);
     let next = push(&mut s, 6);
-    assert!(next.anomaly && next.e_c.is_some(), "{}", next.score);
+    assert!(
+        next.anomaly && next.values[Detector::Camera].is_some(),
+        "{}",
+        next.score
+    );
     s.restart_after_gap();
     let image = frame(&texture, 0.0, 0.0);
     let back = s.push(&FrameInput {
@@ -286,7 +290,11 @@ fn joint_states_no_nominal_run_had_show_in_e_k() {
     // a state (positions and velocities need two frames).
     let mut s = scorer(Some(setup.clone()), Thresholds::default(), 1);
     let nominal = run(&mut s, &setup, 6, step, |k| step * k as f64);
-    assert!(nominal.iter().all(|f| f.e_k.is_none()));
+    assert!(
+        nominal
+            .iter()
+            .all(|f| f.values[Detector::Kinematics].is_none())
+    );
     assert!(nominal[0].kinematic_state.is_none());
     let states: Vec<Vec<f32>> = nominal
         .iter()
@@ -303,14 +311,18 @@ fn joint_states_no_nominal_run_had_show_in_e_k() {
     let mut s = scorer(Some(setup.clone()), thresholds.clone(), 1);
     let again = run(&mut s, &setup, 6, step, |k| step * k as f64);
     for f in &again[1..] {
-        assert!(f.e_k.unwrap() < 1e-6, "{:?}", f.e_k);
+        assert!(
+            f.values[Detector::Kinematics].unwrap() < 1e-6,
+            "{:?}",
+            f.values[Detector::Kinematics]
+        );
     }
     // The head reads half a radian further round (moving as before): its state lies at
     // least 0.45 rad (unscaled here) from every nominal one.
     let mut s = scorer(Some(setup.clone()), thresholds, 1);
     let turned = run(&mut s, &setup, 6, step, |k| 0.5 + step * k as f64);
     for f in &turned[1..] {
-        let e_k = f.e_k.unwrap();
+        let e_k = f.values[Detector::Kinematics].unwrap();
         assert!(e_k > 0.44, "e_k {e_k}");
     }
 }
@@ -341,7 +353,7 @@ fn a_load_the_nominal_runs_never_had_shows_in_e_k_with_efforts_on() {
         let mut s = scorer_with(Some(setup.clone()), thresholds.clone(), 1, effort_on);
         run_with_effort(&mut s, &setup, 6, step, pan, effort)
             .iter()
-            .map(|f| f.e_k)
+            .map(|f| f.values[Detector::Kinematics])
             .collect::<Vec<_>>()
     };
     // The same motion against a load of 4 (unscaled here): e_k is that load once the
@@ -391,7 +403,11 @@ fn stride_stamps_and_missing_joints() {
     assert!(next.is_none());
     let f = s.push(&input(40)).unwrap().unwrap();
     assert_eq!((f.index, f.frame), (4, 1));
-    assert!(f.e_c.is_none() && f.e_b.is_none() && f.e_o.is_none());
+    assert!(
+        f.values[Detector::Camera].is_none()
+            && f.values[Detector::Body].is_none()
+            && f.values[Detector::Flow].is_none()
+    );
     assert!(!f.warming_up, "no model: nothing to warm up");
     assert_eq!(f.score, 0.0);
     // A robot profile whose frames come without joint states scores them anyway.
@@ -399,7 +415,7 @@ fn stride_stamps_and_missing_joints() {
     let mut s = scorer(Some(setup), Thresholds::default(), 1);
     s.push(&input(0)).unwrap();
     let f = s.push(&input(1)).unwrap().unwrap();
-    assert!(f.e_c.is_none() && f.e_b.is_none());
+    assert!(f.values[Detector::Camera].is_none() && f.values[Detector::Body].is_none());
     assert_eq!(f.body_pixels, 0);
 }
 
@@ -484,7 +500,7 @@ fn a_small_object_falling_in_the_static_scene_shows_in_e_r() {
             .unwrap();
         scores.push(f);
     }
-    let e_r = |k: usize| scores[k].e_r.expect("scene residual");
+    let e_r = |k: usize| scores[k].values[Detector::Scene].expect("scene residual");
     let nominal = (1..5).map(e_r).fold(0.0, f64::max);
     let falling = (5..8).map(e_r).fold(f64::INFINITY, f64::min);
     assert!(
@@ -517,7 +533,11 @@ fn a_small_object_falling_in_the_static_scene_shows_in_e_r() {
         "worst block at ({cx}, {cy})"
     );
     // The paper's camera and body detectors do not see it.
-    assert!(scores[5..].iter().all(|f| f.e_c.unwrap() < 0.8));
+    assert!(
+        scores[5..]
+            .iter()
+            .all(|f| f.values[Detector::Camera].unwrap() < 0.8)
+    );
 }
 
 #[test]
@@ -687,7 +707,7 @@ fn a_depth_image_places_the_static_scene_of_a_translating_camera() {
                 .unwrap()
                 .unwrap();
             if i >= 2 {
-                e_r.push(score.e_r.expect("e_r"));
+                e_r.push(score.values[Detector::Scene].expect("e_r"));
             }
             evidence.extend(score.depth_evidence);
         }

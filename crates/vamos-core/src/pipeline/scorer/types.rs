@@ -2,7 +2,7 @@
 //! input, its scores and stage timings, and the errors of a frame or of building a scorer.
 
 use super::super::frames::{FrontEndTimings, PipelineError};
-use crate::eval::Detector;
+use crate::eval::{Detector, DetectorValues};
 use serde::Serialize;
 use std::sync::Arc;
 use vamos_model::ModelError;
@@ -129,6 +129,20 @@ pub struct StageTimings {
     pub total_us: u64,
 }
 
+impl StageTimings {
+    /// The stage that holds `detector`'s own time (the kinematic novelty's shares the
+    /// forward kinematics', the flow predictor's is `model_us`).
+    pub fn of(&mut self, detector: Detector) -> &mut u64 {
+        match detector {
+            Detector::Camera => &mut self.camera_us,
+            Detector::Body => &mut self.body_us,
+            Detector::Flow => &mut self.model_us,
+            Detector::Scene => &mut self.scene_us,
+            Detector::Kinematics => &mut self.kinematics_us,
+        }
+    }
+}
+
 /// The score of one processed frame.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct FrameScore {
@@ -140,18 +154,14 @@ pub struct FrameScore {
     pub stamp_ns: i64,
     /// The fused score (see [`crate::eval::fuse`]).
     pub score: f64,
-    /// Camera-motion error, pixels.
-    pub e_c: Option<f64>,
-    /// Body-motion error, pixels.
-    pub e_b: Option<f64>,
-    /// Flow-prediction error (mean squared error in network-input units).
-    pub e_o: Option<f64>,
-    /// Scene-motion residual: the pooled, nominal-normalised residual of the static
-    /// scene (raw pixels before calibration).
-    pub e_r: Option<f64>,
-    /// Kinematic novelty: distance from the robot's state to the nearest nominal state, in
-    /// nominal joint ranges (metres for `state = "links"`; none before calibration).
-    pub e_k: Option<f64>,
+    /// Each detector's value (`None`: off, or not defined for this frame): `e_c` and
+    /// `e_b` in pixels, `e_o` the mean squared flow-prediction error (network-input
+    /// units), `e_r` the pooled, nominal-normalised scene residual (raw pixels before
+    /// calibration), `e_k` the distance to the nearest nominal robot state in nominal
+    /// joint ranges (metres for `state = "links"`; none before calibration). Serialised
+    /// as the fields `e_c` .. `e_k`.
+    #[serde(flatten)]
+    pub values: DetectorValues,
     /// The alarm: `score` reached the alarm threshold.
     pub anomaly: bool,
     /// Which detector's threshold the frame crossed, if any.

@@ -6,7 +6,7 @@ use crate::session::{Event, EventKind, LiveImage, LiveJoints, Output, ScoredFram
 use crate::store::AlarmComponents;
 use tonic::Status;
 use vamos_core::episode::image::Encoding;
-use vamos_core::eval::Detector;
+use vamos_core::eval::{Detector, DetectorValues};
 use vamos_robot::Intrinsics;
 
 /// The camera of an open message.
@@ -75,6 +75,12 @@ pub fn detector_code(d: Option<Detector>) -> proto::Detector {
     }
 }
 
+/// Detector values in the order of the proto messages' five fields (`e_c`, `e_b`,
+/// `e_o`, `e_r`, `e_k`: [`Detector::ALL`]'s).
+fn fields(v: &DetectorValues) -> [Option<f64>; 5] {
+    v.into_array()
+}
+
 /// A scored frame as `vamos.v1.FrameScore`, its anomaly map as PNG.
 pub fn frame_score(f: &ScoredFrame) -> proto::FrameScore {
     proto::FrameScore {
@@ -90,16 +96,17 @@ pub fn frame_score(f: &ScoredFrame) -> proto::FrameScore {
 /// [`frame_score`] without the anomaly map (no PNG to encode): what REST prints.
 pub fn frame_score_fields(f: &ScoredFrame) -> proto::FrameScore {
     let s = &f.score;
+    let [e_c, e_b, e_o, e_r, e_k] = fields(&s.values);
     proto::FrameScore {
         stamp_ns: s.stamp_ns,
         index: s.index,
         frame: s.frame,
         score: s.score,
-        e_c: s.e_c,
-        e_b: s.e_b,
-        e_o: s.e_o,
-        e_r: s.e_r,
-        e_k: s.e_k,
+        e_c,
+        e_b,
+        e_o,
+        e_r,
+        e_k,
         anomaly: s.anomaly,
         detector: detector_code(f.detector()) as i32,
         warming_up: s.warming_up,
@@ -111,25 +118,19 @@ pub fn frame_score_fields(f: &ScoredFrame) -> proto::FrameScore {
 }
 
 fn detector_by_name(name: &str) -> proto::Detector {
-    match name {
-        "camera" => proto::Detector::Camera,
-        "body" => proto::Detector::Body,
-        "flow" => proto::Detector::Flow,
-        "scene" => proto::Detector::Scene,
-        "kinematics" => proto::Detector::Kinematics,
-        _ => proto::Detector::Unspecified,
-    }
+    detector_code(Detector::parse(name))
 }
 
 fn alarm_components(c: &AlarmComponents) -> proto::AlarmComponents {
+    let [e_c, e_b, e_o, e_r, e_k] = fields(&c.values);
     proto::AlarmComponents {
         stamp_ns: c.stamp_ns,
         score: c.score,
-        e_c: c.e_c,
-        e_b: c.e_b,
-        e_o: c.e_o,
-        e_r: c.e_r,
-        e_k: c.e_k,
+        e_c,
+        e_b,
+        e_o,
+        e_r,
+        e_k,
     }
 }
 
@@ -137,6 +138,7 @@ fn alarm_components(c: &AlarmComponents) -> proto::AlarmComponents {
 pub fn alarm_event(e: &AlarmEvent) -> proto::AlarmEvent {
     use proto::alarm_event::Edge;
     let a = &e.alarm;
+    let [e_c, e_b, e_o, e_r, e_k] = fields(&a.thresholds.detectors);
     proto::AlarmEvent {
         edge: match e.edge {
             AlarmEdge::Started => Edge::Started,
@@ -155,11 +157,11 @@ pub fn alarm_event(e: &AlarmEvent) -> proto::AlarmEvent {
         end_stamp_ns: a.end_stamp_ns,
         frames_flagged: a.frames_flagged,
         alarm_threshold: a.thresholds.alarm,
-        e_c_threshold: a.thresholds.e_c,
-        e_b_threshold: a.thresholds.e_b,
-        e_o_threshold: a.thresholds.e_o,
-        e_r_threshold: a.thresholds.e_r,
-        e_k_threshold: a.thresholds.e_k,
+        e_c_threshold: e_c,
+        e_b_threshold: e_b,
+        e_o_threshold: e_o,
+        e_r_threshold: e_r,
+        e_k_threshold: e_k,
         start: Some(alarm_components(&a.start)),
         peak: Some(alarm_components(&a.peak)),
     }

@@ -201,11 +201,7 @@ fn scored_bag(
                 &ScoreTopics {
                     score: s.score,
                     anomaly: s.anomaly,
-                    e_c: s.e_c,
-                    e_b: s.e_b,
-                    e_o: s.e_o,
-                    e_r: s.e_r,
-                    e_k: s.e_k,
+                    values: s.values,
                     heatmap: None,
                     anomaly_map: f
                         .anomaly_map
