@@ -9,8 +9,7 @@ use super::EpisodeError;
 use super::bag::{EpisodeInfo, SourceMessage};
 use super::image::Encoding;
 use super::ros::{self, CompressedImageMsg, Header, ImageMsg, schema};
-#[allow(unused_imports)] // Detector: named in the docs.
-use crate::eval::{Detector, DetectorValues};
+use crate::eval::DetectorValues;
 use std::collections::{BTreeMap, HashMap};
 use std::fs::File;
 use std::io::BufWriter;
@@ -49,7 +48,7 @@ pub struct ScoreTopics<'a> {
     pub score: f64,
     /// The alarm (`/vamos/anomaly`).
     pub anomaly: bool,
-    /// Each detector's value (`/vamos/e_c` .. `/vamos/e_k`, [`Detector::topic`]), when
+    /// Each detector's value (`/vamos/e_c` .. `/vamos/e_k`, [`crate::eval::Detector::topic`]), when
     /// defined.
     pub values: DetectorValues,
     /// Square squared-error map of the best prediction (`/vamos/heatmap`), when kept.
