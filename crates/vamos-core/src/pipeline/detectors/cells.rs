@@ -33,36 +33,64 @@ fn fit_cells(
     )
 }
 
-/// [`fit_cells`] with a note (`what` statistics missing, and `then`) when the maps are too
-/// few.
-pub fn fit_noted(
+/// A detector whose value pools a cell map: where its frames keep the map, and what a
+/// calibration note says when there are too few maps (`what` statistics missing, and
+/// `then`).
+pub struct CellDetector {
+    /// The detector.
+    pub detector: Detector,
+    /// Where a frame keeps its map.
+    pub map: CellMap,
+    /// The statistics' name in notes.
+    pub what: &'static str,
+    /// What scoring does without them.
+    pub then: &'static str,
+}
+
+/// The per-cell statistics of `detector` from the training `frames` (`phases`: each one's
+/// seconds into its episode), and each frame's value pooled again with them (as scored
+/// where there are none: no maps, or too few, said in `notes`).
+pub fn fit(
     frames: &[&FrameScore],
     phases: &[f64],
-    map: CellMap,
     residual: &ResidualParams,
     notes: &mut Vec<String>,
-    what: &str,
-    then: &str,
+    detector: &CellDetector,
+) -> (Option<CellStats>, Vec<Option<f64>>) {
+    let stats = fit_noted(frames, phases, residual, notes, detector);
+    let values = repool(frames, phases, stats.as_ref(), residual, detector);
+    (stats, values)
+}
+
+/// [`fit_cells`] with a note when the maps are too few.
+fn fit_noted(
+    frames: &[&FrameScore],
+    phases: &[f64],
+    residual: &ResidualParams,
+    notes: &mut Vec<String>,
+    detector: &CellDetector,
 ) -> Option<CellStats> {
-    match fit_cells(frames, phases, map, residual.phase_window_s)? {
+    match fit_cells(frames, phases, detector.map, residual.phase_window_s)? {
         Ok(stats) => Some(stats),
         Err(e) => {
-            notes.push(format!("no per-cell {what} statistics ({e}): {then}"));
+            notes.push(format!(
+                "no per-cell {} statistics ({e}): {}",
+                detector.what, detector.then
+            ));
             None
         }
     }
 }
 
-/// Each training frame's `detector` value pooled again from its cells with the fitted
-/// `stats` (as it is then scored); the value as scored without statistics for a frame
-/// without cells or when there are no statistics.
-pub fn repool(
+/// Each training frame's value pooled again from its cells with the fitted `stats` (as it
+/// is then scored); the value as scored without statistics for a frame without cells or
+/// when there are no statistics.
+fn repool(
     frames: &[&FrameScore],
     phases: &[f64],
-    map: CellMap,
     stats: Option<&CellStats>,
     residual: &ResidualParams,
-    detector: Detector,
+    detector: &CellDetector,
 ) -> Vec<Option<f64>> {
     let pooling = Pooling {
         top_fraction: residual.top_fraction,
@@ -70,7 +98,7 @@ pub fn repool(
     frames
         .iter()
         .zip(phases)
-        .map(|(f, &phase)| match (map(f), stats) {
+        .map(|(f, &phase)| match ((detector.map)(f), stats) {
             (Some((cells, (columns, rows))), Some(stats)) => pool_cells(
                 cells,
                 columns,
@@ -79,7 +107,7 @@ pub fn repool(
                 pooling,
                 None,
             ),
-            _ => f.values[detector],
+            _ => f.values[detector.detector],
         })
         .collect()
 }

@@ -6,7 +6,7 @@
 //! Calibration ([`fit`]): with cells, per-cell statistics of the training frames' error
 //! maps and their `e_o` pooled again with them.
 
-use super::cells::{self, CellMap};
+use super::cells::{self, CellDetector};
 use super::{FrameContext, FrameDetector};
 use crate::eval::{CellStats, Detector, Pooling, pool_cells};
 use crate::pipeline::PipelineConfig;
@@ -148,23 +148,16 @@ pub fn fit(
     residual: &ResidualParams,
     notes: &mut Vec<String>,
 ) -> (Option<CellStats>, Vec<Option<f64>>) {
-    let map: CellMap = cell_map;
-    let stats = cells::fit_noted(
+    cells::fit(
         frames,
         phases,
-        map,
         residual,
         notes,
-        "flow-error",
-        "e_o is scored from raw cell errors",
-    );
-    let values = cells::repool(
-        frames,
-        phases,
-        map,
-        stats.as_ref(),
-        residual,
-        Detector::Flow,
-    );
-    (stats, values)
+        &CellDetector {
+            detector: Detector::Flow,
+            map: cell_map,
+            what: "flow-error",
+            then: "e_o is scored from raw cell errors",
+        },
+    )
 }

@@ -9,7 +9,7 @@
 //! `[pipeline.camera_motion] learn_depth` the frames also give evidence on the static
 //! scene's depth ([`learn_depth`]).
 
-use super::cells::{self, CellMap};
+use super::cells::{self, CellDetector};
 use super::{FrameContext, FrameDetector};
 use crate::eval::{CellStats, Detector, Pooling, pool_cells};
 use crate::pipeline::PipelineConfig;
@@ -156,28 +156,23 @@ pub fn fit(
     residual: &ResidualParams,
     notes: &mut Vec<String>,
 ) -> (Option<CellStats>, Vec<Option<f64>>) {
-    let map: CellMap = cell_map;
-    let stats = cells::fit_noted(
+    let (stats, values) = cells::fit(
         frames,
         phases,
-        map,
         residual,
         notes,
-        "scene",
-        "e_r is scored from raw residuals",
-    )
-    .map(|stats| CellStats {
+        &CellDetector {
+            detector: Detector::Scene,
+            map: cell_map,
+            what: "scene",
+            then: "e_r is scored from raw residuals",
+        },
+    );
+    // Scoring against these statistics takes its maps as they were fitted.
+    let stats = stats.map(|stats| CellStats {
         photometric: residual.takes_photometric(),
         ..stats
     });
-    let values = cells::repool(
-        frames,
-        phases,
-        map,
-        stats.as_ref(),
-        residual,
-        Detector::Scene,
-    );
     (stats, values)
 }
 
